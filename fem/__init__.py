@@ -1,0 +1,1 @@
+"""Tetrahedral finite elements: meshes, assembly, time integration, plasticity, fracture."""

@@ -1,0 +1,1 @@
+"""Coupled rigid/FEM stepping, scene files, command line, VTK output and rendering."""

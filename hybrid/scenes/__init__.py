@@ -1,0 +1,1 @@
+"""Scenes shipped with the package."""

@@ -1,0 +1,1 @@
+"""Rigid bodies: mass properties, state, integration, contacts, shape matching."""
