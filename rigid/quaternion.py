@@ -1,0 +1,70 @@
+"""Unit quaternions ``(w, x, y, z)``, vectorised over a leading axis."""
+import numpy as np
+
+
+def multiply(a, b):
+    """Hamilton product ``a * b`` for arrays of shape ``(..., 4)``."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def to_matrix(q):
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``(..., 4)``."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=-2)
+
+
+def from_matrix(R):
+    """Unit quaternions ``(..., 4)`` (w >= 0) of rotation matrices ``(..., 3, 3)``."""
+    R = np.asarray(R, dtype=float)
+    m = R.reshape(-1, 3, 3)
+    t = np.trace(m, axis1=1, axis2=2)
+    # Shepperd's method: pick the largest of 4w^2, 4x^2, 4y^2, 4z^2 for stability
+    cand = np.stack([t, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    k = np.argmax(cand, axis=1)
+    q = np.empty((len(m), 4))
+    r = np.sqrt(np.maximum(1.0 + 2.0 * cand[np.arange(len(m)), k] - t, 1e-300))
+    s = 0.5 / r
+    i0 = k == 0
+    q[i0] = np.stack([0.5 * r[i0], (m[i0, 2, 1] - m[i0, 1, 2]) * s[i0],
+                      (m[i0, 0, 2] - m[i0, 2, 0]) * s[i0], (m[i0, 1, 0] - m[i0, 0, 1]) * s[i0]], 1)
+    i1 = k == 1
+    q[i1] = np.stack([(m[i1, 2, 1] - m[i1, 1, 2]) * s[i1], 0.5 * r[i1],
+                      (m[i1, 0, 1] + m[i1, 1, 0]) * s[i1], (m[i1, 0, 2] + m[i1, 2, 0]) * s[i1]], 1)
+    i2 = k == 2
+    q[i2] = np.stack([(m[i2, 0, 2] - m[i2, 2, 0]) * s[i2], (m[i2, 0, 1] + m[i2, 1, 0]) * s[i2],
+                      0.5 * r[i2], (m[i2, 1, 2] + m[i2, 2, 1]) * s[i2]], 1)
+    i3 = k == 3
+    q[i3] = np.stack([(m[i3, 1, 0] - m[i3, 0, 1]) * s[i3], (m[i3, 0, 2] + m[i3, 2, 0]) * s[i3],
+                      (m[i3, 1, 2] + m[i3, 2, 1]) * s[i3], 0.5 * r[i3]], 1)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return normalize(q).reshape(R.shape[:-2] + (4,))
+
+
+def from_rotation_vector(phi):
+    """Quaternions ``(..., 4)`` of rotation vectors ``(..., 3)`` (axis times angle, rad)."""
+    phi = np.asarray(phi, dtype=float)
+    angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a, with its series near zero
+    k = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half), k * phi], axis=-1)
+
+
+def normalize(q):
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def rotate(q, v):
+    """Rotate vectors ``(..., 3)`` by quaternions ``(..., 4)``."""
+    return np.einsum("...ij,...j->...i", to_matrix(q), v)

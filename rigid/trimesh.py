@@ -1,0 +1,84 @@
+"""Closed triangle surfaces: boundary of tet meshes, closedness and orientation checks.
+
+Conventions: vertices are ``(n, 3)`` float64 (m), triangles ``(m, 3)`` int64 indices, counter-
+clockwise seen from outside (outward normals), so the signed volume of a closed surface is positive.
+"""
+import numpy as np
+
+
+def tet_boundary(tets):
+    """Boundary triangles ``(f, 3)`` of a tet mesh ``(t, 4)``, oriented outward for positive tets.
+
+    A face is on the boundary when exactly one tet owns it. Works for the vertex part of
+    quadratic tets too (pass ``tets[:, :4]``).
+    """
+    tets = np.asarray(tets, dtype=np.int64)
+    # faces opposite vertex 0..3, ordered so that their normal points away from the opposite vertex
+    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    faces = tets[:, local].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inverse.ravel()] == 1]
+
+
+def tet_boundary_owner(tets):
+    """Like :func:`tet_boundary` but also returns the owning tet and local face index of each face."""
+    tets = np.asarray(tets, dtype=np.int64)
+    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    faces = tets[:, local].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    keep = counts[inverse.ravel()] == 1
+    index = np.nonzero(keep)[0]
+    return faces[keep], index // 4, index % 4
+
+
+def edge_use_counts(triangles):
+    """Directed-edge bookkeeping: returns (undirected edge counts, directed duplicates count)."""
+    tri = np.asarray(triangles, dtype=np.int64)
+    directed = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    undirected = np.sort(directed, axis=1)
+    _, counts = np.unique(undirected, axis=0, return_counts=True)
+    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    return counts, int(np.sum(dcounts > 1))
+
+
+def is_closed(triangles):
+    """True when every edge is shared by exactly two triangles with opposite directions."""
+    if len(triangles) < 4:
+        return False
+    counts, duplicated = edge_use_counts(triangles)
+    return bool(np.all(counts == 2) and duplicated == 0)
+
+
+def signed_volume(vertices, triangles):
+    """Volume enclosed by a closed surface (m^3); negative when the triangles face inward."""
+    v = np.asarray(vertices, dtype=float)[np.asarray(triangles)]
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
+def orient_outward(vertices, triangles):
+    """Return the triangles flipped if needed so the enclosed volume is positive."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    if signed_volume(vertices, triangles) < 0:
+        return triangles[:, ::-1].copy()
+    return triangles
+
+
+def compact(vertices, triangles):
+    """Drop vertices no triangle uses; returns (vertices, triangles, kept_vertex_indices)."""
+    used = np.unique(triangles)
+    remap = -np.ones(len(vertices), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return np.asarray(vertices)[used], remap[triangles], used
+
+
+def vertex_normals(vertices, triangles):
+    """Area-weighted unit vertex normals ``(n, 3)``."""
+    v = np.asarray(vertices, dtype=float)
+    face_n = np.cross(v[triangles[:, 1]] - v[triangles[:, 0]], v[triangles[:, 2]] - v[triangles[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, triangles[:, k], face_n)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0, length, 1.0)
