@@ -1,0 +1,157 @@
+"""Stiffness and mass assembly with scikit-fem, plus per-element data for warping and stress.
+
+Degrees of freedom are node-major, ``dof = 3 * node + component``, matching ``(n, 3)`` arrays
+flattened in C order. scikit-fem numbers its own DOFs (component-first within a node, vertices
+before edges); the permutation between the two is built once here and nowhere else.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import skfem
+from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+
+@dataclass(frozen=True)
+class ElementData:
+    """Static per-element arrays (rest configuration), entity-first.
+
+    tet_nodes: ``(t, b)`` node indices of each element in scikit-fem's local basis order
+        (b = 4 for P1, 10 for P2; vertices first, then edges 01, 12, 02, 03, 13, 23).
+    tet_gradients: ``(t, q, b, 3)`` gradients of the scalar shape functions at the quadrature
+        points (1/m).
+    tet_weights: ``(t, q)`` quadrature weights times |J| (m^3); they sum to the element volume.
+    tet_volume: ``(t,)`` rest volume (m^3).
+    tet_rest_inverse: ``(t, 3, 3)`` inverse of the rest edge matrix ``[X1-X0, X2-X0, X3-X0]``
+        (1/m), so the deformation gradient of the vertex simplex is ``F = Ds @ tet_rest_inverse``.
+    tet_stiffness: ``(t, 3b, 3b)`` element stiffness blocks (N/m), local DOF ``3 a + i``.
+    pattern_rows, pattern_cols: ``(nnz,)`` CSR pattern (row indices, column indices) of the
+        assembled stiffness, node-major DOFs.
+    pattern_indptr: ``(3 n + 1,)`` CSR row pointer of that pattern.
+    block_to_csr: ``(t * 9 b^2,)`` position in the CSR data of each entry of ``tet_stiffness``
+        (flattened), so a warped stiffness is assembled with one ``np.bincount``.
+    """
+    tet_nodes: np.ndarray
+    tet_gradients: np.ndarray
+    tet_weights: np.ndarray
+    tet_volume: np.ndarray
+    tet_rest_inverse: np.ndarray
+    tet_stiffness: np.ndarray
+    pattern_rows: np.ndarray
+    pattern_cols: np.ndarray
+    pattern_indptr: np.ndarray
+    block_to_csr: np.ndarray
+
+
+def _skfem_mesh(points, tets):
+    """scikit-fem mesh on the vertex nodes; returns (mesh, vertex_node_ids)."""
+    vertex_nodes = np.unique(tets[:, :4])
+    remap = -np.ones(len(points), dtype=np.int64)
+    remap[vertex_nodes] = np.arange(len(vertex_nodes))
+    mesh = skfem.MeshTet(np.ascontiguousarray(points[vertex_nodes].T),
+                         np.ascontiguousarray(remap[tets[:, :4]].T))
+    return mesh, vertex_nodes
+
+
+def _scalar_dof_to_node(basis, mesh, vertex_nodes, tets):
+    """Node index ``(N,)`` of each scalar scikit-fem DOF."""
+    node = np.empty(basis.N, dtype=np.int64)
+    node[basis.nodal_dofs[0]] = vertex_nodes
+    if tets.shape[1] == 10:
+        # our midside node of each vertex pair, looked up by a sorted pair key
+        local = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+        pairs = np.sort(tets[:, local], axis=2).reshape(-1, 2)
+        n = len(tets) and int(tets.max()) + 1
+        keys, first = np.unique(pairs[:, 0] * n + pairs[:, 1], return_index=True)
+        mids = tets[:, 4:].reshape(-1)[first]
+        sk_pairs = np.sort(vertex_nodes[mesh.edges], axis=0)
+        pos = np.searchsorted(keys, sk_pairs[0] * n + sk_pairs[1])
+        node[basis.edge_dofs[0]] = mids[pos]
+    return node
+
+
+def _element_stiffness(grads, weights, mu, lam):
+    """Ke[a i, b j] = sum_q w (mu (d_ij ga.gb + ga_j gb_i) + lam ga_i gb_j); (t, 3b, 3b) N/m."""
+    t, q, b, _ = grads.shape
+    gg = np.einsum("tq,tqak,tqbk->tab", weights, grads, grads)
+    outer = np.einsum("tq,tqai,tqbj->taibj", weights, grads, grads)
+    Ke = mu * np.einsum("tab,ij->taibj", gg, np.eye(3))
+    Ke += mu * outer.transpose(0, 1, 4, 3, 2) + lam * outer
+    return Ke.reshape(t, 3 * b, 3 * b)
+
+
+def _csr_pattern(tet_nodes, dof_count):
+    """CSR pattern of element blocks and the map from block entries to CSR data positions."""
+    t, b = tet_nodes.shape
+    dofs = (3 * tet_nodes[:, :, None] + np.arange(3)).reshape(t, 3 * b)
+    rows = np.repeat(dofs, 3 * b, axis=1).ravel()
+    cols = np.tile(dofs, (1, 3 * b)).ravel()
+    keys, block_to_csr = np.unique(rows * dof_count + cols, return_inverse=True)
+    pattern_rows, pattern_cols = keys // dof_count, keys % dof_count
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(pattern_rows, minlength=dof_count))])
+    return pattern_rows, pattern_cols, indptr, block_to_csr.ravel()
+
+
+def assemble_from_blocks(data, blocks, dof_count):
+    """CSR matrix ``(3n, 3n)`` summing per-element blocks ``(t, 3b, 3b)`` with the precomputed pattern."""
+    values = np.bincount(data.block_to_csr, weights=blocks.ravel(), minlength=len(data.pattern_cols))
+    return sp.csr_matrix((values, data.pattern_cols, data.pattern_indptr), shape=(dof_count, dof_count))
+
+
+def assemble(points, tets, young, poisson, density):
+    """Assemble a tet mesh with scikit-fem.
+
+    points ``(n, 3)`` m; tets ``(t, 4)`` (P1) or ``(t, 10)`` (P2, tetra10 order); young Pa;
+    poisson; density kg/m^3. Returns ``(K, M_scalar, element_data)``: stiffness ``(3n, 3n)`` N/m
+    (CSR, node-major DOFs), consistent scalar mass ``(n, n)`` kg (CSR; the vector mass is
+    ``kron(M_scalar, I3)``) and :class:`ElementData`. P2 geometry is affine (midside nodes are
+    assumed at edge midpoints).
+    """
+    points = np.asarray(points, dtype=float)
+    tets = np.asarray(tets, dtype=np.int64)
+    n = len(points)
+    order = 1 if tets.shape[1] == 4 else 2
+    mesh, vertex_nodes = _skfem_mesh(points, tets)
+    element = skfem.ElementTetP1() if order == 1 else skfem.ElementTetP2()
+    # P1 gradients are constant: one point integrates stiffness exactly
+    stiff_basis = skfem.Basis(mesh, skfem.ElementVector(element), intorder=2 * (order - 1) or 1)
+    scalar_basis = skfem.Basis(mesh, element, intorder=2 * (order - 1) or 1)
+    mass_basis = skfem.Basis(mesh, element, intorder=2 * order)
+    mu, lam = lame_parameters(young, poisson)[1], lame_parameters(young, poisson)[0]
+
+    node_of_scalar = _scalar_dof_to_node(scalar_basis, mesh, vertex_nodes, tets)
+    # vector DOF k of scikit-fem: node of its scalar DOF, component from its row in the dof arrays
+    vec_node = np.empty(stiff_basis.N, dtype=np.int64)
+    vec_comp = np.empty(stiff_basis.N, dtype=np.int64)
+    for dofs, scalar in [(stiff_basis.nodal_dofs, scalar_basis.nodal_dofs)] + (
+            [(stiff_basis.edge_dofs, scalar_basis.edge_dofs)] if order == 2 else []):
+        for comp in range(3):
+            vec_node[dofs[comp]] = node_of_scalar[scalar[0]]
+            vec_comp[dofs[comp]] = comp
+    ours = 3 * vec_node + vec_comp
+    P = sp.csr_matrix((np.ones(len(ours)), (ours, np.arange(len(ours)))), shape=(3 * n, stiff_basis.N))
+    K_sk = skfem.asm(linear_elasticity(lam, mu), stiff_basis)
+    K = (P @ K_sk @ P.T).tocsr()
+
+    @skfem.BilinearForm
+    def mass(u, v, w):
+        return density * u * v
+
+    Ps = sp.csr_matrix((np.ones(mass_basis.N), (node_of_scalar, np.arange(mass_basis.N))),
+                       shape=(n, mass_basis.N))
+    M_scalar = (Ps @ skfem.asm(mass, mass_basis) @ Ps.T).tocsr()
+
+    # per-element data in our node numbering
+    tet_nodes = node_of_scalar[scalar_basis.element_dofs.T]
+    grads = np.stack([scalar_basis.basis[a][0].grad for a in range(tet_nodes.shape[1])])
+    grads = grads.transpose(2, 3, 0, 1)  # (b, 3, t, q) -> (t, q, b, 3)
+    weights = np.asarray(scalar_basis.dx)
+    X = points[tets[:, :4]]
+    Ke = _element_stiffness(grads, weights, mu, lam)
+    pattern = _csr_pattern(tet_nodes, 3 * n)
+    data = ElementData(
+        tet_nodes=tet_nodes, tet_gradients=grads, tet_weights=weights, tet_volume=weights.sum(axis=1),
+        tet_rest_inverse=np.linalg.inv((X[:, 1:] - X[:, :1]).transpose(0, 2, 1)), tet_stiffness=Ke,
+        pattern_rows=pattern[0], pattern_cols=pattern[1], pattern_indptr=pattern[2],
+        block_to_csr=pattern[3])
+    return K, M_scalar, data

@@ -1,0 +1,310 @@
+"""Implicit time integration of a deformable body, split so contact impulses can be coupled in.
+
+One step is ``predict`` (contact-free end-of-step velocities from the implicit solve), any number of
+``apply_impulse`` calls (the response of the same implicit system to node impulses, one extra
+back-substitution each), then ``finish`` (positions, frame, anchor reactions).
+
+Equations (h = dt, C = alpha M + beta K_R, f(x) the elastic force, f_ext loads and gravity):
+  backward Euler  (M + h C + h^2 K_R) v+ = M v + h (f(x) + f_ext),              x+ = x + h v+
+  Newmark (gamma = 1/2, beta = 1/4, i.e. the trapezoidal rule on x and v)
+    (M + h/2 C + h^2/4 K_R) v+ = M v + h (f(x) + f_ext) - (h/2 C + h^2/4 K_R) v, x+ = x + h (v + v+)/2
+K_R is the stiffness seen in the current frame: ``R K R^T`` (floating frame; since M is isotropic
+per node, the matrix is ``R A R^T`` and one factorisation of A serves all steps) or the warped
+stiffness ``sum_e R_e K_e R_e^T`` (corotated, Mueller and Gross 2004), rebuilt every step.
+"""
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from fem.assembly import assemble_from_blocks
+from fem.solver import Factorisation, cg_solve
+from rigid.shape_matching import best_fit_frame, rotation_of
+
+# corotated solves: "cg" (warm-started CG preconditioned by the rest factorisation rotated into the
+# best-fit frame) or "lu" (refactorise each step); see benchmarks/fem_solver.py for the timings
+COROTATED_SOLVER = "cg"
+
+
+@dataclass(frozen=True)
+class StepData:
+    """One step in progress (between ``predict`` and ``finish``).
+
+    v: ``(n, 3)`` end-of-step node velocities (m/s), world frame.
+    rhs: ``(3n,)`` right-hand side of the system in the solve frame (N s).
+    impulse: ``(n, 3)`` node impulses applied so far (N s), world frame.
+    R: ``(3, 3)`` rotation of the solve frame (body frame for a floating body, else identity).
+    matrix: ``(3n, 3n)`` system matrix A in the solve frame (kg).
+    solve: callable mapping a free-DOF right-hand side ``(f,)`` to ``A_ff^-1`` of it.
+    iterations: one-element list, CG iterations spent by this step's corotated solves.
+    """
+    v: np.ndarray
+    rhs: np.ndarray
+    impulse: np.ndarray
+    R: np.ndarray
+    matrix: sp.csr_matrix
+    solve: object
+    iterations: list
+
+
+def system_coefficients(model, dt):
+    """``(a_M, a_K)`` with system matrix ``A = a_M M + a_K K`` for the model's integrator."""
+    alpha, beta = model.damping_mass, model.damping_stiffness
+    if model.integrator == "newmark":
+        return 1.0 + 0.5 * dt * alpha, 0.5 * dt * beta + 0.25 * dt * dt
+    return 1.0 + dt * alpha, dt * beta + dt * dt
+
+
+def _free_block(model, A):
+    if not model.anchored:
+        return A
+    return A[model.free_dofs][:, model.free_dofs]
+
+
+def system_matrix(model, dt, K=None):
+    """System matrix ``a_M M + a_K K`` ``(3n, 3n)`` (rest K unless a warped one is given)."""
+    a_M, a_K = system_coefficients(model, dt)
+    return (a_M * model.M + a_K * (model.K if K is None else K)).tocsr()
+
+
+def system_factorisation(model, dt):
+    """Cached factorisation of the rest system matrix on the free DOFs (factorised once per dt)."""
+    return model.factor_cache.get(dt, lambda h: _free_block(model, system_matrix(model, h)))
+
+
+def body_frame(model, x):
+    """Best-fit rotation ``R`` (3, 3) and centre ``c`` (3,) m of positions ``x`` (n, 3) m.
+
+    Anchored bodies have no floating frame: ``(I, X_c)``.
+    """
+    if model.anchored:
+        return np.eye(3), model.rest_center.copy()
+    return best_fit_frame(model.rest_offsets, x, model.node_mass)
+
+
+def tet_rotations(model, x):
+    """Per-element rotations ``(t, 3, 3)`` from the polar decomposition of the vertex simplex's
+    deformation gradient ``F = Ds Dm^-1`` (stiffness warping, Mueller and Gross 2004)."""
+    xs = x[model.tets[:, :4]]
+    Ds = (xs[:, 1:] - xs[:, :1]).transpose(0, 2, 1)
+    return rotation_of(Ds @ model.elements.tet_rest_inverse)
+
+
+def _scatter(model, element_vectors):
+    """Sum per-element node vectors ``(t, b, 3)`` into nodes ``(n, 3)``."""
+    idx = model.elements.tet_nodes.ravel()
+    ev = element_vectors.reshape(-1, 3)
+    return np.stack([np.bincount(idx, weights=ev[:, k], minlength=model.node_count)
+                     for k in range(3)], axis=1)
+
+
+def _corotated_displacement(model, x, tet_R):
+    """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m)."""
+    nodes = model.elements.tet_nodes
+    u = np.einsum("taj,tji->tai", x[nodes], tet_R) - model.rest_points[nodes]
+    # drop each element's mean translation (K_e ignores it) so far-away bodies keep their digits
+    return u - u.mean(axis=1, keepdims=True)
+
+
+def warped_stiffness(model, tet_R):
+    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m), assembled vectorised."""
+    Ke = model.elements.tet_stiffness
+    t, m, _ = Ke.shape
+    Ke = Ke.reshape(t, m // 3, 3, m // 3, 3)
+    Kw = np.einsum("tik,takbl,tjl->taibj", tet_R, Ke, tet_R, optimize=True)
+    return assemble_from_blocks(model.elements, Kw.reshape(t, m, m), 3 * model.node_count)
+
+
+def elastic_force(model, state, tet_R=None):
+    """Elastic node forces ``(n, 3)`` (N), world frame, linear elasticity in the model's frame."""
+    if model.frame == "corotated":
+        tet_R = tet_rotations(model, state.x) if tet_R is None else tet_R
+        u = _corotated_displacement(model, state.x, tet_R)
+        t, b, _ = u.shape
+        g = np.einsum("tij,tj->ti", model.elements.tet_stiffness, u.reshape(t, 3 * b)).reshape(t, b, 3)
+        return -_scatter(model, np.einsum("tij,taj->tai", tet_R, g))
+    u = (state.x - state.c) @ state.R - model.rest_offsets
+    return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
+
+
+def gravity_force(model, gravity):
+    """Node weights ``(n, 3)`` (N) for gravity ``(3,)`` m/s^2 (M applied to a uniform field)."""
+    g = np.broadcast_to(np.asarray(gravity, dtype=float), (model.node_count, 3))
+    return (model.M @ g.ravel()).reshape(-1, 3)
+
+
+def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
+    """Solve ``A v = rhs`` on the free DOFs with fixed DOFs prescribed; returns v ``(3n,)``."""
+    if not model.anchored:
+        return step_solve(rhs_b)
+    v = np.zeros_like(rhs_b)
+    v[model.fixed_dofs] = v_fixed_b
+    r = rhs_b - A @ v
+    v[model.free_dofs] = step_solve(r[model.free_dofs])
+    return v
+
+
+def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
+    """Contact-free end-of-step velocities. Returns :class:`StepData` with ``v`` ``(n, 3)`` m/s.
+
+    dt s; gravity ``(3,)`` m/s^2. The floating frame reuses the factorisation cached in the model;
+    the corotated frame assembles the warped stiffness and solves (see ``COROTATED_SOLVER``).
+    """
+    a_M, a_K = system_coefficients(model, dt)
+    force = gravity_force(model, gravity) + model.node_load
+    iterations = [0]
+    if model.frame == "corotated":
+        tet_R = tet_rotations(model, state.x)
+        force += elastic_force(model, state, tet_R)
+        K = warped_stiffness(model, tet_R)
+        A = (a_M * model.M + a_K * K).tocsr()
+        R = np.eye(3)
+        solve, iterations = _corotated_solver(model, dt, A, state)
+    else:
+        force += elastic_force(model, state)
+        K, R = model.K, state.R
+        A = None
+        solve = system_factorisation(model, dt).solve
+    # solve frame: node vectors are rotated by R^T (M is isotropic per node, so M commutes)
+    v_b = (state.v @ R).ravel()
+    Mv = model.M @ v_b
+    rhs = Mv + dt * (force @ R).ravel()
+    if model.integrator == "newmark":
+        rhs -= (a_M - 1.0) * Mv + a_K * (K @ v_b)
+    if A is None and model.anchored:
+        A = system_matrix(model, dt)
+    v_fixed = model.anchor_velocity[model.node_anchor[model.node_anchor >= 0]]
+    v_new = _solve_in_frame(model, solve, A, rhs, (v_fixed @ R).ravel())
+    if A is None:
+        A = _LazyMatrix(model, dt)
+    return StepData(v=v_new.reshape(-1, 3) @ R.T, rhs=rhs, impulse=np.zeros_like(state.v), R=R,
+                    matrix=A, solve=solve, iterations=iterations)
+
+
+class _LazyMatrix:
+    """Stands for the rest system matrix until someone needs it (reactions of free bodies: never)."""
+
+    def __init__(self, model, dt):
+        self.model, self.dt = model, dt
+
+    def __matmul__(self, vector):
+        return system_matrix(self.model, self.dt) @ vector
+
+
+def _corotated_solver(model, dt, A, state):
+    """Solver for this step's warped system on the free DOFs; returns ``(solve, iterations)``
+    where ``iterations`` is a one-element list counting CG iterations (stays 0 for LU)."""
+    A_ff = _free_block(model, A)
+    iterations = [0]
+    if COROTATED_SOLVER == "lu":
+        return Factorisation(A_ff).solve, iterations
+    # precondition with the rest system rotated into the body's best-fit frame: exact for a rigid
+    # rotation of the whole body, close while the elements rotate together (R = I when anchored)
+    rest = system_factorisation(model, dt)
+    R = state.R
+
+    def precondition(r):
+        if model.anchored:
+            return rest.solve(r)
+        return (rest.solve((r.reshape(-1, 3) @ R).ravel()).reshape(-1, 3) @ R.T).ravel()
+
+    guess = state.v.ravel()[model.free_dofs] if model.anchored else state.v.ravel()
+
+    def solve(rhs):
+        x, its = cg_solve(A_ff, rhs, guess, precondition)
+        iterations[0] += its
+        return x
+
+    return solve, iterations
+
+
+def apply_impulse(model, state, step, node_impulse):
+    """Add node impulses ``(n, 3)`` N s applied during the step: ``v += A^-1 impulse``.
+
+    The response is that of the same implicit system (one back-substitution with the step's
+    factorisation); anchored nodes do not respond. Returns a new :class:`StepData`.
+    """
+    j = np.asarray(node_impulse, dtype=float)
+    j_b = (j @ step.R).ravel()
+    dv = np.zeros_like(j_b)
+    if model.anchored:
+        dv[model.free_dofs] = step.solve(j_b[model.free_dofs])
+    else:
+        dv = step.solve(j_b)
+    return replace(step, v=step.v + dv.reshape(-1, 3) @ step.R.T, impulse=step.impulse + j)
+
+
+def finish(model, state, step, dt):
+    """Advance positions with the step's velocities, update the best-fit frame and anchor reactions.
+
+    Returns the new :class:`fem.model.FemState`.
+    """
+    if model.integrator == "newmark":
+        x = state.x + 0.5 * dt * (state.v + step.v)
+    else:
+        x = state.x + dt * step.v
+    reaction = np.zeros_like(x)
+    if model.anchored:
+        # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied
+        residual = step.matrix @ (step.v @ step.R).ravel() - step.rhs - (step.impulse @ step.R).ravel()
+        r = np.zeros(3 * model.node_count)
+        r[model.fixed_dofs] = residual[model.fixed_dofs] / dt
+        reaction = r.reshape(-1, 3) @ step.R.T
+    R, c = body_frame(model, x)
+    return state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
+
+
+def step(model, state, dt, gravity=(0.0, 0.0, 0.0)):
+    """One step without contacts: ``finish(predict(...))``."""
+    return finish(model, state, predict(model, state, dt, gravity), dt)
+
+
+# --- diagnostics -----------------------------------------------------------------------------
+
+def effective_node_mass(model):
+    """Mass of each node for contact impulses ``(n,)`` (kg): the lumped mass."""
+    return model.node_mass
+
+
+def kinetic_energy(model, state):
+    """``1/2 v^T M v`` (J)."""
+    v = state.v.ravel()
+    return 0.5 * float(v @ (model.M @ v))
+
+
+def elastic_energy(model, state):
+    """Strain energy of the linear model in its frame (J)."""
+    if model.frame == "corotated":
+        u = _corotated_displacement(model, state.x, tet_rotations(model, state.x))
+        t = len(u)
+        u = u.reshape(t, -1)
+        return 0.5 * float(np.einsum("ti,tij,tj->", u, model.elements.tet_stiffness, u))
+    u = ((state.x - state.c) @ state.R - model.rest_offsets).ravel()
+    return 0.5 * float(u @ (model.K @ u))
+
+
+def linear_momentum(model, state):
+    """Total linear momentum ``(3,)`` (kg m/s)."""
+    return (model.M @ state.v.ravel()).reshape(-1, 3).sum(axis=0)
+
+
+def angular_momentum(model, state):
+    """Total angular momentum about the origin ``(3,)`` (kg m^2/s)."""
+    p = (model.M @ state.v.ravel()).reshape(-1, 3)
+    return np.cross(state.x, p).sum(axis=0)
+
+
+def center_of_mass(model, state):
+    """Mass-weighted centre of the nodes ``(3,)`` (m), lumped masses."""
+    return model.node_mass @ state.x / model.node_mass.sum()
+
+
+def best_fit_rotation(model, state):
+    """Best-fit rotation ``(3, 3)`` of the current shape to the rest shape (shape matching)."""
+    return best_fit_frame(model.rest_offsets, state.x, model.node_mass)[0]
+
+
+def volume(model, x):
+    """Volume (m^3) enclosed by the deformed vertex simplices."""
+    xs = x[model.tets[:, :4]]
+    return float(np.linalg.det(xs[:, 1:] - xs[:, :1]).sum() / 6.0)

@@ -1,0 +1,239 @@
+"""FEM body model (built once) and state (changes every step).
+
+A :class:`FemModel` holds the rest mesh, material, assembled matrices, anchors, loads and the
+cached factorisation of the system matrix; a :class:`FemState` holds node positions, velocities and
+the best-fit frame. Build both with :func:`build_fem_model` and :func:`rest_state`.
+"""
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from fem.assembly import ElementData, assemble
+from fem.mesh import check_tets, surface_triangles
+from fem.solver import FactorCache
+
+FRAMES = ("floating", "corotated")
+INTEGRATORS = ("backward_euler", "newmark")
+MASSES = ("lumped", "consistent")
+
+
+@dataclass(frozen=True)
+class FemModel:
+    """Static description of one deformable body (SI units). Rebuilt only by events.
+
+    rest_points: ``(n, 3)`` rest node positions X (m), body coordinates.
+    tets: ``(t, 4)`` P1 or ``(t, 10)`` P2 (tetra10 order) node indices, positively oriented.
+    order: 1 (linear tets) or 2 (quadratic tets).
+    density: kg/m^3. young: Young's modulus E (Pa). poisson: Poisson ratio nu (-).
+    mu, lam: Lame parameters (Pa).
+    damping_mass: Rayleigh alpha (1/s), C = alpha M + beta K.
+    damping_stiffness: Rayleigh beta (s).
+    frame: "floating" (one best-fit frame per body, factorised once) or "corotated" (per-element
+        rotations, stiffness warping, matrix rebuilt each step). A body with anchors uses the
+        world frame (R = I) when floating.
+    integrator: "backward_euler" (stable, dissipative) or "newmark" (average acceleration,
+        gamma = 1/2, beta = 1/4: no numerical damping).
+    mass_kind: "lumped" (HRZ diagonal) or "consistent" mass in the equations of motion.
+    node_mass: ``(n,)`` lumped (HRZ) nodal mass (kg), all positive; the effective mass of a node
+        for contact and the weights of shape matching.
+    K: ``(3n, 3n)`` CSR rest stiffness (N/m), node-major DOFs ``3 * node + component``.
+    M: ``(3n, 3n)`` CSR mass used by the integrator (kg): diagonal (lumped) or consistent.
+    elements: :class:`fem.assembly.ElementData`, per-element rest data.
+    rest_center: ``(3,)`` mass-weighted centre of the rest points X_c (m).
+    rest_offsets: ``(n, 3)`` X - X_c (m), shape-matching rest offsets.
+    anchor_nodes: tuple of ``(k_i,)`` node index arrays, one per anchor region.
+    anchor_velocity: ``(a, 3)`` prescribed velocity of each anchor region (m/s).
+    node_anchor: ``(n,)`` index of the anchor holding each node, -1 if free.
+    free_dofs: ``(f,)`` DOFs solved for; fixed_dofs: ``(3n - f,)`` DOFs prescribed by anchors.
+    load_nodes: tuple of ``(k_i,)`` node index arrays, one per load region.
+    load_force: ``(l, 3)`` total force of each load region (N).
+    node_load: ``(n, 3)`` constant external node forces from all loads (N).
+    surface: ``(f, 3)`` outward boundary triangles (P2: four per boundary face).
+    surface_nodes: ``(s,)`` sorted indices of the nodes on the boundary.
+    factor_cache: :class:`fem.solver.FactorCache` of the system matrix (floating frame).
+    """
+    rest_points: np.ndarray
+    tets: np.ndarray
+    order: int
+    density: float
+    young: float
+    poisson: float
+    mu: float
+    lam: float
+    damping_mass: float
+    damping_stiffness: float
+    frame: str
+    integrator: str
+    mass_kind: str
+    node_mass: np.ndarray
+    K: sp.csr_matrix
+    M: sp.csr_matrix
+    elements: ElementData
+    rest_center: np.ndarray
+    rest_offsets: np.ndarray
+    anchor_nodes: tuple
+    anchor_velocity: np.ndarray
+    node_anchor: np.ndarray
+    free_dofs: np.ndarray
+    fixed_dofs: np.ndarray
+    load_nodes: tuple
+    load_force: np.ndarray
+    node_load: np.ndarray
+    surface: np.ndarray
+    surface_nodes: np.ndarray
+    factor_cache: FactorCache = field(default_factory=FactorCache, compare=False)
+
+    @property
+    def node_count(self):
+        return len(self.rest_points)
+
+    @property
+    def tet_count(self):
+        return len(self.tets)
+
+    @property
+    def anchored(self):
+        """True when some node is prescribed by an anchor (the body then has no floating frame)."""
+        return len(self.fixed_dofs) > 0
+
+    @property
+    def region_names(self):
+        return [f"anchor{i}" for i in range(len(self.anchor_nodes))] + \
+               [f"load{i}" for i in range(len(self.load_nodes))]
+
+
+@dataclass(frozen=True)
+class FemState:
+    """Everything about a deformable body that changes in time (SI units).
+
+    x: ``(n, 3)`` node positions (m), world coordinates.
+    v: ``(n, 3)`` node velocities (m/s).
+    R: ``(3, 3)`` best-fit rotation of the body (shape matching), identity for anchored bodies.
+    c: ``(3,)`` mass-weighted centre of the nodes (m); X_c for anchored bodies.
+    node_reaction: ``(n, 3)`` force the anchors exerted on each anchored node over the last step
+        (N), zero elsewhere.
+    time: simulated time (s).
+    """
+    x: np.ndarray
+    v: np.ndarray
+    R: np.ndarray
+    c: np.ndarray
+    node_reaction: np.ndarray
+    time: float = 0.0
+
+    def replace(self, **changes):
+        return replace(self, **changes)
+
+
+def _node_indices(selection, n):
+    selection = np.asarray(selection)
+    if selection.dtype == bool:
+        if selection.shape != (n,):
+            raise ValueError(f"node mask must have shape ({n},), got {selection.shape}")
+        return np.nonzero(selection)[0]
+    return np.unique(selection.astype(np.int64))
+
+
+def _spread_force(nodes, total, weights):
+    w = weights[nodes]
+    return np.outer(w / w.sum(), total)
+
+
+def _surface_node_area(points, surface):
+    """Area (m^2) attributed to each node by the surface triangles (one third each)."""
+    p = points[surface]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return np.bincount(surface.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
+
+
+def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_mass=0.0,
+                    damping_stiffness=0.0, frame="floating", mass="lumped",
+                    integrator="backward_euler", anchors=(), loads=(), dt=None):
+    """Build a deformable body.
+
+    points ``(n, 3)`` m and tets ``(t, 4)``: a linear tet mesh (``order=1``), or with ``order=2``
+    either the same linear mesh (midside nodes are added, appended after the input points) or a
+    tetra10 mesh ``(t, 10)``. Inverted tets are reoriented, degenerate ones raise ValueError.
+    density kg/m^3, young Pa, poisson -, damping_mass alpha 1/s, damping_stiffness beta s.
+    frame: "floating" | "corotated"; mass: "lumped" | "consistent";
+    integrator: "backward_euler" | "newmark".
+    anchors: sequence of ``(node_mask_or_indices, velocity (3,))``: those nodes move with the
+        prescribed velocity (m/s); node indices refer to the returned model's nodes.
+    loads: sequence of ``(node_indices, total_force (3,))`` or ``(nodes, total_force, "area")``:
+        a constant total force (N) spread over the nodes by lumped mass (default) or by surface
+        area.
+    dt: if given, the system matrix for this step size (s) is factorised now.
+    Returns a :class:`FemModel`. Note: with ``order=2`` from a linear mesh, select anchor/load
+    nodes on ``fem.mesh.quadratic_tets(points, tets)[0]`` (same as ``model.rest_points``).
+    """
+    if frame not in FRAMES or integrator not in INTEGRATORS or mass not in MASSES:
+        raise ValueError(f"frame in {FRAMES}, integrator in {INTEGRATORS}, mass in {MASSES}")
+    points = np.asarray(points, dtype=float)
+    tets = np.asarray(tets, dtype=np.int64)
+    if order == 2 and tets.shape[1] == 4:
+        from fem.mesh import quadratic_tets
+        points, tets = quadratic_tets(points, tets)
+    if tets.shape[1] != (4 if order == 1 else 10):
+        raise ValueError(f"order {order} needs tets with {4 if order == 1 else 10} nodes")
+    tets, _ = check_tets(points, tets)
+    n = len(points)
+    K, M_scalar, elements = assemble(points, tets, young, poisson, density)
+    # HRZ lumping: diagonal of the consistent mass scaled to the total mass (all positive)
+    diag = M_scalar.diagonal()
+    node_mass = diag * (M_scalar.sum() / diag.sum())
+    if mass == "lumped":
+        M = sp.diags(np.repeat(node_mass, 3)).tocsr()
+    else:
+        M = sp.kron(M_scalar, sp.identity(3), format="csr")
+    mu = young / (2 * (1 + poisson))
+    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    rest_center = node_mass @ points / node_mass.sum()
+
+    anchor_nodes = tuple(_node_indices(sel, n) for sel, _ in anchors)
+    anchor_velocity = np.array([np.asarray(vel, dtype=float) for _, vel in anchors]).reshape(-1, 3)
+    node_anchor = -np.ones(n, dtype=np.int64)
+    for i, nodes in enumerate(anchor_nodes):
+        node_anchor[nodes] = i
+    fixed = np.repeat(node_anchor >= 0, 3)
+    surface = surface_triangles(tets)
+
+    load_nodes, load_force = [], []
+    node_load = np.zeros((n, 3))
+    area = None
+    for load in loads:
+        nodes, total = _node_indices(load[0], n), np.asarray(load[1], dtype=float)
+        spread = load[2] if len(load) > 2 else "mass"
+        if spread == "area":
+            area = _surface_node_area(points, surface) if area is None else area
+            weights = area if area[nodes].sum() > 0 else node_mass
+        else:
+            weights = node_mass
+        node_load[nodes] += _spread_force(nodes, total, weights)
+        load_nodes.append(nodes)
+        load_force.append(total)
+
+    model = FemModel(
+        rest_points=points, tets=tets, order=order, density=float(density), young=float(young),
+        poisson=float(poisson), mu=mu, lam=lam, damping_mass=float(damping_mass),
+        damping_stiffness=float(damping_stiffness), frame=frame, integrator=integrator,
+        mass_kind=mass, node_mass=node_mass, K=K, M=M, elements=elements, rest_center=rest_center,
+        rest_offsets=points - rest_center, anchor_nodes=anchor_nodes,
+        anchor_velocity=anchor_velocity, node_anchor=node_anchor,
+        free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0],
+        load_nodes=tuple(load_nodes), load_force=np.array(load_force).reshape(-1, 3),
+        node_load=node_load, surface=surface, surface_nodes=np.unique(surface))
+    if dt is not None and frame == "floating":
+        from fem.dynamics import system_factorisation
+        system_factorisation(model, dt)
+    return model
+
+
+def rest_state(model, x=None, v=None):
+    """State at rest (or with given positions ``x`` (n, 3) m and velocities ``v`` (n, 3) m/s);
+    the best-fit frame is computed from ``x``."""
+    from fem.dynamics import body_frame
+    x = model.rest_points.copy() if x is None else np.array(x, dtype=float)
+    v = np.zeros_like(x) if v is None else np.array(v, dtype=float)
+    R, c = body_frame(model, x)
+    return FemState(x=x, v=v, R=R, c=c, node_reaction=np.zeros_like(x))

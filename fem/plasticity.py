@@ -1,0 +1,261 @@
+"""Von Mises perfect plasticity for linear-elastic P1 tetrahedra.
+
+The one definition of every yield and plastic-flow quantity in the project: the stepper, the VTK
+output and the tests all call these functions.
+
+Conventions
+-----------
+* Tensors are entity-first: a stress or strain field is ``(..., 3, 3)`` (usually ``(tet_count, 3,
+  3)``), symmetric. Stresses are in Pa, strains are dimensionless.
+* Lame parameters ``mu`` (shear modulus) and ``lam`` in Pa, yield stress ``Y`` in Pa. Each may be a
+  scalar or an array broadcastable to the leading shape ``(...)`` (e.g. one value per tet).
+* Small-strain additive split (O'Brien, Bargteil, Hodgins 2002): ``eps_e = eps - eps_p`` and
+  ``sigma = 2 mu eps_e + lam tr(eps_e) I``. The plastic strain ``eps_p`` is deviatoric (trace 0),
+  so it changes shape, never volume.
+* Von Mises (Bridson's notes): ``f(sigma) = sqrt(3/2) |dev sigma|_F - Y``; yielding is ``f > 0``.
+* Perfect plastic flow (associative): where ``f > 0``,
+  ``eps_p += gamma dev(sigma)/|dev sigma|_F`` with ``gamma = (|dev sigma|_F - sqrt(2/3) Y)/(2 mu)``,
+  which returns the stress exactly onto ``f = 0`` (radial return).
+* The plastic strain enters the FEM as an equivalent nodal force (``plastic_nodal_forces``), so the
+  system matrix never changes.
+"""
+import numpy as np
+
+_SQRT_3_2 = np.sqrt(1.5)
+_SQRT_2_3 = np.sqrt(2.0 / 3.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Invariants and the yield criterion
+# ---------------------------------------------------------------------------------------------
+
+def deviatoric(sigma):
+    """Deviatoric part ``sigma - tr(sigma)/3 I`` of tensors ``(..., 3, 3)``; same shape and unit."""
+    sigma = np.asarray(sigma, dtype=float)
+    trace = np.trace(sigma, axis1=-2, axis2=-1)
+    return sigma - (trace / 3.0)[..., None, None] * np.eye(3)
+
+
+def frobenius_norm(a):
+    """``|a|_F = sqrt(a : a)`` of tensors ``(..., 3, 3)``, shape ``(...)``."""
+    a = np.asarray(a, dtype=float)
+    return np.sqrt(np.einsum('...ij,...ij->...', a, a))
+
+
+def von_mises(sigma):
+    """Von Mises equivalent stress ``sqrt(3/2) |dev sigma|_F`` in Pa, shape ``(...)``.
+
+    Equals ``sqrt(((s1-s2)^2 + (s2-s3)^2 + (s3-s1)^2)/2)`` in principal stresses, the axial stress
+    under uniaxial tension and ``sqrt(3) tau`` under pure shear ``tau``; zero for any pressure.
+    """
+    return _SQRT_3_2 * frobenius_norm(deviatoric(sigma))
+
+
+def yield_function(sigma, Y):
+    """Von Mises yield function ``f = von_mises(sigma) - Y`` in Pa, shape ``(...)``.
+
+    ``f < 0`` elastic, ``f = 0`` on the yield surface, ``f > 0`` not admissible (plastic flow).
+    ``Y`` is a scalar or broadcastable to ``(...)``.
+    """
+    return von_mises(sigma) - np.asarray(Y, dtype=float)
+
+
+# ---------------------------------------------------------------------------------------------
+# Hooke's law
+# ---------------------------------------------------------------------------------------------
+
+def isotropic_stress(eps, mu, lam):
+    """Isotropic Hooke's law ``2 mu eps + lam tr(eps) I`` for strains ``(..., 3, 3)``; Pa.
+
+    ``mu`` and ``lam`` (Pa) are scalars or broadcastable to ``(...)``.
+    """
+    eps = np.asarray(eps, dtype=float)
+    mu = np.asarray(mu, dtype=float)[..., None, None]
+    lam = np.asarray(lam, dtype=float)[..., None, None]
+    trace = np.trace(eps, axis1=-2, axis2=-1)[..., None, None]
+    return 2.0 * mu * eps + lam * trace * np.eye(3)
+
+
+def elastic_stress(eps, eps_p, mu, lam):
+    """Stress ``C : (eps - eps_p)`` of total strain ``eps`` and plastic strain ``eps_p`` (..., 3, 3)."""
+    return isotropic_stress(np.asarray(eps, dtype=float) - np.asarray(eps_p, dtype=float), mu, lam)
+
+
+# ---------------------------------------------------------------------------------------------
+# Plastic strain measures and the return mapping
+# ---------------------------------------------------------------------------------------------
+
+def equivalent_plastic_strain(eps_p):
+    """Equivalent plastic strain ``sqrt(2/3) |eps_p|_F`` (dimensionless), shape ``(...)``.
+
+    For uniaxial plastic flow ``eps_p = e diag(1, -1/2, -1/2)`` this is ``|e|``.
+    """
+    return _SQRT_2_3 * frobenius_norm(eps_p)
+
+
+def clamp_plastic_strain(eps_p, max_plastic_strain):
+    """Scale each ``eps_p`` (..., 3, 3) so its equivalent plastic strain is at most the cap.
+
+    Tensors already within the cap are returned unchanged (bitwise); the others keep their direction
+    (and so stay deviatoric). ``max_plastic_strain`` is a scalar or broadcastable to ``(...)``.
+    """
+    eps_p = np.asarray(eps_p, dtype=float)
+    cap = np.asarray(max_plastic_strain, dtype=float)
+    equivalent = equivalent_plastic_strain(eps_p)
+    over = equivalent > cap
+    scale = np.where(over, cap / np.where(over, equivalent, 1.0), 1.0)
+    return np.where(over[..., None, None], eps_p * scale[..., None, None], eps_p)
+
+
+def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
+    """Perfect-plastic radial return of trial stresses onto the von Mises surface.
+
+    Parameters
+    ----------
+    sigma_trial : (..., 3, 3) Pa
+        Trial stress ``C : (eps - eps_p)`` with the current (old) plastic strain.
+    eps_p : (..., 3, 3)
+        Current plastic strain, deviatoric.
+    mu : float or (...) Pa
+        Shear modulus.
+    Y : float or (...) Pa
+        Yield stress (scalar or one per element).
+    max_plastic_strain : float or (...), optional
+        Cap on ``equivalent_plastic_strain``; a yielded element whose plastic strain would exceed it
+        is scaled back onto the cap (``clamp_plastic_strain``) and its stress recomputed from the
+        clamped plastic strain, so it may then lie outside the yield surface.
+
+    Returns
+    -------
+    eps_p_new : (..., 3, 3)
+        Updated plastic strain ``eps_p + gamma n`` with ``n = dev(sigma_trial)/|dev sigma_trial|_F``.
+    sigma_new : (..., 3, 3) Pa
+        ``C : (eps - eps_p_new) = sigma_trial - 2 mu (eps_p_new - eps_p)`` (the plastic increment is
+        deviatoric, so ``lam`` drops out); lies on ``f = 0`` where the element yielded.
+    gamma : (...)
+        Plastic multiplier ``(|dev sigma_trial|_F - sqrt(2/3) Y) / (2 mu)`` where yielded (before
+        any cap), 0 elsewhere; the Frobenius norm of the uncapped plastic strain increment.
+    yielded : (...) bool
+        ``yield_function(sigma_trial, Y) > 0``. Elements not yielded are returned bitwise unchanged.
+    """
+    sigma_trial = np.asarray(sigma_trial, dtype=float)
+    eps_p = np.asarray(eps_p, dtype=float)
+    lead = sigma_trial.shape[:-2]
+    mu = np.broadcast_to(np.asarray(mu, dtype=float), lead)
+    Y = np.broadcast_to(np.asarray(Y, dtype=float), lead)
+
+    s = deviatoric(sigma_trial)
+    s_norm = frobenius_norm(s)
+    yielded = _SQRT_3_2 * s_norm - Y > 0.0
+    # Bridson's notes: gamma chosen so that f(sigma_new) = 0 (radial return for linear isotropy)
+    gamma = np.where(yielded, (s_norm - _SQRT_2_3 * Y) / (2.0 * mu), 0.0)
+    # associative flow direction n = df/dsigma, normalised; guarded where |dev| = 0 (never yields)
+    n = s / np.where(yielded, s_norm, 1.0)[..., None, None]
+    d_eps_p = gamma[..., None, None] * n
+    eps_p_new = eps_p + d_eps_p
+
+    if max_plastic_strain is not None:
+        cap = np.broadcast_to(np.asarray(max_plastic_strain, dtype=float), lead)
+        eps_p_new = clamp_plastic_strain(eps_p_new, cap)
+        d_eps_p = eps_p_new - eps_p
+
+    sigma_new = sigma_trial - 2.0 * mu[..., None, None] * d_eps_p
+    # elements inside the surface are left untouched, bit for bit
+    inside = ~yielded[..., None, None]
+    eps_p_new = np.where(inside, eps_p, eps_p_new)
+    sigma_new = np.where(inside, sigma_trial, sigma_new)
+    return eps_p_new, sigma_new, gamma, yielded
+
+
+def plastic_dissipation_increment(sigma_new, d_eps_p, volume):
+    """Energy dissipated by a plastic increment, ``sum_e V_e sigma_e : d_eps_p_e`` in J.
+
+    ``sigma_new`` (..., 3, 3) Pa is the stress after the return map, ``d_eps_p`` (..., 3, 3) the
+    plastic strain increment of the step, ``volume`` (...) m^3. Non-negative for associative flow.
+    """
+    work_density = np.einsum('...ij,...ij->...', np.asarray(sigma_new, dtype=float),
+                             np.asarray(d_eps_p, dtype=float))
+    return float(np.sum(work_density * np.asarray(volume, dtype=float)))
+
+
+# ---------------------------------------------------------------------------------------------
+# P1 tetrahedra: shape gradients and the equivalent plastic force
+# ---------------------------------------------------------------------------------------------
+
+def tet_shape_gradients(points, tets):
+    """Constant shape-function gradients and volumes of P1 tetrahedra.
+
+    Parameters
+    ----------
+    points : (n, 3) m
+        Node positions.
+    tets : (t, 4) int
+        Node indices of each tetrahedron (either orientation).
+
+    Returns
+    -------
+    grad_n : (t, 4, 3) 1/m
+        ``grad_n[e, a] = grad N_a`` of the linear hat function of local node ``a`` in tet ``e``;
+        ``sum_a grad N_a = 0`` and ``sum_a x_a (x) grad N_a = I``.
+    volume : (t,) m^3
+        Unsigned tet volumes ``|det D| / 6``.
+    """
+    x = np.asarray(points, dtype=float)[np.asarray(tets)]          # (t, 4, 3)
+    # columns of D are the edges x_b - x_0, b = 1..3
+    D = np.swapaxes(x[:, 1:, :] - x[:, :1, :], -1, -2)             # (t, 3, 3)
+    D_inv = np.linalg.inv(D)
+    # grad N_b = row b of D^-1 (b = 1..3); grad N_0 = -sum of the others (partition of unity)
+    grad_rest = D_inv                                              # (t, 3, 3), row per node
+    grad_n = np.concatenate([-grad_rest.sum(axis=1, keepdims=True), grad_rest], axis=1)
+    volume = np.abs(np.linalg.det(D)) / 6.0
+    return grad_n, volume
+
+
+def plastic_element_forces(grad_n, eps_p, mu, lam, volume):
+    """Per-element equivalent plastic nodal forces ``V_e (C : eps_p_e) grad N_a``, (t, 4, 3) N.
+
+    ``grad_n`` (t, 4, 3) 1/m and ``volume`` (t,) m^3 from ``tet_shape_gradients``; ``eps_p``
+    (t, 3, 3); ``mu``, ``lam`` Pa, scalar or (t,). See ``plastic_nodal_forces`` for the sign.
+    """
+    sigma_p = isotropic_stress(eps_p, mu, lam)                     # (t, 3, 3)
+    return np.asarray(volume, dtype=float)[:, None, None] * np.einsum('eij,eaj->eai', sigma_p,
+                                                                       np.asarray(grad_n))
+
+
+def plastic_nodal_forces(grad_n, eps_p, mu, lam, volume, tets, node_count):
+    """Equivalent nodal force of the plastic strain, ``f_p = sum_e V_e B_e^T (C : eps_p_e)``.
+
+    The P1 internal force is ``f_int = -K u + f_p``: the elastic energy
+    ``sum_e V_e/2 (eps_e - eps_p_e) : C : (eps_e - eps_p_e)`` differentiated in ``u``. Add ``f_p``
+    to the right-hand side next to the external forces; ``K`` (and any factorisation) is unchanged.
+
+    Parameters
+    ----------
+    grad_n : (t, 4, 3) 1/m
+        Shape-function gradients from ``tet_shape_gradients`` (rest configuration).
+    eps_p : (t, 3, 3)
+        Plastic strain per tet.
+    mu, lam : float or (t,) Pa
+        Lame parameters.
+    volume : (t,) m^3
+        Rest volume per tet.
+    tets : (t, 4) int
+        Node indices, in the same local order as ``grad_n``.
+    node_count : int
+        Number of nodes ``n``.
+
+    Returns
+    -------
+    (n, 3) N
+        Node forces, entity-first: node ``i`` gets ``sum V_e sigma_p_e @ grad N_a`` over the tets
+        ``e`` and local slots ``a`` with ``tets[e, a] == i``. ``f.ravel()`` is node-interleaved
+        (``3 i + component``), the order of scikit-fem's ``ElementVector(ElementTetP1())`` dofs.
+        Sums to zero force and zero torque on every tet (pure self-equilibrated stress).
+    """
+    element_forces = plastic_element_forces(grad_n, eps_p, mu, lam, volume)   # (t, 4, 3)
+    tets = np.asarray(tets)
+    nodal = np.zeros((node_count, 3))
+    for component in range(3):   # tiny fixed dimension; bincount is vectorised over tets
+        nodal[:, component] = np.bincount(tets.ravel(), weights=element_forces[..., component].ravel(),
+                                          minlength=node_count)
+    return nodal

@@ -1,0 +1,66 @@
+"""Element stresses, their invariants, and per-region reports (anchor reactions, load regions).
+
+Stresses are small-strain stresses of the displacement measured in the model's frame, expressed in
+rest (material) coordinates: the floating frame removes the body's best-fit rotation ``R`` (and
+centre), the corotated frame each element's own rotation ``R_e``. Rotate with ``R sigma R^T`` for
+world coordinates; the invariants (von Mises, principal values) do not depend on it.
+"""
+import numpy as np
+
+from fem.dynamics import _corotated_displacement, tet_rotations
+from fem.plasticity import elastic_stress, von_mises  # the project's one von Mises
+
+__all__ = ["quadrature_stress", "element_stress", "von_mises", "principal_stress_max",
+           "region_table"]
+
+
+def quadrature_strain(model, state):
+    """Small strain at each element quadrature point ``(t, q, 3, 3)`` (dimensionless)."""
+    data = model.elements
+    if model.frame == "corotated":
+        u = _corotated_displacement(model, state.x, tet_rotations(model, state.x))
+    else:
+        u = ((state.x - state.c) @ state.R - model.rest_offsets)[data.tet_nodes]
+    grad_u = np.einsum("tai,tqaj->tqij", u, data.tet_gradients)
+    return 0.5 * (grad_u + grad_u.transpose(0, 1, 3, 2))
+
+
+def quadrature_stress(model, state, tet_plastic_strain=None):
+    """Cauchy stress at each quadrature point ``(t, q, 3, 3)`` (Pa), rest coordinates.
+
+    tet_plastic_strain: optional ``(t, 3, 3)`` plastic strain subtracted from the strain.
+    """
+    eps = quadrature_strain(model, state)
+    eps_p = 0.0 if tet_plastic_strain is None else np.asarray(tet_plastic_strain)[:, None]
+    return elastic_stress(eps, eps_p, model.mu, model.lam)
+
+
+def element_stress(model, state, tet_plastic_strain=None):
+    """Volume-averaged stress of each element ``(t, 3, 3)`` (Pa), rest coordinates.
+
+    P1: the element's constant stress; P2: average over the element's quadrature points.
+    """
+    sigma = quadrature_stress(model, state, tet_plastic_strain)
+    w = model.elements.tet_weights
+    return np.einsum("tq,tqij->tij", w, sigma) / w.sum(axis=1)[:, None, None]
+
+
+def principal_stress_max(sigma):
+    """Largest principal stress ``(...)`` (Pa) of symmetric tensors ``(..., 3, 3)``."""
+    return np.linalg.eigvalsh(sigma)[..., -1]
+
+
+def region_table(model, state):
+    """One row per region: ``(name, fx, fy, fz, ux, uy, uz)``.
+
+    Anchors (``anchor0``, ...): f is the force the anchor exerted on the body during the last step
+    (N). Loads (``load0``, ...): f is the applied total force (N). u is the mean displacement
+    ``x - X`` of the region's nodes (m), world frame.
+    """
+    u = state.x - model.rest_points
+    rows = []
+    for i, nodes in enumerate(model.anchor_nodes):
+        rows.append((f"anchor{i}", *state.node_reaction[nodes].sum(axis=0), *u[nodes].mean(axis=0)))
+    for i, nodes in enumerate(model.load_nodes):
+        rows.append((f"load{i}", *model.load_force[i], *u[nodes].mean(axis=0)))
+    return [(name, *map(float, values)) for name, *values in rows]

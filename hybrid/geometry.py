@@ -1,0 +1,163 @@
+"""Reading meshes named by scene files: closed surfaces for rigid bodies, tet meshes for FEM bodies.
+
+Any format meshio reads is accepted. Every failure raises :class:`MeshError`, whose message names the
+file, so the scene loader can report it as a scene problem instead of a traceback.
+
+Conventions (as in :mod:`rigid.trimesh`): vertices ``(n, 3)`` float64 in m, triangles ``(m, 3)`` and
+tets ``(t, 4)`` or ``(t, 10)`` int64, surfaces oriented outward, tets with positive volume.
+"""
+import contextlib
+import io
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from rigid import trimesh
+
+# meshio cell types whose first 3 (triangles) or 4 (quads, tets) nodes are the corners
+_TET_TYPES = {"tetra": 1, "tetra10": 2}
+_TRIANGLE_TYPES = ("triangle", "triangle6", "triangle7")
+_QUAD_TYPES = ("quad", "quad8", "quad9")
+# tetra10 node order (meshio/VTK): corners 0-3, then edges 01, 12, 20, 03, 13, 23.
+# Swapping corners 1 and 2 flips a tet; the edge nodes follow: 01<->02, 13<->23.
+_FLIP = {1: [0, 2, 1, 3], 2: [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]}
+
+
+class MeshError(Exception):
+    """A mesh file that cannot be used; ``path`` is the file, ``reason`` says what is wrong."""
+
+    def __init__(self, path, reason):
+        self.path = Path(path)
+        self.reason = reason
+        super().__init__(f"{path}: {reason}")
+
+
+def read_mesh(path):
+    """Read ``path`` with meshio; MeshError if it is missing or unreadable."""
+    path = Path(path)
+    if not path.exists():
+        raise MeshError(path, "file not found")
+    if not path.is_file():
+        raise MeshError(path, "not a regular file")
+    printed = io.StringIO()
+    try:
+        # meshio prints reader errors to stdout, then calls sys.exit(1) when every reader failed
+        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
+            mesh = meshio.read(path)
+    # format readers raise anything from ReadError to IndexError on corrupt input
+    except (Exception, SystemExit) as error:  # noqa: BLE001
+        lines = [line.strip() for line in (str(error), printed.getvalue()) if line.strip()]
+        lines = [line for line in lines if line not in ("0", "1")]
+        detail = lines[0].splitlines()[0] if lines else "unknown format or corrupt file"
+        raise MeshError(path, f"cannot read mesh ({detail})") from None
+    points = np.asarray(mesh.points, dtype=float)
+    if points.ndim != 2 or points.shape[1] not in (2, 3):
+        raise MeshError(path, f"points have shape {points.shape}, expected (n, 3)")
+    if points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    if not np.all(np.isfinite(points)):
+        raise MeshError(path, "point coordinates are not all finite")
+    mesh.points = points
+    return mesh
+
+
+def tets_from_mesh(mesh, path):
+    """``(points, tets, order)`` from a meshio mesh: all its tetra (order 1) or tetra10 (order 2) cells.
+
+    Points no tet uses are dropped; tets with negative volume are flipped; MeshError if there are no
+    tets, both orders are mixed, or a tet has zero volume.
+    """
+    blocks = {kind: [c.data for c in mesh.cells if c.type == kind] for kind in _TET_TYPES}
+    present = [kind for kind in _TET_TYPES if blocks[kind]]
+    if not present:
+        raise MeshError(path, f"no tetra or tetra10 cells (found: {_cell_summary(mesh)})")
+    if len(present) > 1:
+        raise MeshError(path, "mixes tetra and tetra10 cells; use one element order")
+    kind = present[0]
+    order = _TET_TYPES[kind]
+    tets = np.concatenate(blocks[kind]).astype(np.int64)
+    used = np.unique(tets)
+    remap = -np.ones(len(mesh.points), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    points, tets = mesh.points[used], remap[tets]
+    volume = _tet_volumes(points, tets)
+    scale = np.ptp(points, axis=0).max() if len(points) else 0.0
+    degenerate = np.abs(volume) <= 1e-12 * scale ** 3
+    if np.any(degenerate):
+        raise MeshError(path, f"{int(degenerate.sum())} of {len(tets)} tets have zero volume")
+    flip = volume < 0
+    tets[flip] = tets[flip][:, _FLIP[order]]
+    return points, tets, order
+
+
+def surface_from_mesh(mesh, path):
+    """Closed outward surface ``(vertices, triangles)`` of a meshio mesh.
+
+    Tet cells (tetra, tetra10) give their boundary faces (corner nodes only) and any surface cells
+    beside them are ignored (mesh generators often store the boundary too). Without tets, triangle
+    cells are used as they are and quads are split in two. MeshError when there is nothing usable,
+    the surface is not closed or not consistently oriented, or it encloses no volume.
+    """
+    if any(c.type in _TET_TYPES for c in mesh.cells):
+        points, tets, _ = tets_from_mesh(mesh, path)
+        triangles = trimesh.tet_boundary(tets[:, :4])
+    else:
+        points = mesh.points
+        parts = [c.data[:, :3] for c in mesh.cells if c.type in _TRIANGLE_TYPES]
+        parts += [c.data[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3) for c in mesh.cells if c.type in _QUAD_TYPES]
+        if not parts:
+            raise MeshError(path, f"no triangle, quad or tetra cells (found: {_cell_summary(mesh)})")
+        triangles = np.concatenate(parts).astype(np.int64)
+    vertices, triangles, _ = trimesh.compact(points, triangles)
+    _check_closed(triangles, path)
+    volume = trimesh.signed_volume(vertices, triangles)
+    scale = np.ptp(vertices, axis=0).max()
+    if abs(volume) <= 1e-12 * scale ** 3:
+        raise MeshError(path, "surface encloses zero volume")
+    return vertices, trimesh.orient_outward(vertices, triangles)
+
+
+def load_surface(path):
+    """Closed outward triangle surface ``(vertices (n, 3) m, triangles (m, 3))`` for a rigid body.
+
+    Reads any format meshio reads; see :func:`surface_from_mesh` for which cells are used.
+    Raises MeshError naming the file when the file is missing or unreadable, or the surface unusable.
+    """
+    return surface_from_mesh(read_mesh(path), Path(path))
+
+
+def load_tet_mesh(path):
+    """Tet mesh ``(points (n, 3) m, tets (t, 4|10), order 1|2)`` for an FEM body.
+
+    tetra cells give order 1, tetra10 cells order 2. Raises MeshError naming the file when the file
+    is missing or unreadable, has no tet cells, or has degenerate tets.
+    """
+    return tets_from_mesh(read_mesh(path), Path(path))
+
+
+def _check_closed(triangles, path):
+    """MeshError unless every edge joins exactly two triangles traversing it in opposite directions."""
+    if len(triangles) < 4:
+        raise MeshError(path, f"surface is not closed: only {len(triangles)} triangles")
+    counts, same_direction = trimesh.edge_use_counts(triangles)
+    boundary = int(np.sum(counts == 1))
+    non_manifold = int(np.sum(counts > 2))
+    if boundary or non_manifold:
+        raise MeshError(path, f"surface is not closed: {boundary} boundary edges, "
+                              f"{non_manifold} non-manifold edges")
+    if same_direction:
+        raise MeshError(path, f"surface is not consistently oriented: {same_direction} edges are "
+                              "traversed twice in the same direction")
+
+
+def _tet_volumes(points, tets):
+    """Signed volumes ``(t,)`` (m^3) of the corner tets."""
+    p = points[tets[:, :4]]
+    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
+    return np.einsum("ij,ij->i", e1, np.cross(e2, e3)) / 6.0
+
+
+def _cell_summary(mesh):
+    kinds = sorted({c.type for c in mesh.cells})
+    return ", ".join(kinds) if kinds else "no cells"

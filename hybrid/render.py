@@ -1,0 +1,384 @@
+"""Off-screen rendering of a finished run, reading only its saved files.
+
+``render_run(run_dir)`` reads the ``.pvd`` index, the frame files and ``summary.json`` that
+``hybrid.output.RunWriter`` wrote, and writes ``run_dir/render/frame_NNNNN.png`` for every frame
+plus a movie (``<scene>.mp4`` with libx264, or ``<scene>.gif`` when ffmpeg is unavailable).
+
+Rendering needs an off-screen OpenGL: EGL (``libegl1 libegl-mesa0 libgl1-mesa-dri``) or OSMesa
+(``libosmesa6``); no X display is used. VTK crashes the process instead of raising when neither is
+present, so ``probe_backend`` tries a tiny render in a subprocess first.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from hybrid.output import find_pvd, read_run
+
+INSTALL_HINT = ("install an off-screen OpenGL library: "
+                "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri (or libosmesa6)")
+WINDOW_ENV = "VTK_DEFAULT_OPENGL_WINDOW"
+# Off-screen VTK render windows, most capable first.
+OFFSCREEN_WINDOWS = ("vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow")
+PROBE_TIMEOUT = 60.0
+
+# Categorical colours indexed by body_id (saturated, none of them grey like the ground).
+BODY_PALETTE = np.array([
+    (31, 119, 180), (230, 97, 1), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+    (23, 190, 207), (188, 189, 34), (227, 119, 194), (140, 86, 75), (255, 187, 0),
+], dtype=np.uint8)
+GROUND_COLOR = (0.9, 0.9, 0.88)
+VIEW_DIRECTION = np.array([1.0, -1.6, 0.9]) / np.linalg.norm([1.0, -1.6, 0.9])
+VIEW_ANGLE_DEG = 30.0
+DEFAULT_FPS = 30.0
+
+_PROBE_SCRIPT = r"""
+import sys
+import pyvista as pv
+pv.OFF_SCREEN = True
+plotter = pv.Plotter(off_screen=True, window_size=(48, 32))
+plotter.add_mesh(pv.Cube(), color="red")
+image = plotter.screenshot(return_img=True)
+name = plotter.ren_win.GetClassName()
+plotter.close()
+wanted = sys.argv[1]
+if wanted and name != wanted:
+    sys.exit(f"asked for {wanted}, VTK made {name}")
+if image is None or image.std() == 0:
+    sys.exit(f"{name} rendered a blank image")
+print(name)
+"""
+
+_backend_cache: tuple[bool, str, str | None] | None = None
+
+
+def _probe_window(window: str, timeout: float) -> tuple[bool, str]:
+    """Render a cube in a subprocess with one window class; (ok, class name or failure reason)."""
+    env = dict(os.environ)
+    if window:
+        env[WINDOW_ENV] = window
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT, window], env=env,
+                              capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return False, f"{window or 'default window'}: timed out after {timeout:.0f} s"
+    if proc.returncode == 0:
+        return True, proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else window
+    if proc.returncode < 0:
+        try:
+            reason = f"crashed with {signal.Signals(-proc.returncode).name}"
+        except ValueError:
+            reason = f"killed by signal {-proc.returncode}"
+    else:
+        lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
+        reason = lines[-1] if lines else f"exit code {proc.returncode}"
+    return False, f"{window or 'default window'}: {reason}"
+
+
+def probe_backend(timeout: float = PROBE_TIMEOUT, refresh: bool = False) -> tuple[bool, str]:
+    """Check that off-screen rendering works here, without risking a crash of this process.
+
+    Tries a tiny pyvista render in a subprocess for each off-screen window type (EGL, then
+    OSMesa; the default window first when a DISPLAY is set, or the one named by
+    ``VTK_DEFAULT_OPENGL_WINDOW`` if the user set it). Returns ``(ok, message)``; when rendering is
+    impossible the message says what failed and which packages to install. The result is cached.
+    """
+    global _backend_cache
+    if _backend_cache is not None and not refresh:
+        return _backend_cache[:2]
+    if os.environ.get(WINDOW_ENV):
+        candidates: Sequence[str] = (os.environ[WINDOW_ENV],)
+    elif os.environ.get("DISPLAY"):
+        candidates = ("",) + OFFSCREEN_WINDOWS
+    else:
+        candidates = OFFSCREEN_WINDOWS
+    failures = []
+    for window in candidates:
+        ok, detail = _probe_window(window, timeout)
+        if ok:
+            _backend_cache = (True, f"off-screen rendering works ({detail})", window or None)
+            return _backend_cache[:2]
+        failures.append(detail)
+    _backend_cache = (False, "off-screen rendering is unavailable (" + "; ".join(failures)
+                      + "); " + INSTALL_HINT, None)
+    return _backend_cache[:2]
+
+
+def _use_backend() -> None:
+    """Fail with the install hint if rendering would crash; select the working window class."""
+    ok, message = probe_backend()
+    if not ok:
+        raise RuntimeError(message)
+    window = _backend_cache[2] if _backend_cache else None
+    if window and not os.environ.get(WINDOW_ENV):
+        os.environ[WINDOW_ENV] = window
+
+
+def _read_points_and_range(path: Path, field: str | None):
+    """Frame points and (min, max, "cell" or "point") of ``field`` (magnitude for vectors).
+
+    Only the points and that one array are read.
+    """
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridReader
+
+    reader = vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    reader.UpdateInformation()
+    for selection in (reader.GetPointDataArraySelection(), reader.GetCellDataArraySelection()):
+        selection.DisableAllArrays()
+        if field:
+            selection.EnableArray(field)
+    reader.Update()
+    grid = reader.GetOutput()
+    points = grid.GetPoints()
+    xyz = vtk_to_numpy(points.GetData()) if points is not None else np.zeros((0, 3))
+    value_range = None
+    if field:
+        for association, data in (("cell", grid.GetCellData()), ("point", grid.GetPointData())):
+            array = data.GetArray(field)
+            if array is not None and array.GetNumberOfTuples():
+                values = vtk_to_numpy(array).astype(float)
+                if values.ndim > 1:
+                    values = np.linalg.norm(values, axis=1)
+                value_range = (float(values.min()), float(values.max()), association)
+                break
+    return xyz, value_range
+
+
+def scene_bounds(frame_paths: Sequence[Path], field: str | None = None):
+    """Union (lo, hi) of all frames' points; range and association of ``field`` over all frames."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    value_lo, value_hi = np.inf, -np.inf
+    association = "cell"
+    for path in frame_paths:
+        xyz, value_range = _read_points_and_range(path, field)
+        if len(xyz):
+            lo = np.minimum(lo, xyz.min(axis=0))
+            hi = np.maximum(hi, xyz.max(axis=0))
+        if value_range:
+            value_lo, value_hi = min(value_lo, value_range[0]), max(value_hi, value_range[1])
+            association = value_range[2]
+    if not np.all(np.isfinite(lo)):
+        lo, hi = -np.ones(3) * 0.5, np.ones(3) * 0.5
+    clim = None
+    if np.isfinite(value_lo):
+        clim = (value_lo, value_hi if value_hi > value_lo else value_lo + max(abs(value_lo), 1.0))
+    return lo, hi, clim, association
+
+
+def camera_for_bounds(lo: np.ndarray, hi: np.ndarray, aspect: float,
+                      view_angle_deg: float = VIEW_ANGLE_DEG, margin: float = 1.12):
+    """Fixed 3/4 elevated camera (position, focal point, up) whose view holds the whole box.
+
+    Looks at the box centre along ``-VIEW_DIRECTION`` with z up; the distance is the smallest at
+    which every box corner projects inside the window (vertical view angle, width/height
+    ``aspect``), times ``margin``.
+    """
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    centre = (lo + hi) / 2
+    back = VIEW_DIRECTION  # from the focal point towards the camera
+    screen_up = np.array([0.0, 0.0, 1.0]) - back[2] * back
+    screen_up /= np.linalg.norm(screen_up)
+    screen_right = np.cross(screen_up, back)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - centre
+    tan_v = np.tan(np.radians(view_angle_deg) / 2)
+    tan_h = tan_v * aspect
+    # A corner at depth a towards the camera fits if |offset| <= (D - a) tan(half angle).
+    needed = corners @ back + np.maximum(np.abs(corners @ screen_right) / tan_h,
+                                         np.abs(corners @ screen_up) / tan_v)
+    extent = max(float(np.linalg.norm(hi - lo)), 1e-6)
+    distance = margin * max(float(needed.max()), 0.5 * extent)
+    position = centre + distance * back
+    return [tuple(position), tuple(centre), (0.0, 0.0, 1.0)]
+
+
+def movie_fps(times: Sequence[float], summary: Mapping[str, Any] | None) -> float:
+    """Playback rate: the scene's output_fps if recorded, else from the spacing of frame times."""
+    try:
+        fps = float(summary["scene"]["simulation"]["output_fps"])
+        if fps > 0:
+            return fps
+    except (KeyError, TypeError, ValueError):
+        pass
+    if len(times) > 1:
+        spacing = float(np.median(np.diff(times)))
+        if spacing > 0:
+            return 1.0 / spacing
+    return DEFAULT_FPS
+
+
+def _scene_planes(summary: Mapping[str, Any] | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    try:
+        planes = summary["scene"]["planes"]
+    except (KeyError, TypeError):
+        return []
+    result = []
+    for plane in planes or []:
+        normal = np.asarray(plane.get("normal", (0, 0, 1)), dtype=float)
+        norm = np.linalg.norm(normal)
+        if norm > 0:
+            result.append((np.asarray(plane.get("point", (0, 0, 0)), dtype=float), normal / norm))
+    return result
+
+
+def _even_frame(image: np.ndarray) -> np.ndarray:
+    """Pad by one edge row/column so both sides are even (yuv420p needs it)."""
+    pad_rows, pad_cols = image.shape[0] % 2, image.shape[1] % 2
+    if pad_rows or pad_cols:
+        image = np.pad(image, ((0, pad_rows), (0, pad_cols), (0, 0)), mode="edge")
+    return image
+
+
+class _MovieWriter:
+    """mp4 via imageio-ffmpeg (libx264), or an animated gif if ffmpeg is unavailable."""
+
+    def __init__(self, stem: Path, fps: float):
+        import imageio.v2 as imageio
+
+        self.fps = fps
+        self.path = stem.with_suffix(".mp4")
+        self._gif_frames: list[np.ndarray] | None = None
+        try:
+            import imageio_ffmpeg
+
+            imageio_ffmpeg.get_ffmpeg_exe()
+            self._writer = imageio.get_writer(self.path, format="FFMPEG", mode="I", fps=fps,
+                                              codec="libx264", pixelformat="yuv420p",
+                                              macro_block_size=1, quality=8)
+        except Exception:
+            self.path.unlink(missing_ok=True)
+            self.path = stem.with_suffix(".gif")
+            self._writer = None
+            self._gif_frames = []
+
+    def append(self, image: np.ndarray) -> None:
+        if self._writer is not None:
+            self._writer.append_data(_even_frame(image))
+        else:
+            self._gif_frames.append(image)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+        elif self._gif_frames:
+            import imageio.v3 as iio
+
+            iio.imwrite(self.path, np.stack(self._gif_frames), duration=1000.0 / self.fps, loop=0)
+
+
+def _frame_mesh(path: Path, field: str | None, association: str = "cell"):
+    """Read one frame; add per-cell body colours, or zeros for a field this frame lacks."""
+    import pyvista as pv
+
+    mesh = pv.read(path)
+    if field is None:
+        body_id = np.asarray(mesh.cell_data.get("body_id", np.zeros(mesh.n_cells, int)), dtype=np.int64)
+        mesh.cell_data["body_color"] = BODY_PALETTE[body_id % len(BODY_PALETTE)]
+    elif association == "cell" and field not in mesh.cell_data:
+        mesh.cell_data[field] = np.zeros(mesh.n_cells)
+    elif association == "point" and field not in mesh.point_data:
+        mesh.point_data[field] = np.zeros(mesh.n_points)
+    return mesh
+
+
+def render_run(run_dir: Path | str, out: Path | str | None = None,
+               size: tuple[int, int] = (960, 540), fps: float | None = None,
+               field: str | None = None,
+               progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """Render every saved frame of a run to PNG and assemble a movie.
+
+    run_dir: a directory written by ``hybrid.output.RunWriter``.
+    out: output folder (default ``run_dir/render``).
+    size: (width, height) of the images in pixels.
+    fps: movie frame rate; default the scene's output_fps, else from the frame times.
+    field: colour by this cell (or point) field with a scalar bar, e.g. ``"von_mises"``;
+        default colours each body by its ``body_id``.
+    progress: called as ``progress(frames_done, frame_count)`` after each frame.
+
+    Returns ``{"pngs": [paths], "movie": path, "fps": fps, "backend": message}``. Raises
+    RuntimeError with the packages to install when off-screen OpenGL is unavailable.
+    """
+    run_dir = Path(run_dir)
+    times, frame_paths, summary = read_run(run_dir)
+    if not frame_paths:
+        raise ValueError(f"{run_dir} has no frames to render")
+    out_dir = Path(out) if out is not None else run_dir / "render"
+    scene = find_pvd(run_dir, summary).stem
+    fps = float(fps) if fps else movie_fps(times, summary)
+    width, height = int(size[0]), int(size[1])
+
+    lo, hi, clim, association = scene_bounds(frame_paths, field)
+    if field is not None and clim is None:
+        raise ValueError(f"no frame of {run_dir} has a field named {field!r}")
+    _use_backend()
+    import pyvista as pv
+
+    pv.OFF_SCREEN = True
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for stale in out_dir.glob("frame_*.png"):
+        stale.unlink()
+
+    plotter = pv.Plotter(off_screen=True, window_size=(width, height))
+    movie = None
+    pngs: list[Path] = []
+    try:
+        plotter.set_background("#f7f8fa", top="#dde4ec")
+        centre = (lo + hi) / 2
+        ground_size = 2.5 * max(float(np.max(hi - lo)), 1e-3)
+        for point, normal in _scene_planes(summary):
+            foot = centre - np.dot(centre - point, normal) * normal
+            ground = pv.Plane(center=foot, direction=normal, i_size=ground_size, j_size=ground_size)
+            plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0)
+        plotter.camera_position = camera_for_bounds(lo, hi, width / height)
+        plotter.camera.view_angle = VIEW_ANGLE_DEG
+        plotter.reset_camera_clipping_range()
+        # Keep the camera fixed even when later add_mesh calls would reset it.
+        plotter.camera_set = True
+        import imageio.v3 as iio
+
+        movie = _MovieWriter(out_dir / scene, fps)
+        shown = None  # the mesh on screen; later frames are copied into it (one actor)
+        label = plotter.add_text("", position=(10, height - 28), font_size=12, color="black",
+                                 name="time", render=False)
+        for index, (time, path) in enumerate(zip(times, frame_paths)):
+            mesh = _frame_mesh(path, field, association)
+            if shown is None:
+                shown = mesh
+                style = dict(show_edges=True, edge_color=(0.15, 0.15, 0.15), edge_opacity=0.25,
+                             line_width=1.0, ambient=0.25, diffuse=0.75, specular=0.0,
+                             name="bodies", reset_camera=False, render=False)
+                if field is None:
+                    plotter.add_mesh(shown, scalars="body_color", rgb=True, **style)
+                else:
+                    plotter.add_mesh(shown, scalars=field, preference=association, clim=clim,
+                                     cmap="viridis",
+                                     scalar_bar_args={"title": field, "color": "black",
+                                                      "vertical": True, "position_x": 0.86,
+                                                      "position_y": 0.1}, **style)
+            else:
+                shown.copy_from(mesh, deep=False)
+            label.input = f"t = {time:.3f} s"
+            plotter.reset_camera_clipping_range()
+            plotter.render()
+            image = plotter.screenshot(return_img=True)
+            png = out_dir / f"frame_{index:05d}.png"
+            iio.imwrite(png, image, compress_level=1)
+            movie.append(image)
+            pngs.append(png)
+            if progress is not None:
+                progress(index + 1, len(frame_paths))
+    finally:
+        if movie is not None:
+            movie.close()
+        plotter.close()
+    return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": probe_backend()[1]}

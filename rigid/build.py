@@ -1,0 +1,164 @@
+"""Build a RigidModel and its initial RigidState from per-body descriptions (done once)."""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quaternion as quat
+from .mass import mass_properties
+from .model import SHAPE_CODES, RigidModel, RigidState
+from .sdf import SignedDistanceGrid
+from .shapes import make_shape
+
+
+@dataclass
+class RigidBodyDesc:
+    """One rigid body as a scene describes it. Lengths m, density kg/m^3, angles rad.
+
+    shape: primitive dict ({"type": "box", "size": [...]}, ...) or None when ``vertices`` and
+    ``triangles`` (closed, outward, in the body's own frame) are given. position/orientation place
+    the body's own frame in the world; velocity (m/s) is the centre of mass's, angular_velocity
+    (rad/s) is world-frame.
+    """
+    name: str
+    shape: dict = None
+    vertices: np.ndarray = None
+    triangles: np.ndarray = None
+    density: float = 1000.0
+    position: tuple = (0.0, 0.0, 0.0)
+    orientation: tuple = (1.0, 0.0, 0.0, 0.0)
+    velocity: tuple = (0.0, 0.0, 0.0)
+    angular_velocity: tuple = (0.0, 0.0, 0.0)
+    friction: float = 0.5
+    restitution: float = 0.0
+    fixed: bool = False
+
+
+@dataclass
+class PlaneDesc:
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 0.0, 1.0)
+    friction: float = 0.5
+    restitution: float = 0.0
+
+
+@dataclass
+class _Body:
+    vertices: np.ndarray
+    triangles: np.ndarray
+    kind: int
+    params: np.ndarray
+    points: np.ndarray          # contact points, shape frame
+    point_radius: np.ndarray
+    grid: object = None
+    extra: dict = field(default_factory=dict)
+
+
+def _geometry(desc):
+    """Surface, signed-distance kind and contact points of one body, in its shape frame."""
+    if desc.shape is not None:
+        vertices, triangles = make_shape(desc.shape)
+        kind = desc.shape["type"]
+    else:
+        vertices, triangles = np.asarray(desc.vertices, float), np.asarray(desc.triangles, np.int64)
+        kind = "mesh"
+    params = np.zeros(4)
+    points, radius = vertices, np.zeros(len(vertices))
+    grid = None
+    if kind == "sphere":
+        r = float(desc.shape["radius"])
+        params[0] = r
+        points, radius = np.zeros((1, 3)), np.array([r])
+    elif kind == "box":
+        size = np.broadcast_to(np.asarray(desc.shape["size"], float), (3,))
+        params[:3] = 0.5 * size
+    elif kind == "capsule":
+        r, h = float(desc.shape["radius"]), float(desc.shape["height"])
+        half = max(0.5 * h - r, 0.0)
+        params[:2] = r, half
+        # the capsule is the set of points within r of its axis segment: sample the segment
+        n = max(2, int(np.ceil(2 * half / (0.5 * r))) + 1)
+        points = np.zeros((n, 3))
+        points[:, 2] = np.linspace(-half, half, n)
+        radius = np.full(n, r)
+    elif kind == "cylinder":
+        params[:2] = float(desc.shape["radius"]), 0.5 * float(desc.shape["height"])
+    else:
+        grid = SignedDistanceGrid.build(vertices, triangles)
+    return _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
+
+
+def build_rigid(bodies, planes):
+    """RigidModel and initial RigidState from lists of RigidBodyDesc and PlaneDesc."""
+    geo = [_geometry(d) for d in bodies]
+    b = len(bodies)
+    mass, inertia = np.zeros(b), np.zeros((b, 3))
+    axes, com = np.zeros((b, 3, 3)), np.zeros((b, 3))
+    for i, (d, g) in enumerate(zip(bodies, geo)):
+        props = mass_properties(g.vertices, g.triangles, d.density)
+        mass[i], com[i] = props.mass, props.com
+        I = props.inertia
+        off = np.abs(I - np.diag(np.diag(I))).max()
+        if off <= 1e-12 * np.abs(I).max():
+            inertia[i], axes[i] = np.diag(I), np.eye(3)   # keep the user's axes when already principal
+        else:
+            inertia[i], axes[i] = np.linalg.eigh(I)
+            if np.linalg.det(axes[i]) < 0:
+                axes[i][:, 2] *= -1
+    fixed = np.array([d.fixed for d in bodies], dtype=bool)
+    inv_mass = np.where(fixed, 0.0, 1.0 / mass)
+    inv_inertia = np.where(fixed[:, None], 0.0, 1.0 / inertia)
+
+    # body frame = principal frame at the centre of mass: p_shape = A p_body + com
+    to_body = lambda i, p: (np.asarray(p) - com[i]) @ axes[i]
+    surface_vertices = [to_body(i, g.vertices) for i, g in enumerate(geo)]
+    local_points = [to_body(i, g.points) for i, g in enumerate(geo)]
+    point_radius = np.concatenate([g.point_radius for g in geo]) if b else np.zeros(0)
+    point_count = np.array([len(p) for p in local_points], dtype=np.int64)
+    point_start = np.concatenate([[0], np.cumsum(point_count)]).astype(np.int64)
+    body_radius = np.array([np.max(np.linalg.norm(p, axis=1) + g.point_radius)
+                            for p, g in zip(local_points, geo)]) if b else np.zeros(0)
+    extent = np.array([np.min(np.ptp(g.vertices, axis=0)) for g in geo]) if b else np.zeros(0)
+
+    grids = [g.grid for g in geo if g.grid is not None]
+    grid_index = np.full(b, -1, dtype=np.int64)
+    k = 0
+    for i, g in enumerate(geo):
+        if g.grid is not None:
+            grid_index[i], k = k, k + 1
+    sizes = [int(np.prod(gr.shape)) for gr in grids]
+    model = RigidModel(
+        names=[d.name for d in bodies], body_mass=np.where(fixed, np.inf, mass),
+        body_inv_mass=inv_mass, body_inertia=inertia, body_inv_inertia=inv_inertia,
+        body_fixed=fixed, body_friction=np.array([d.friction for d in bodies], float),
+        body_restitution=np.array([d.restitution for d in bodies], float), body_radius=body_radius,
+        shape_kind=np.array([g.kind for g in geo], dtype=np.int64),
+        shape_params=np.array([g.params for g in geo]).reshape(b, 4),
+        shape_rotation=axes, shape_offset=com, grid_index=grid_index,
+        grid_values=np.concatenate([gr.values.ravel() for gr in grids]) if grids else np.zeros(1),
+        grid_start=np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if grids else np.zeros(1, np.int64),
+        grid_shape=np.array([gr.shape for gr in grids], dtype=np.int64).reshape(-1, 3) if grids else np.ones((1, 3), np.int64),
+        grid_origin=np.array([gr.origin for gr in grids]).reshape(-1, 3) if grids else np.zeros((1, 3)),
+        grid_cell=np.array([gr.cell_size for gr in grids], float) if grids else np.ones(1),
+        point_body=np.repeat(np.arange(b), point_count), point_local=np.concatenate(local_points) if b else np.zeros((0, 3)),
+        point_radius=point_radius, surface_vertices=surface_vertices,
+        surface_triangles=[g.triangles for g in geo],
+        plane_point=np.array([p.point for p in planes], float).reshape(-1, 3),
+        plane_normal=np.array([np.asarray(p.normal, float) / np.linalg.norm(p.normal) for p in planes]).reshape(-1, 3),
+        plane_friction=np.array([p.friction for p in planes], float),
+        plane_restitution=np.array([p.restitution for p in planes], float),
+        body_min_extent=extent)
+    model.point_start = point_start
+
+    # initial state: user pose of the shape frame -> pose of the principal frame at the com
+    q_user = quat.normalize(np.array([d.orientation for d in bodies], float).reshape(b, 4))
+    R_user = quat.to_matrix(q_user)
+    position = np.array([d.position for d in bodies], float).reshape(b, 3) + np.einsum("bij,bj->bi", R_user, com)
+    orientation = quat.normalize(quat.multiply(q_user, quat.from_matrix(axes))) if b else np.zeros((0, 4))
+    R = quat.to_matrix(orientation)
+    w = np.array([d.angular_velocity for d in bodies], float).reshape(b, 3)
+    I_world = np.einsum("bij,bj,bkj->bik", R, inertia, R)
+    L = np.where(fixed[:, None], 0.0, np.einsum("bij,bj->bi", I_world, w))
+    v = np.where(fixed[:, None], 0.0, np.array([d.velocity for d in bodies], float).reshape(b, 3))
+    state = RigidState(position=position, orientation=orientation, velocity=v, angular_momentum=L,
+                       contact_dv=np.zeros((b, 3)))
+    return model, state

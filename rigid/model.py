@@ -1,0 +1,138 @@
+"""Rigid-body model (built once from a scene) and state (what changes each step).
+
+Each body's *body frame* is its principal frame at the centre of mass, so the body-frame inertia
+is diagonal. The *shape frame* is the frame the user's mesh or primitive is given in; a point
+``p_body`` in the body frame is at ``shape_rotation @ p_body + shape_offset`` in the shape frame.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quaternion as quat
+
+SHAPE_SPHERE, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_CYLINDER, SHAPE_GRID = 1, 2, 3, 4, 5
+SHAPE_CODES = {"sphere": SHAPE_SPHERE, "box": SHAPE_BOX, "capsule": SHAPE_CAPSULE,
+               "cylinder": SHAPE_CYLINDER, "mesh": SHAPE_GRID}
+
+
+@dataclass
+class RigidModel:
+    """Constant description of ``body_count`` rigid bodies and ``plane_count`` static planes.
+
+    body_mass (b,) kg, infinite for fixed bodies; body_inv_mass (b,) 1/kg, 0 for fixed bodies.
+    body_inertia (b, 3) kg m^2: principal moments (body frame); body_inv_inertia (b, 3), 0 if fixed.
+    body_fixed (b,) bool. body_friction, body_restitution (b,) dimensionless.
+    body_radius (b,) m: bounding radius about the centre of mass, contact radii included.
+    shape_kind (b,) int: SHAPE_* code of the signed distance used when others touch the body.
+    shape_params (b, 4): sphere (r), box (hx, hy, hz), capsule (r, half segment), cylinder (r, hh).
+    shape_rotation (b, 3, 3), shape_offset (b, 3) m: body frame -> shape frame.
+    grid_index (b,) int: SDF grid of the body (-1 for analytic shapes); grid_* arrays hold all
+        grids flat: grid_values (sum of nodes,), grid_start (g,), grid_shape (g, 3) int,
+        grid_origin (g, 3) m, grid_cell (g,) m.
+    point_body (p,) int, point_local (p, 3) m (body frame), point_radius (p,) m: contact points.
+    surface_vertices: list of (n_i, 3) body-frame vertices; surface_triangles: list of (m_i, 3).
+    plane_point (k, 3), plane_normal (k, 3) unit, plane_friction (k,), plane_restitution (k,).
+    names: list of body names.
+    """
+    names: list
+    body_mass: np.ndarray
+    body_inv_mass: np.ndarray
+    body_inertia: np.ndarray
+    body_inv_inertia: np.ndarray
+    body_fixed: np.ndarray
+    body_friction: np.ndarray
+    body_restitution: np.ndarray
+    body_radius: np.ndarray
+    shape_kind: np.ndarray
+    shape_params: np.ndarray
+    shape_rotation: np.ndarray
+    shape_offset: np.ndarray
+    grid_index: np.ndarray
+    grid_values: np.ndarray
+    grid_start: np.ndarray
+    grid_shape: np.ndarray
+    grid_origin: np.ndarray
+    grid_cell: np.ndarray
+    point_body: np.ndarray
+    point_local: np.ndarray
+    point_radius: np.ndarray
+    surface_vertices: list
+    surface_triangles: list
+    plane_point: np.ndarray
+    plane_normal: np.ndarray
+    plane_friction: np.ndarray
+    plane_restitution: np.ndarray
+    body_min_extent: np.ndarray = field(default=None)
+
+    @property
+    def body_count(self):
+        return len(self.body_mass)
+
+
+@dataclass
+class RigidState:
+    """Everything about the rigid bodies that changes in time.
+
+    position (b, 3) m: centre of mass, world frame.
+    orientation (b, 4): unit quaternion (w, x, y, z) of the body (principal) frame.
+    velocity (b, 3) m/s: the velocity the last step drifted with (leapfrog: v at t - dt/2).
+    angular_momentum (b, 3) kg m^2/s: world frame, about the centre of mass.
+    contact_dv (b, 3) m/s: velocity change the last step's contact forces gave (for reporting
+        the velocity at time t, see :func:`reported_velocity`).
+    time float s; last_dt float s: size of the last step.
+    """
+    position: np.ndarray
+    orientation: np.ndarray
+    velocity: np.ndarray
+    angular_momentum: np.ndarray
+    contact_dv: np.ndarray
+    time: float = 0.0
+    last_dt: float = 0.0
+
+    def copy(self):
+        return RigidState(self.position.copy(), self.orientation.copy(), self.velocity.copy(),
+                          self.angular_momentum.copy(), self.contact_dv.copy(), self.time,
+                          self.last_dt)
+
+
+def world_inverse_inertia(model, orientation):
+    """I^-1 in the world frame, ``R diag(1/I0) R^T`` for every body, (b, 3, 3)."""
+    R = quat.to_matrix(orientation)
+    return np.einsum("bij,bj,bkj->bik", R, model.body_inv_inertia, R)
+
+
+def angular_velocity(model, state):
+    """World angular velocity w = I^-1 L, (b, 3) rad/s."""
+    return np.einsum("bij,bj->bi", world_inverse_inertia(model, state.orientation),
+                     state.angular_momentum)
+
+
+def reported_velocity(model, state, gravity):
+    """Velocity at the state's time (leapfrog stores the mid-step velocity).
+
+    Half a step of gravity plus half of the last step's contact velocity change, so a body at rest
+    on the ground reports zero and a falling one the exact ballistic velocity.
+    """
+    if state.last_dt == 0.0:
+        return state.velocity.copy()
+    free = ~model.body_fixed
+    out = state.velocity.copy()
+    out[free] += 0.5 * (np.asarray(gravity) * state.last_dt + state.contact_dv[free])
+    return out
+
+
+def kinetic_energy(model, state, velocity=None):
+    """Per-body kinetic energy (b,) J (0 for fixed bodies)."""
+    v = state.velocity if velocity is None else velocity
+    w = angular_velocity(model, state)
+    m = np.where(model.body_fixed, 0.0, model.body_mass)
+    return 0.5 * m * np.einsum("bi,bi->b", v, v) + 0.5 * np.einsum("bi,bi->b", w, state.angular_momentum)
+
+
+def body_pose_in_shape_frame(model, state):
+    """World pose of each body's own (shape) frame: rotation (b,3,3) and origin (b,3)."""
+    R = quat.to_matrix(state.orientation)
+    # p_world = x + R p_body and p_shape = S p_body + t  =>  p_world = x + R S^T (p_shape - t)
+    R_shape = np.einsum("bij,bkj->bik", R, model.shape_rotation)
+    origin = state.position - np.einsum("bij,bj->bi", R_shape, model.shape_offset)
+    return R_shape, origin

@@ -1,0 +1,94 @@
+"""Steel cantilever 1 m x 0.1 m x 0.1 m clamped at x = 0 with a 1 kN tip load: statics and vibration."""
+from dataclasses import replace
+
+import numpy as np
+
+from fem.dynamics import step
+from fem.mesh import box_tet_mesh, quadratic_tets, select_nodes_in_box
+from fem.model import build_fem_model, rest_state
+from fem.static import static_displacement
+from fem.stress import region_table
+
+LENGTH, SIDE = 1.0, 0.1
+E, NU, RHO, LOAD = 2e11, 0.3, 7800.0, 1000.0
+AREA, INERTIA = SIDE**2, SIDE**4 / 12
+SHEAR_MODULUS = E / (2 * (1 + NU))
+# Euler-Bernoulli bending plus Timoshenko shear correction (kappa = 5/6)
+TIP_THEORY = LOAD * LENGTH**3 / (3 * E * INERTIA) + LOAD * LENGTH / (5 / 6 * SHEAR_MODULUS * AREA)
+
+
+def cantilever(order, cells, **options):
+    points, tets = box_tet_mesh((LENGTH, SIDE, SIDE), cells)
+    points = points + [0.5 * LENGTH, 0.0, 0.0]
+    if order == 2:
+        points, tets = quadratic_tets(points, tets)
+    clamp = select_nodes_in_box(points, [-1, -1, -1], [0, 1, 1])
+    tip = select_nodes_in_box(points, [LENGTH, -1, -1], [2, 1, 1])
+    model = build_fem_model(points, tets, order=order, density=RHO, young=E, poisson=NU,
+                            anchors=[(clamp, [0, 0, 0])], loads=[(tip, [0, 0, -LOAD])], **options)
+    return model, tip
+
+
+def settle(model, dt, steps):
+    state = rest_state(model)
+    for _ in range(steps):
+        state = step(model, state, dt)
+    return state
+
+
+def test_cantilever_tip_deflection_quadratic_tets_matches_beam_theory():
+    model, tip = cantilever(2, (20, 2, 2), damping_stiffness=2e-4)
+    state = settle(model, 1e-3, 150)
+    tip_deflection = -(state.x - model.rest_points)[tip, 2].mean()
+    static_tip = -static_displacement(model)[tip, 2].mean()
+    print(f"P2 tip {tip_deflection:.5e} m, theory {TIP_THEORY:.5e} m, static {static_tip:.5e} m")
+    assert abs(tip_deflection / TIP_THEORY - 1) < 0.03
+    # the settled dynamic answer is the static solution on the same mesh
+    assert abs(tip_deflection / static_tip - 1) < 0.01
+    # the clamp holds the whole load: reaction equals minus the applied force
+    table = region_table(model, state)
+    assert table[0][0] == "anchor0" and table[1][0] == "load0"
+    np.testing.assert_allclose(table[0][1:4], [0, 0, LOAD], atol=1e-3 * LOAD)
+    np.testing.assert_allclose(table[1][6], -tip_deflection, rtol=1e-12)
+
+
+def test_cantilever_linear_tets_converge_with_refinement():
+    sizes, errors = [], []
+    for cells in [(10, 1, 1), (20, 2, 2), (40, 4, 4)]:
+        model, tip = cantilever(1, cells)
+        tip_deflection = -static_displacement(model)[tip, 2].mean()
+        sizes.append(LENGTH / cells[0])
+        errors.append(abs(tip_deflection / TIP_THEORY - 1))
+    rate = np.polyfit(np.log(sizes), np.log(errors), 1)[0]
+    print(f"P1 cantilever errors {errors}, rate {rate:.2f}")
+    assert errors[0] > errors[1] > errors[2]
+    assert rate > 0.8
+    # settled dynamics equals the static solve on the finest mesh too
+    state = settle(model, 1e-2, 40)
+    np.testing.assert_allclose(-(state.x - model.rest_points)[tip, 2].mean(), tip_deflection, rtol=0.01)
+
+
+def test_cantilever_released_from_loaded_shape_vibrates_at_first_bending_frequency():
+    model, tip = cantilever(2, (10, 1, 1), integrator="newmark")
+    u = static_displacement(model)
+    # release: same beam without the tip load
+    released = replace(model, node_load=np.zeros_like(model.node_load))
+    frequency = 1.875**2 / (2 * np.pi) * np.sqrt(E * INERTIA / (RHO * AREA * LENGTH**4))
+    period = 1 / frequency
+    dt = period / 60
+    state = rest_state(released, x=released.rest_points + u)
+    times, tip_z = [], []
+    for _ in range(int(3.5 * period / dt)):
+        state = step(released, state, dt)
+        times.append(state.time)
+        tip_z.append((state.x - released.rest_points)[tip, 2].mean())
+    times, tip_z = np.array(times), np.array(tip_z)
+    # zero crossings by linear interpolation, half a period apart
+    k = np.nonzero(np.sign(tip_z[1:]) != np.sign(tip_z[:-1]))[0]
+    crossings = times[k] - tip_z[k] * (times[k + 1] - times[k]) / (tip_z[k + 1] - tip_z[k])
+    measured = 1 / (2 * np.mean(np.diff(crossings)))
+    print(f"first bending frequency {measured:.2f} Hz, Euler-Bernoulli {frequency:.2f} Hz")
+    assert len(crossings) >= 5
+    assert abs(measured / frequency - 1) < 0.05
+    # Newmark without damping keeps the amplitude
+    assert np.abs(tip_z[-int(period / dt):]).max() > 0.95 * np.abs(u[tip, 2].mean())

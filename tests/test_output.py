@@ -1,0 +1,162 @@
+"""Run output round-trips: VTK frames, pvd index, CSV tables and summary read back exactly."""
+
+import csv
+import json
+import xml.etree.ElementTree as ET
+
+import meshio
+import numpy as np
+import pytest
+
+from hybrid.output import BODY_COLUMNS, REGION_COLUMNS, FramePiece, RunWriter, read_run
+
+BOX_POINTS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
+BOX_TRIANGLES = np.array([
+    [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+    [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
+])
+TET_POINTS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+TETS = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+
+
+def box_piece(t):
+    return FramePiece(body_id=3, points=BOX_POINTS + [0.0, 0.0, 2.0 - t],
+                      cells=[("triangle", BOX_TRIANGLES)],
+                      point_data={"velocity": np.tile([0.0, 0.0, -1.0], (8, 1))})
+
+
+def tet_piece(t):
+    return FramePiece(body_id=7, points=TET_POINTS + [3.0, 0.0, t], cells=[("tetra", TETS)],
+                      cell_data={"von_mises": np.array([1.5e6, 2.5e6]) * (1 + t),
+                                 "principal_stress": np.arange(6.0).reshape(2, 3)})
+
+
+def body_rows(t):
+    return [(t, body, 0.1 + 0.2, 1 / 3, t, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -t, 0.0, 0.0, 0.0, 1e-300 * 7)
+            for body in (3, 7)]
+
+
+def write_three_frames(run_dir):
+    times = [0.0, 0.1, 0.30000000000000004]
+    with RunWriter(run_dir, "demo") as writer:
+        for t in times:
+            writer.write_frame(t, [box_piece(t), tet_piece(t)], body_rows(t))
+        writer.write_regions([(t, 7, "clamp", 1.0, 2.0, np.float64(3.0), 0.0, 0.0, 1e-9) for t in times[:2]])
+        assert writer.frames_written == 3
+        writer.close({"scene": {"name": "demo"}, "steps": np.int64(30), "energy": np.float32(0.5),
+                      "drift": np.array([0.1, 0.2]), "ok": np.bool_(True)})
+    return times
+
+
+def test_frames_merge_bodies_with_body_id_and_zero_filled_fields(tmp_path):
+    run_dir = tmp_path / "run"
+    write_three_frames(run_dir)
+    mesh = meshio.read(run_dir / "frames" / "frame_00001.vtu")
+
+    np.testing.assert_allclose(mesh.points[:8], BOX_POINTS + [0, 0, 1.9])
+    np.testing.assert_allclose(mesh.points[8:], TET_POINTS + [3.0, 0, 0.1])
+    assert [block.type for block in mesh.cells] == ["triangle", "tetra"]
+    # The tet block's indices are shifted past the box's 8 points.
+    np.testing.assert_array_equal(mesh.cells[1].data, TETS + 8)
+
+    body_id = np.concatenate(mesh.cell_data["body_id"])
+    assert np.issubdtype(body_id.dtype, np.integer)
+    np.testing.assert_array_equal(body_id, [3] * 12 + [7] * 2)
+
+    von_mises = mesh.cell_data["von_mises"]
+    np.testing.assert_array_equal(von_mises[0], np.zeros(12))
+    np.testing.assert_allclose(von_mises[1], [1.65e6, 2.75e6])
+    principal = mesh.cell_data["principal_stress"]
+    assert principal[0].shape == (12, 3) and not principal[0].any()
+    np.testing.assert_array_equal(principal[1], np.arange(6.0).reshape(2, 3))
+
+    velocity = mesh.point_data["velocity"]
+    assert velocity.shape == (13, 3)
+    np.testing.assert_array_equal(velocity[:8, 2], -1.0)
+    assert not velocity[8:].any()
+
+
+def test_pvd_lists_every_frame_with_exact_times(tmp_path):
+    run_dir = tmp_path / "run"
+    times = write_three_frames(run_dir)
+    root = ET.parse(run_dir / "demo.pvd").getroot()
+    assert root.get("type") == "Collection"
+    datasets = list(root.iter("DataSet"))
+    assert len(datasets) == 3
+    assert [float(d.get("timestep")) for d in datasets] == times
+    assert [d.get("file") for d in datasets] == [f"frames/frame_{i:05d}.vtu" for i in range(3)]
+
+    read_times, paths, summary = read_run(run_dir)
+    assert read_times == times
+    assert all(p.is_file() for p in paths)
+    assert summary["steps"] == 30
+
+
+def test_csv_tables_have_exact_header_and_round_trip_floats(tmp_path):
+    run_dir = tmp_path / "run"
+    times = write_three_frames(run_dir)
+    with open(run_dir / "bodies.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == BODY_COLUMNS
+    assert len(rows) == 1 + 2 * len(times)
+    first = dict(zip(rows[0], rows[1]))
+    assert float(first["x"]) == 0.1 + 0.2  # 0.30000000000000004 survives
+    assert float(first["y"]) == 1 / 3
+    assert float(first["kinetic_energy"]) == 7e-300
+    assert first["body"] == "3"
+    assert [float(r[0]) for r in rows[1::2]] == times
+
+    with open(run_dir / "regions.csv", newline="") as f:
+        regions = list(csv.reader(f))
+    assert tuple(regions[0]) == REGION_COLUMNS
+    assert regions[1] == ["0.0", "7", "clamp", "1.0", "2.0", "3.0", "0.0", "0.0", "1e-09"]
+    assert len(regions) == 3
+
+
+def test_summary_is_plain_json_and_no_temporary_files_remain(tmp_path):
+    run_dir = tmp_path / "run"
+    write_three_frames(run_dir)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary == {"scene": {"name": "demo"}, "steps": 30, "energy": 0.5,
+                       "drift": [0.1, 0.2], "ok": True}
+    names = sorted(p.relative_to(run_dir).as_posix() for p in run_dir.rglob("*"))
+    assert names == ["bodies.csv", "demo.pvd", "frames", "frames/frame_00000.vtu",
+                     "frames/frame_00001.vtu", "frames/frame_00002.vtu", "regions.csv",
+                     "summary.json"]
+
+
+def test_writer_creates_nothing_until_something_is_written(tmp_path):
+    run_dir = tmp_path / "never"
+    with pytest.raises(RuntimeError):
+        with RunWriter(run_dir, "demo"):
+            raise RuntimeError("scene failed validation")
+    writer = RunWriter(run_dir, "demo")
+    writer.write_regions([])
+    writer.close()
+    assert not run_dir.exists()
+
+
+def test_bad_rows_and_shapes_are_rejected_before_writing(tmp_path):
+    run_dir = tmp_path / "run"
+    writer = RunWriter(run_dir, "demo")
+    with pytest.raises(ValueError, match="16"):
+        writer.write_frame(0.0, [box_piece(0.0)], [(0.0, 1, 2.0)])
+    bad = FramePiece(1, BOX_POINTS, [("triangle", BOX_TRIANGLES)], cell_data={"von_mises": np.ones(5)})
+    with pytest.raises(ValueError, match="von_mises"):
+        writer.write_frame(0.0, [bad], [])
+    with pytest.raises(ValueError, match="at least one"):
+        writer.write_frame(0.0, [], [])
+    assert not run_dir.exists()
+    writer.close()
+
+
+def test_new_run_replaces_stale_files_of_an_earlier_run(tmp_path):
+    run_dir = tmp_path / "run"
+    write_three_frames(run_dir)
+    with RunWriter(run_dir, "demo") as writer:
+        writer.write_frame(0.0, [box_piece(0.0)], [dict(zip(BODY_COLUMNS, body_rows(0.0)[0]))])
+    times, paths, summary = read_run(run_dir)
+    assert times == [0.0] and summary is None
+    assert sorted(p.name for p in (run_dir / "frames").iterdir()) == ["frame_00000.vtu"]
+    assert not (run_dir / "regions.csv").exists()
+    assert len((run_dir / "bodies.csv").read_text().splitlines()) == 2

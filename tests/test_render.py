@@ -1,0 +1,154 @@
+"""Off-screen rendering of a saved run: real pixels, distinct bodies, fixed camera, a movie."""
+
+import imageio.v2 as imageio
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from hybrid import render
+from hybrid.output import FramePiece, RunWriter
+from hybrid.render import BODY_PALETTE, movie_fps, probe_backend, render_run
+
+WIDTH, HEIGHT = 320, 240
+CUBE_POINTS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]) - 0.5
+CUBE_TRIANGLES = np.array([
+    [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+    [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
+])
+TET_POINTS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+TETS = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+
+
+def write_two_box_run(run_dir):
+    """Body 0 falls from z=2 to z=1.5, body 1 rests on the ground plane z=0."""
+    summary = {"scene": {"name": "boxes", "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}],
+                         "simulation": {"output_fps": 20}}}
+    with RunWriter(run_dir, "boxes") as writer:
+        for time, height in ((0.0, 2.0), (0.05, 1.5)):
+            falling = FramePiece(0, CUBE_POINTS + [0, 0, height], [("triangle", CUBE_TRIANGLES)])
+            resting = FramePiece(1, CUBE_POINTS + [1.6, 0.4, 0.5], [("triangle", CUBE_TRIANGLES)],
+                                 cell_data={"von_mises": np.full(12, 2.0e6)})
+            writer.write_frame(time, [falling, resting], [])
+        writer.close(summary)
+
+
+def chromaticity(rgb):
+    rgb = np.asarray(rgb, dtype=float)
+    return rgb / np.maximum(rgb.sum(axis=-1, keepdims=True), 1.0)
+
+
+def pixels_of_body(image, body_id, tolerance=0.03):
+    """Mask of pixels whose hue matches the body's palette colour (shading only scales it)."""
+    target = chromaticity(BODY_PALETTE[body_id])
+    bright_enough = image.sum(axis=-1) > 60
+    return bright_enough & (np.abs(chromaticity(image) - target).max(axis=-1) < tolerance)
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    ok, message = probe_backend()
+    assert ok, message  # a machine without EGL/OSMesa must fail here, with what to install
+    run_dir = tmp_path_factory.mktemp("render") / "boxes"
+    write_two_box_run(run_dir)
+    calls = []
+    result = render_run(run_dir, size=(WIDTH, HEIGHT), progress=lambda done, total: calls.append((done, total)))
+    return run_dir, result, calls
+
+
+def test_probe_backend_finds_offscreen_rendering_on_this_machine():
+    ok, message = probe_backend()
+    assert ok, message
+
+
+def test_probe_failure_names_the_packages_to_install(monkeypatch):
+    monkeypatch.setattr(render, "_backend_cache", None)
+    monkeypatch.setenv(render.WINDOW_ENV, "vtkNoSuchRenderWindow")
+    ok, message = probe_backend(refresh=True)
+    assert not ok
+    assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri" in message
+    assert "libosmesa6" in message
+
+
+def test_frames_are_rendered_at_the_requested_size_with_content(rendered):
+    run_dir, result, calls = rendered
+    assert [p.name for p in result["pngs"]] == ["frame_00000.png", "frame_00001.png"]
+    assert all(p.parent == run_dir / "render" for p in result["pngs"])
+    assert calls == [(1, 2), (2, 2)]
+    for png in result["pngs"]:
+        image = iio.imread(png)
+        assert image.shape[:2] == (HEIGHT, WIDTH)
+        assert image[..., :3].std() > 10
+        assert len(np.unique(image[..., :3].reshape(-1, 3), axis=0)) > 2
+
+
+def test_each_body_gets_its_own_colour_and_the_camera_stays_fixed(rendered):
+    _, result, _ = rendered
+    first, second = (iio.imread(p)[..., :3] for p in result["pngs"])
+    for image in (first, second):
+        for body_id in (0, 1):
+            assert pixels_of_body(image, body_id).sum() > 200, f"body {body_id} not visible"
+    # The resting body covers the same pixels in both frames; the falling one moves down the image.
+    resting_0, resting_1 = pixels_of_body(first, 1), pixels_of_body(second, 1)
+    assert (resting_0 ^ resting_1).sum() < 0.02 * resting_0.sum()
+    falling_rows = [np.nonzero(pixels_of_body(im, 0))[0].mean() for im in (first, second)]
+    assert falling_rows[1] > falling_rows[0] + 5
+
+
+def test_ground_plane_is_drawn_below_the_bodies(rendered):
+    _, result, _ = rendered
+    image = iio.imread(result["pngs"][0])[..., :3].astype(float)
+    # The ground is a light neutral grey; the bottom rows of the image look onto it.
+    bottom = image[-HEIGHT // 8:, WIDTH // 3: 2 * WIDTH // 3].reshape(-1, 3)
+    assert np.all(bottom.mean(axis=0) > 150)
+    assert np.ptp(bottom.mean(axis=0)) < 20
+
+
+def test_movie_has_every_frame_at_the_scene_output_rate(rendered):
+    _, result, _ = rendered
+    movie = result["movie"]
+    assert movie.name == "boxes.mp4" and movie.stat().st_size > 0
+    assert result["fps"] == 20.0
+    with imageio.get_reader(movie) as reader:
+        assert reader.get_meta_data()["fps"] == pytest.approx(20.0)
+        frames = [frame for frame in reader]  # list() trips over len(reader) == inf
+    assert len(frames) == 2
+    assert frames[0].shape[:2] == (HEIGHT, WIDTH)
+
+
+def test_field_colouring_uses_one_colour_scale_for_both_frames(tmp_path):
+    run_dir = tmp_path / "stress"
+    with RunWriter(run_dir, "stress") as writer:
+        for time, scale in ((0.0, 1.0), (0.1, 3.0)):
+            tet = FramePiece(2, TET_POINTS, [("tetra", TETS)],
+                             cell_data={"von_mises": np.array([0.0, 1.0e6]) * scale})
+            writer.write_frame(time, [tet], [])
+        writer.close({})  # no planes, no output_fps
+    result = render_run(run_dir, size=(WIDTH, HEIGHT), field="von_mises")
+    assert result["fps"] == pytest.approx(10.0)
+    first, second = (iio.imread(p)[..., :3] for p in result["pngs"])
+    # Same geometry, higher stress in the second frame: the picture must change.
+    assert np.abs(first.astype(int) - second.astype(int)).sum() > 0
+    with pytest.raises(ValueError, match="no frame"):
+        render_run(run_dir, size=(WIDTH, HEIGHT), field="plastic_strain")
+
+
+def test_movie_rate_comes_from_summary_else_frame_spacing():
+    assert movie_fps([0.0, 0.1, 0.2], {"scene": {"simulation": {"output_fps": 24}}}) == 24.0
+    assert movie_fps([0.0, 0.04, 0.08], None) == pytest.approx(25.0)
+    assert movie_fps([0.0], {}) == render.DEFAULT_FPS
+
+
+def test_gif_is_written_when_ffmpeg_is_unavailable(tmp_path, monkeypatch):
+    import imageio_ffmpeg
+
+    def no_ffmpeg():
+        raise RuntimeError("no ffmpeg here")
+
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", no_ffmpeg)
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    result = render_run(run_dir, out=tmp_path / "pictures", size=(161, 121))
+    assert result["movie"] == tmp_path / "pictures" / "boxes.gif"
+    frames = iio.imread(result["movie"], index=None)
+    assert frames.shape[:3] == (2, 121, 161)
+    assert not (tmp_path / "pictures" / "boxes.mp4").exists()

@@ -1,0 +1,432 @@
+"""Scene files: the example parses as written, and every kind of mistake is reported with the file,
+table and field named, all problems at once, without tracebacks."""
+import math
+import shutil
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+from hybrid import geometry
+from hybrid.scene import (SceneError, load_scene, parse_scene, reference_markdown, validate_command)
+
+HERE = Path(__file__).parent
+ROOT = HERE.parent
+
+BODY = '''
+[[bodies]]
+name = "box"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+'''
+
+
+# ----------------------------------------------------------------------------- mesh fixtures
+
+CUBE_POINTS = np.array([[x, y, z] for z in (0.0, 1.0) for y in (0.0, 1.0) for x in (0.0, 1.0)]) - 0.5
+# six tets around the 0-7 diagonal (Kuhn subdivision); half of them are negatively oriented
+CUBE_TETS = np.array([[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 4, 6, 7]])
+# outward quads of the unit cube (vertex index = x + 2y + 4z)
+CUBE_QUADS = np.array([[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]])
+
+
+def cube_triangles():
+    return CUBE_QUADS[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
+
+
+def write_tet_cube(path):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meshio.write(path, meshio.Mesh(CUBE_POINTS, [("tetra", CUBE_TETS)]))
+    return path
+
+
+def write_scene(tmp_path, text, name="scene.toml"):
+    path = tmp_path / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def problems_of(path):
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    return info.value.problems
+
+
+def only_problem(path):
+    problems = problems_of(path)
+    assert len(problems) == 1, problems
+    assert problems[0].startswith(f"{path}: "), problems[0]
+    return problems[0]
+
+
+# ----------------------------------------------------------------------------- valid scenes
+
+def test_example_scene_parses_with_the_values_written():
+    scene = load_scene(HERE / "scenes" / "example.toml")
+    sim = scene.simulation
+    assert scene.name == sim.name == "example"
+    assert (sim.duration, sim.dt, sim.gravity, sim.output_fps) == (2.0, 0.001, (0.0, 0.0, -9.81), 60.0)
+    assert (sim.solver.iterations, sim.solver.contact_margin) == (20, 0.005)
+    [plane] = scene.planes
+    assert plane.point == (0, 0, 0) and plane.normal == (0, 0, 1)
+    assert (plane.friction, plane.restitution) == (0.5, 0.0)
+    [body] = scene.bodies
+    assert (body.name, body.model, body.mesh) == ("box", "rigid", None)
+    assert body.shape.type == "box" and body.shape.size == (0.1, 0.1, 0.1)
+    assert body.shape.radius is None and body.shape.resolution is None
+    assert body.density == 1000.0 and body.position == (0.0, 0.0, 1.0)
+    assert body.orientation == (1.0, 0.0, 0.0, 0.0)
+    assert body.velocity == body.angular_velocity == (0.0, 0.0, 0.0)
+    assert (body.friction, body.restitution, body.fixed) == (0.5, 0.0, False)
+    assert body.young is None and body.anchors == () and body.loads == ()
+    assert scene.raw["bodies"][0]["name"] == "box"
+    assert scene.source_path == HERE / "scenes" / "example.toml"
+
+
+def test_missing_fields_take_their_defaults(tmp_path):
+    path = write_scene(tmp_path, '[[bodies]]\nname = "ball"\nshape = { type = "sphere", radius = 0.2 }\n',
+                       name="drop.toml")
+    scene = load_scene(path)
+    assert scene.name == "drop"
+    assert scene.simulation.duration == 2.0 and scene.simulation.dt == 0.001
+    assert scene.simulation.gravity == (0.0, 0.0, -9.81) and scene.planes == ()
+    body = scene.bodies[0]
+    assert body.model == "rigid" and body.density == 1000.0 and body.orientation == (1, 0, 0, 0)
+    assert body.shape.radius == 0.2 and body.shape.size is None
+
+
+def test_fem_scene_reads_every_field_and_normalises_vectors(tmp_path):
+    path = tmp_path / "fem_full.toml"
+    shutil.copy(HERE / "scenes" / "fem_full.toml", path)
+    write_tet_cube(tmp_path / "meshes" / "cube.vtu")
+    scene = load_scene(path)
+    assert scene.name == "beam"
+    assert scene.simulation.solver.iterations == 40 and scene.simulation.solver.contact_margin == 0.0
+    assert scene.planes[0].normal == (0.0, 0.0, 1.0)
+    beam, ball = scene.bodies
+    assert beam.mesh == (tmp_path / "meshes" / "cube.vtu").resolve()
+    assert (beam.young, beam.poisson, beam.frame, beam.order) == (1e6, 0.45, "corotated", 2)
+    assert (beam.mass_matrix, beam.integrator) == ("consistent", "newmark")
+    assert beam.damping.mass == 0.1 and beam.damping.stiffness == 0.001
+    assert beam.anchors[0].box == ((-1.0, -1.0, -1.0), (-0.4, 1.0, 1.0))
+    assert beam.anchors[0].velocity == (0.0, 0.0, 0.0)
+    assert beam.loads[0].force == (0.0, 0.0, -10.0)
+    assert math.isclose(sum(c * c for c in beam.orientation), 1.0, abs_tol=1e-15)
+    assert ball.shape == ball.shape.__class__("capsule", None, 0.1, 0.2, 0.02)
+
+
+def test_relative_mesh_paths_resolve_against_the_scene_folder(tmp_path, monkeypatch):
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    meshio.write(sub / "box.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles())]))
+    meshio.write(sub / "quads.vtu", meshio.Mesh(CUBE_POINTS, [("quad", CUBE_QUADS)]))
+    path = write_scene(sub, '[[bodies]]\nname = "a"\nmesh = "box.obj"\n'
+                            '[[bodies]]\nname = "b"\nmesh = "quads.vtu"\n')
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    scene = load_scene(Path("..") / "sub" / "scene.toml")
+    assert [b.mesh for b in scene.bodies] == [(sub / "box.obj").resolve(), (sub / "quads.vtu").resolve()]
+
+
+def test_orientation_within_tolerance_is_renormalised(tmp_path):
+    path = write_scene(tmp_path, BODY + "orientation = [1.0000005, 0.0, 0.0, 0.0]\n")
+    assert load_scene(path).bodies[0].orientation == (1.0, 0.0, 0.0, 0.0)
+
+
+# ----------------------------------------------------------------------------- one kind of mistake each
+
+@pytest.mark.parametrize("text, table, key", [
+    ("bodys = []\n" + BODY, "top level", "bodys"),
+    ("[simulation]\ndtt = 0.1\n" + BODY, "[simulation]", "dtt"),
+    ("[simulation.solver]\niteration = 3\n" + BODY, "[simulation.solver]", "iteration"),
+    ("[[planes]]\nnormals = [0, 0, 1]\n" + BODY, "[planes] (planes[0])", "normals"),
+    (BODY + "mass = 3.0\n", '[bodies] "box" (bodies[0])', "mass"),
+    ('[[bodies]]\nname = "box"\nshape = { type = "box", size = [1, 1, 1], sise = 2 }\n',
+     '[bodies] "box" (bodies[0])', "shape.sise"),
+    ('[[bodies]]\nname = "b"\nmodel = "fem"\nyoung = 1e5\nshape = { type = "sphere", radius = 1 }\n'
+     'damping = { mas = 1.0 }\n', '[bodies] "b" (bodies[0])', "damping.mas"),
+    ('[[bodies]]\nname = "b"\nmodel = "fem"\nyoung = 1e5\nshape = { type = "sphere", radius = 1 }\n'
+     '[[bodies.anchors]]\nbox = [[0, 0, 0], [1, 1, 1]]\nvelocty = [0, 0, 0]\n',
+     '[bodies.anchors] "b" (bodies[0].anchors[0])', "velocty"),
+    ('[[bodies]]\nname = "b"\nmodel = "fem"\nyoung = 1e5\nshape = { type = "sphere", radius = 1 }\n'
+     '[[bodies.loads]]\nbox = [[0, 0, 0], [1, 1, 1]]\nforce = [0, 0, 1]\nforces = 1\n',
+     '[bodies.loads] "b" (bodies[0].loads[0])', "forces"),
+])
+def test_unknown_key_is_named_with_its_table_and_the_allowed_keys(tmp_path, text, table, key):
+    path = write_scene(tmp_path, text)
+    message = only_problem(path)
+    assert f"{path}: {table}: unknown key '{key}'" in message
+    assert "allowed:" in message
+
+
+def test_unknown_key_suggests_the_closest_field(tmp_path):
+    message = only_problem(write_scene(tmp_path, BODY + "densty = 3.0\n"))
+    assert "did you mean 'density'?" in message
+
+
+@pytest.mark.parametrize("line, field, expected", [
+    ('density = "heavy"', "density", 'must be a number > 0, got "heavy"'),
+    ("density = true", "density", "must be a number > 0, got true"),
+    ("fixed = 1", "fixed", "must be true or false, got 1"),
+    ("position = [0.0, 1.0]", "position", "must be a list of 3 numbers, got [0.0, 1.0]"),
+    ('velocity = [0.0, "a", 0.0]', "velocity", "must be a list of 3 numbers"),
+    ("angular_velocity = [true, 0, 0]", "angular_velocity", "must be a list of 3 numbers"),
+    ("friction = nan", "friction", "must be a number >= 0, got nan"),
+    ('model = "soft"', "model", 'must be one of "rigid", "fem", "auto", got "soft"'),
+])
+def test_wrong_type_names_file_table_field_and_what_is_allowed(tmp_path, line, field, expected):
+    path = write_scene(tmp_path, BODY + line + "\n")
+    message = only_problem(path)
+    assert message.startswith(f"{path}: [bodies] \"box\" (bodies[0]): field '{field}' {expected}")
+
+
+def test_integer_fields_reject_floats_and_number_fields_accept_ints(tmp_path):
+    path = write_scene(tmp_path, "[simulation]\nduration = 3\n[simulation.solver]\niterations = 2.5\n" + BODY)
+    message = only_problem(path)
+    assert message == f"{path}: [simulation.solver]: field 'iterations' must be an integer >= 1, got 2.5"
+
+
+def test_negative_density_message_is_exact(tmp_path):
+    path = write_scene(tmp_path, BODY + "density = -5.0\n")
+    assert only_problem(path) == (f"{path}: [bodies] \"box\" (bodies[0]): field 'density' must be a "
+                                  "number > 0, got -5.0")
+
+
+def test_zero_quaternion_is_rejected(tmp_path):
+    message = only_problem(write_scene(tmp_path, BODY + "orientation = [0, 0, 0, 0]\n"))
+    assert "[bodies] \"box\" (bodies[0]): field 'orientation' must be a unit quaternion" in message
+    assert message.endswith("got [0, 0, 0, 0] with norm 0 (allowed: within 1e-06 of 1)")
+
+
+def test_non_unit_quaternion_is_rejected_with_its_norm(tmp_path):
+    message = only_problem(write_scene(tmp_path, BODY + "orientation = [1.0, 1.0, 0.0, 0.0]\n"))
+    assert "field 'orientation' must be a unit quaternion" in message
+    assert "got [1.0, 1.0, 0.0, 0.0] with norm 1.41421356" in message
+
+
+def test_missing_mesh_file_reports_written_and_resolved_paths(tmp_path):
+    path = write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "meshes/nope.vtu"\n')
+    message = only_problem(path)
+    assert "[bodies] \"m\" (bodies[0]): field 'mesh' = \"meshes/nope.vtu\"" in message
+    assert str((tmp_path / "meshes" / "nope.vtu").resolve()) in message
+    assert "file not found" in message
+
+
+def test_unreadable_mesh_file_is_a_problem_not_a_traceback(tmp_path):
+    (tmp_path / "junk.vtu").write_bytes(bytes(range(256)) * 4)
+    message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "junk.vtu"\n'))
+    assert "field 'mesh' = \"junk.vtu\"" in message and "cannot read mesh" in message
+
+
+def test_open_mesh_reports_its_boundary_edges(tmp_path):
+    meshio.write(tmp_path / "open.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles()[:-1])]))
+    message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "open.obj"\n'))
+    assert "field 'mesh' = \"open.obj\"" in message
+    assert "not closed: 3 boundary edges, 0 non-manifold edges" in message
+
+
+def test_fem_mesh_needs_tetrahedra(tmp_path):
+    meshio.write(tmp_path / "surface.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles())]))
+    text = '[[bodies]]\nname = "m"\nmodel = "fem"\nyoung = 1e6\nmesh = "surface.obj"\n'
+    message = only_problem(write_scene(tmp_path, text))
+    assert "field 'mesh'" in message and "no tetra or tetra10 cells (found: triangle)" in message
+
+
+@pytest.mark.parametrize("dt", ["0.0", "-0.001"])
+def test_non_positive_dt_is_rejected(tmp_path, dt):
+    path = write_scene(tmp_path, f"[simulation]\ndt = {dt}\n" + BODY)
+    assert only_problem(path) == f"{path}: [simulation]: field 'dt' must be a number > 0, got {dt}"
+
+
+def test_dt_longer_than_duration_is_rejected(tmp_path):
+    path = write_scene(tmp_path, "[simulation]\nduration = 0.01\ndt = 0.1\n" + BODY)
+    assert only_problem(path) == f"{path}: [simulation]: field 'dt' must be <= duration (0.01 s), got 0.1"
+
+
+@pytest.mark.parametrize("shape, field, expected", [
+    ('{ type = "box", size = [0.1, -0.1, 0.1] }', "shape.size", "must be a list of 3 numbers > 0"),
+    ('{ type = "box", size = [0.1, 0.1] }', "shape.size", "must be a list of 3 numbers > 0"),
+    ('{ type = "box" }', "shape.size", "is required"),
+    ('{ type = "sphere", radius = 0 }', "shape.radius", "must be a number > 0, got 0"),
+    ('{ type = "sphere", radius = 1, size = [1, 1, 1] }', "shape.size", 'is not used by shape type "sphere"'),
+    ('{ type = "cylinder", radius = 1 }', "shape.height", "is required"),
+    ('{ type = "capsule", radius = 0.1, height = 0.1 }', "shape.height", "must be >= 2 radius (0.2 m)"),
+    ('{ type = "sphere", radius = 1, resolution = -1 }', "shape.resolution", "must be a number > 0"),
+    ('{ type = "cone", radius = 1 }', "shape.type", 'must be one of "box", "sphere"'),
+    ('{ radius = 1 }', "shape.type", "is required"),
+    ('"sphere"', "shape", 'must be a table, got "sphere"'),
+])
+def test_bad_shape_values_name_the_shape_field(tmp_path, shape, field, expected):
+    path = write_scene(tmp_path, f'[[bodies]]\nname = "s"\nshape = {shape}\n')
+    message = only_problem(path)
+    assert message.startswith(f"{path}: [bodies] \"s\" (bodies[0]): field '{field}' {expected}"), message
+
+
+@pytest.mark.parametrize("line, field", [
+    ("young = 1e6", "young"),
+    ("poisson = 0.3", "poisson"),
+    ('frame = "corotated"', "frame"),
+    ("damping = { mass = 1.0 }", "damping"),
+    ("[[bodies.anchors]]\nbox = [[0, 0, 0], [1, 1, 1]]", "anchors"),
+])
+def test_fem_field_on_a_rigid_body_says_it_needs_model_fem(tmp_path, line, field):
+    path = write_scene(tmp_path, BODY + line + "\n")
+    message = only_problem(path)
+    assert message.startswith(f"{path}: [bodies] \"box\" (bodies[0]): field '{field}' needs model = \"fem\"")
+
+
+def test_fem_body_requires_young(tmp_path):
+    text = '[[bodies]]\nname = "f"\nmodel = "fem"\nshape = { type = "sphere", radius = 1 }\n'
+    path = write_scene(tmp_path, text)
+    assert "field 'young' is required for model = \"fem\"" in only_problem(path)
+
+
+def test_poisson_ratio_of_one_half_is_rejected(tmp_path):
+    text = ('[[bodies]]\nname = "f"\nmodel = "fem"\nyoung = 1e6\npoisson = 0.5\n'
+            'shape = { type = "sphere", radius = 1 }\n')
+    path = write_scene(tmp_path, text)
+    assert only_problem(path) == (f"{path}: [bodies] \"f\" (bodies[0]): field 'poisson' must be a number "
+                                  "in (-1, 0.5), got 0.5")
+
+
+def test_anchor_box_with_min_above_max_is_rejected(tmp_path):
+    text = ('[[bodies]]\nname = "f"\nmodel = "fem"\nyoung = 1e6\nshape = { type = "sphere", radius = 1 }\n'
+            '[[bodies.anchors]]\nbox = [[0, 2, 0], [1, 1, 1]]\n')
+    message = only_problem(write_scene(tmp_path, text))
+    assert "[bodies.anchors] \"f\" (bodies[0].anchors[0]): field 'box' must be a box" in message
+    assert "min <= max" in message
+
+
+def test_duplicate_body_names_are_rejected(tmp_path):
+    path = write_scene(tmp_path, BODY + BODY)
+    message = only_problem(path)
+    assert message.startswith(f"{path}: [bodies] \"box\" (bodies[1]): field 'name' must be unique")
+    assert "bodies[0]" in message
+
+
+@pytest.mark.parametrize("extra, word", [('mesh = "box.obj"', "both"), ("", "neither")])
+def test_body_needs_exactly_one_of_shape_or_mesh(tmp_path, extra, word):
+    meshio.write(tmp_path / "box.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles())]))
+    shape = 'shape = { type = "sphere", radius = 1 }\n' if word == "both" else ""
+    path = write_scene(tmp_path, f'[[bodies]]\nname = "b"\n{shape}{extra}\n')
+    message = only_problem(path)
+    assert message == (f"{path}: [bodies] \"b\" (bodies[0]): needs exactly one of field 'shape' or "
+                       f"field 'mesh', got {word}")
+
+
+def test_bodies_written_as_a_single_table_is_explained(tmp_path):
+    path = write_scene(tmp_path, '[bodies]\nname = "b"\n')
+    assert "field 'bodies' must be an array of tables ([[bodies]])" in only_problem(path)
+
+
+def test_all_problems_are_reported_together(tmp_path):
+    text = ("[simulation]\ndt = -1.0\nspeed = 2\n"
+            "[[planes]]\nnormal = [0, 0, 0]\n"
+            '[[bodies]]\nname = "a"\ndensity = -5.0\nyoung = 1e6\nshape = { type = "sphere", radius = 1 }\n'
+            '[[bodies]]\nname = "b"\norientation = [0, 0, 0, 0]\nmesh = "missing.vtu"\n')
+    path = write_scene(tmp_path, text)
+    problems = problems_of(path)
+    expected = ["[simulation]: unknown key 'speed'", "[simulation]: field 'dt'",
+                "[planes] (planes[0]): field 'normal' must be a non-zero list",
+                "[bodies] \"a\" (bodies[0]): field 'density'", "[bodies] \"a\" (bodies[0]): field 'young'",
+                "[bodies] \"b\" (bodies[1]): field 'orientation'", "[bodies] \"b\" (bodies[1]): field 'mesh'"]
+    assert len(problems) == len(expected), problems
+    for fragment, problem in zip(expected, problems):
+        assert problem.startswith(f"{path}: {fragment}"), (fragment, problem)
+
+
+def test_parse_scene_accepts_a_dict(tmp_path):
+    data = {"bodies": [{"name": "x", "shape": {"type": "sphere", "radius": 0.5}}]}
+    scene = parse_scene(data, "inline.toml", tmp_path)
+    assert scene.name == "inline" and scene.bodies[0].shape.radius == 0.5
+    with pytest.raises(SceneError) as info:
+        parse_scene({"bodies": [{"name": 1}]}, "inline.toml", tmp_path)
+    assert any(p.startswith("inline.toml: [bodies] (bodies[0]): field 'name'") for p in info.value.problems)
+
+
+# ----------------------------------------------------------------------------- command line
+
+def test_validate_command_prints_every_problem_without_traceback(tmp_path, capsys):
+    path = write_scene(tmp_path, BODY + "density = -5.0\nfriction = -1\n")
+    assert validate_command(path) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "Traceback" not in err
+    assert "field 'density'" in err and "field 'friction'" in err and "2 problems" in err
+
+
+def test_validate_command_accepts_the_example(capsys):
+    path = HERE / "scenes" / "example.toml"
+    assert validate_command(path) == 0
+    assert capsys.readouterr().out == f"OK: {path}: 1 bodies, 1 planes\n"
+
+
+def test_validate_command_reports_toml_syntax_errors_with_line_and_column(tmp_path, capsys):
+    path = write_scene(tmp_path, "[simulation]\ndt = = 0.1\n")
+    assert validate_command(path) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: invalid TOML" in err and "line 2, column" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("content", [None, b"\xff\xfe\x00 not text"])
+def test_validate_command_reports_missing_or_binary_files(tmp_path, capsys, content):
+    path = tmp_path / "scene.toml"
+    if content is not None:
+        path.write_bytes(content)
+    assert validate_command(path) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"{path}: ") and "Traceback" not in err
+
+
+# ----------------------------------------------------------------------------- geometry and docs
+
+def test_tet_mesh_surface_is_closed_outward_with_the_cube_volume(tmp_path):
+    path = write_tet_cube(tmp_path / "cube.vtu")
+    vertices, triangles = geometry.load_surface(path)
+    assert vertices.shape == (8, 3) and triangles.shape == (12, 3)
+    from rigid import trimesh
+    assert trimesh.is_closed(triangles)
+    assert math.isclose(trimesh.signed_volume(vertices, triangles), 1.0)
+
+
+def test_tet_mesh_loader_flips_negative_tets_and_reports_order(tmp_path):
+    points, tets, order = geometry.load_tet_mesh(write_tet_cube(tmp_path / "cube.vtu"))
+    assert order == 1 and tets.shape == (6, 4)
+    p = points[tets]
+    volume = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])) / 6
+    assert np.allclose(volume, 1 / 6)
+
+
+def test_quadratic_tets_give_order_two_and_keep_edge_nodes_consistent(tmp_path):
+    # one negatively oriented tetra10: corners swapped, edge nodes at the true midpoints
+    corners = np.array([[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1]], float)
+    edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
+    points = np.vstack([corners, [(corners[a] + corners[b]) / 2 for a, b in edges]])
+    meshio.write(tmp_path / "t10.vtu", meshio.Mesh(points, [("tetra10", np.arange(10)[None])]))
+    points, tets, order = geometry.load_tet_mesh(tmp_path / "t10.vtu")
+    assert order == 2
+    tet = tets[0]
+    for k, (a, b) in enumerate(edges):
+        assert np.allclose(points[tet[4 + k]], (points[tet[a]] + points[tet[b]]) / 2)
+    p = points[tet[:4]]
+    assert np.dot(p[1] - p[0], np.cross(p[2] - p[0], p[3] - p[0])) > 0
+
+
+def test_mesh_errors_name_the_file(tmp_path):
+    with pytest.raises(geometry.MeshError, match="nope.obj: file not found"):
+        geometry.load_surface(tmp_path / "nope.obj")
+    meshio.write(tmp_path / "lines.vtu", meshio.Mesh(CUBE_POINTS[:2], [("line", np.array([[0, 1]]))]))
+    with pytest.raises(geometry.MeshError, match="lines.vtu: no triangle, quad or tetra cells"):
+        geometry.load_surface(tmp_path / "lines.vtu")
+    # a closed tetrahedron surface whose fourth corner lies in the plane of the other three
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, 0.25, 0]], float)
+    flat_tris = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    meshio.write(tmp_path / "flat.obj", meshio.Mesh(flat, [("triangle", flat_tris)]))
+    with pytest.raises(geometry.MeshError, match="flat.obj: surface encloses zero volume"):
+        geometry.load_surface(tmp_path / "flat.obj")
+
+
+def test_committed_scene_reference_matches_the_schema():
+    committed = (ROOT / "docs" / "scene_reference.md").read_text()
+    assert committed == reference_markdown(), "run: python -m hybrid.scene > docs/scene_reference.md"
