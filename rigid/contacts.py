@@ -179,14 +179,109 @@ def detect(model, position, rotation, sweep, margin):
             break
         capacity = count
     a, b = out_a[:count], out_b[:count]
+    return Contacts(a, np.where(b < 0, -1, b), out_p[:count], out_n[:count], out_gap[:count],
+                    *_combine(model, b, model.body_friction[a], model.body_restitution[a]))
+
+
+@nb.njit(cache=True)
+def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_kind, shape_params,
+                         shape_rotation, shape_offset, grid_index, grid_values, grid_start,
+                         grid_shape, grid_origin, grid_cell, plane_point, plane_normal, margin,
+                         out_a, out_b, out_p, out_n, out_gap):
+    cap = len(out_gap)
+    c = 0
+    for k in range(len(points)):
+        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        for j in range(len(plane_point)):
+            nx, ny, nz = plane_normal[j, 0], plane_normal[j, 1], plane_normal[j, 2]
+            gap = (px - plane_point[j, 0]) * nx + (py - plane_point[j, 1]) * ny + (pz - plane_point[j, 2]) * nz
+            if gap < margin + sweep[k]:
+                if c < cap:
+                    out_a[c], out_b[c] = k, -1 - j
+                    out_p[c, 0], out_p[c, 1], out_p[c, 2] = px - 0.5 * gap * nx, py - 0.5 * gap * ny, pz - 0.5 * gap * nz
+                    out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
+                    out_gap[c] = gap
+                c += 1
+        for b in range(len(body_radius)):
+            dx, dy, dz = px - position[b, 0], py - position[b, 1], pz - position[b, 2]
+            reach = body_radius[b] + margin + sweep[k]
+            if dx * dx + dy * dy + dz * dz > reach * reach:
+                continue
+            Rb, Sb = rotation[b], shape_rotation[b]
+            bx = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
+            by = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
+            bz = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
+            sx = Sb[0, 0] * bx + Sb[0, 1] * by + Sb[0, 2] * bz + shape_offset[b, 0]
+            sy = Sb[1, 0] * bx + Sb[1, 1] * by + Sb[1, 2] * bz + shape_offset[b, 1]
+            sz = Sb[2, 0] * bx + Sb[2, 1] * by + Sb[2, 2] * bz + shape_offset[b, 2]
+            # a lone point has no centre of its own: break edge ties towards the point itself
+            phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b], grid_values,
+                                        grid_start, grid_shape, grid_origin, grid_cell, sx, sy, sz,
+                                        sx, sy, sz)
+            if phi >= margin + sweep[k]:
+                continue
+            mx = Sb[0, 0] * gx + Sb[1, 0] * gy + Sb[2, 0] * gz
+            my = Sb[0, 1] * gx + Sb[1, 1] * gy + Sb[2, 1] * gz
+            mz = Sb[0, 2] * gx + Sb[1, 2] * gy + Sb[2, 2] * gz
+            nx = Rb[0, 0] * mx + Rb[0, 1] * my + Rb[0, 2] * mz
+            ny = Rb[1, 0] * mx + Rb[1, 1] * my + Rb[1, 2] * mz
+            nz = Rb[2, 0] * mx + Rb[2, 1] * my + Rb[2, 2] * mz
+            if c < cap:
+                out_a[c], out_b[c] = k, b
+                out_p[c, 0], out_p[c, 1], out_p[c, 2] = px - 0.5 * phi * nx, py - 0.5 * phi * ny, pz - 0.5 * phi * nz
+                out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
+                out_gap[c] = phi
+            c += 1
+    return c
+
+
+def detect_points(model, position, rotation, points, sweep, margin, friction, restitution):
+    """Contacts of free points (FEM surface nodes) with planes and rigid bodies.
+
+    body_a is the point's index; body_b a rigid body index or -1 for a plane. ``friction`` and
+    ``restitution`` (k,) are the points' own coefficients, combined with the other side's.
+    """
+    capacity = max(64, 2 * len(points))
+    while True:
+        out_a = np.empty(capacity, np.int64)
+        out_b = np.empty(capacity, np.int64)
+        out_p = np.empty((capacity, 3))
+        out_n = np.empty((capacity, 3))
+        out_gap = np.empty(capacity)
+        count = _points_narrow_phase(points, sweep, position, rotation, model.body_radius,
+                                     model.shape_kind, model.shape_params, model.shape_rotation,
+                                     model.shape_offset, model.grid_index, model.grid_values,
+                                     model.grid_start, model.grid_shape, model.grid_origin,
+                                     model.grid_cell, model.plane_point, model.plane_normal, margin,
+                                     out_a, out_b, out_p, out_n, out_gap)
+        if count <= capacity:
+            break
+        capacity = count
+    a, b = out_a[:count], out_b[:count]
+    return Contacts(a, np.where(b < 0, -1, b), out_p[:count], out_n[:count], out_gap[:count],
+                    *_combine(model, b, friction[a], restitution[a]))
+
+
+def _combine(model, b, mu_a, e_a):
+    """Combined friction and restitution of side a with side b (body index, or -1 - plane)."""
     is_plane = b < 0
     plane = np.maximum(-1 - b, 0)
     other = np.maximum(b, 0)
+    mu_b = model.body_friction[other] if model.body_count else np.zeros(len(b))
+    e_b = model.body_restitution[other] if model.body_count else np.zeros(len(b))
     if model.plane_point.shape[0]:
-        mu_b = np.where(is_plane, model.plane_friction[plane], model.body_friction[other])
-        e_b = np.where(is_plane, model.plane_restitution[plane], model.body_restitution[other])
-    else:
-        mu_b, e_b = model.body_friction[other], model.body_restitution[other]
-    return Contacts(a, np.where(is_plane, -1, b), out_p[:count], out_n[:count], out_gap[:count],
-                    combine_friction(model.body_friction[a], mu_b),
-                    combine_restitution(model.body_restitution[a], e_b))
+        mu_b = np.where(is_plane, model.plane_friction[plane], mu_b)
+        e_b = np.where(is_plane, model.plane_restitution[plane], e_b)
+    return combine_friction(mu_a, mu_b), combine_restitution(e_a, e_b)
+
+
+def concatenate(first, second, offset_a, offset_b):
+    """Contacts of ``first`` followed by ``second`` with its body indices shifted."""
+    sb = np.where(second.body_b >= 0, second.body_b + offset_b, -1)
+    return Contacts(np.concatenate([first.body_a, second.body_a + offset_a]),
+                    np.concatenate([first.body_b, sb]),
+                    np.concatenate([first.point, second.point]),
+                    np.concatenate([first.normal, second.normal]),
+                    np.concatenate([first.gap, second.gap]),
+                    np.concatenate([first.friction, second.friction]),
+                    np.concatenate([first.restitution, second.restitution]))

@@ -1,11 +1,12 @@
-"""One time step of the rigid bodies: detect, collide, contact, shock-propagate, recover, drift.
+"""One time step of the rigid bodies: kick, detect, resolve contacts, drift.
 
-Translation is leapfrog: ``state.velocity`` is the velocity the last step drifted with, i.e. the
-velocity at mid-step, which makes free flight under gravity exact at the step times. Impacts found
-inside a step get their restitution at their time of impact: the impulse is computed from the
-approach velocity at that instant and the position is moved back by ``tau * dv`` (as if the
-velocity had changed at ``t + tau`` and not at ``t``), so bounce heights do not depend on where
-in a step the impact falls.
+Translation is leapfrog: ``state.velocity`` is the velocity the last step drifted with (the
+mid-step velocity), which makes free flight under gravity exact at the step times. Impacts found
+inside a step get their restitution at their time of impact: the impulse comes from the approach
+velocity at that instant and the body is moved back by ``tau * dv`` (as if the velocity had changed
+at ``t + tau`` rather than at ``t``), so bounce heights do not depend on where in a step an impact
+falls. Contact resolution (:func:`resolve_contacts`) works on generic solver bodies, so the
+coupled stepper passes FEM surface nodes through the same passes as particles.
 """
 from dataclasses import dataclass
 
@@ -20,14 +21,15 @@ from .solver import arms, normal_velocity, pgs, shock_scales, stack_levels
 
 @dataclass
 class ContactSettings:
-    """Solver parameters (all have scene-file fields under [simulation.solver]).
+    """Solver parameters (scene fields under [simulation.solver] set some of them).
 
-    iterations: Gauss-Seidel sweeps of the contact pass. margin m: contacts are kept while the gap
-    is below it (plus the distance bodies can travel in a step). slop m: penetration tolerated
-    without correction. recovery: fraction of the penetration beyond ``slop`` removed per step
-    (position only, no velocity is added). restitution_threshold m/s: slower impacts are inelastic,
-    so resting bodies do not jitter. max_substeps: cap on the adaptive substeps taken when a body
-    moves more than half the thinnest body's thickness in one step (no tunnelling).
+    iterations: Gauss-Seidel sweeps per pass. margin m: contacts are kept while the gap is below
+    it (plus the distance the bodies can travel in the step). slop m: penetration tolerated without
+    correction. recovery: fraction of the penetration beyond ``slop`` removed per step (positions
+    only, no velocity is added). restitution_threshold m/s: slower impacts are resting contact (no
+    bounce, no jitter). shock_iterations: sweeps per level of shock propagation. max_substeps: cap
+    on adaptive substeps, taken when a body would move more than half the thinnest body's
+    thickness in one step.
     """
     iterations: int = 20
     margin: float = 0.005
@@ -36,6 +38,161 @@ class ContactSettings:
     restitution_threshold: float = 0.05
     shock_iterations: int = 4
     max_substeps: int = 32
+
+
+@dataclass
+class SolverBodies:
+    """Bodies as the contact solver sees them (n = rigid bodies + particles), world frame.
+
+    inv_mass (n,) 1/kg; inv_inertia (n, 3, 3) 1/(kg m^2), zero for particles and fixed bodies;
+    position (n, 3) m; velocity (n, 3) m/s, the velocity the step drifts with; velocity_at_t
+    (n, 3) m/s, the velocity at the start of the step (for times of impact); angular (n, 3) rad/s;
+    accel (n, 3) m/s^2, free acceleration during the step (gravity); static (n,) bool.
+    """
+    inv_mass: np.ndarray
+    inv_inertia: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    velocity_at_t: np.ndarray
+    angular: np.ndarray
+    accel: np.ndarray
+    static: np.ndarray
+
+
+@dataclass
+class Resolution:
+    """What contact resolution did (all (n, 3)): new velocity and angular velocity (m/s, rad/s),
+    position and rotation shifts for impulses that acted at their time of impact (m, rad),
+    pseudo-velocities that remove penetration (positions only), the part of the velocity change
+    due to impacts (m/s), and angular momentum corrections (kg m^2/s) that keep L exact."""
+    velocity: np.ndarray
+    angular: np.ndarray
+    shift: np.ndarray
+    shift_rotation: np.ndarray
+    pseudo_velocity: np.ndarray
+    pseudo_angular: np.ndarray
+    impact_dv: np.ndarray
+    momentum_fix: np.ndarray
+
+
+def time_of_impact(gap, vn, an, h):
+    """First time in [0, inf) at which gap + vn t + an t^2 / 2 reaches 0 (inf if never).
+
+    Uses the conjugate form 2 gap / (sqrt(vn^2 - 2 an gap) - vn), stable for an -> 0.
+    """
+    g = np.maximum(gap, 0.0)
+    disc = vn * vn - 2.0 * an * g
+    den = np.sqrt(np.maximum(disc, 0.0)) - vn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where((disc >= 0) & (den > 0), 2.0 * g / den, np.inf)
+    return np.where(gap <= 0, 0.0, tau)
+
+
+def _scatter(target, index, values):
+    keep = index >= 0
+    np.add.at(target, index[keep], values[keep])
+
+
+def resolve_contacts(bodies, contacts, h, gravity, settings):
+    """Collisions, resting contact, shock propagation and penetration recovery for one step."""
+    n = len(bodies.inv_mass)
+    v, w = bodies.velocity.copy(), bodies.angular.copy()
+    out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)))
+    if contacts.count == 0:
+        return out
+    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
+    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
+    ra, rb = arms(ia, ib, contacts.point, bodies.position)
+    ones = np.ones(contacts.count)
+    has_b = (ib >= 0)[:, None]
+    ib0 = np.maximum(ib, 0)
+
+    # 1. collisions: restitution at each impact's time within the step
+    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w)
+    an = np.einsum("ck,ck->c", bodies.accel[ia] - np.where(has_b, bodies.accel[ib0], 0.0), nrm)
+    tau = time_of_impact(contacts.gap, vn_t, an, h)
+    approach = -(vn_t + an * np.minimum(tau, h))
+    # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
+    threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
+    impact = (tau <= h) & (approach > threshold)
+    if impact.any():
+        target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + contacts.restitution) * approach
+        imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact,
+                  np.zeros((contacts.count, 3)), inv_m, invI, v, w, settings.iterations)
+        t_imp = np.where(impact, tau, 0.0)[:, None]
+        for side, r, j in ((ia, ra, imp), (ib, rb, -imp)):
+            s = np.maximum(side, 0)
+            dv = j * inv_m[s][:, None]
+            dw = np.einsum("cij,cj->ci", invI[s], np.cross(r, j))
+            _scatter(out.shift, side, -t_imp * dv)           # the impulse acted at t + tau
+            _scatter(out.shift_rotation, side, -t_imp * dw)
+            _scatter(out.impact_dv, side, dv)
+            # with the arm taken where the body is at impact, angular momentum stays exact
+            _scatter(out.momentum_fix, side, t_imp * np.cross(j, v[s]))
+
+    # 2. contact: no gap may close by the end of the step (inelastic, Coulomb friction)
+    moved = out.shift[ia] + np.cross(out.shift_rotation[ia], ra)
+    moved_b = np.where(has_b, out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
+    shift_n = np.einsum("ck,ck->c", moved - moved_b, nrm)
+    target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
+    lam = np.zeros((contacts.count, 3))
+    every = np.ones(contacts.count, dtype=bool)
+    pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m, invI, v, w,
+        settings.iterations)
+
+    # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
+    sa = sb = ones
+    gnorm = np.linalg.norm(gravity)
+    if gnorm > 0:
+        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static)
+        c_level, sa, sb = shock_scales(ia, ib, level)
+        for lv in np.unique(c_level):
+            pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, c_level == lv, lam,
+                inv_m, invI, v, w, settings.shock_iterations)
+
+    # 4. penetration recovery: move positions only (split impulse), never add velocity
+    deep = contacts.gap < -settings.slop
+    if deep.any():
+        target_p = settings.recovery * (-contacts.gap - settings.slop) / h
+        pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
+            np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
+            settings.iterations)
+    return out
+
+
+# ----------------------------------------------------------------------------- rigid-only step
+def kick(model, state, h, gravity):
+    """Mid-step velocities (leapfrog, allowing a change of step size) and the velocity at t."""
+    gvec = np.where(model.body_fixed[:, None], 0.0, gravity)
+    v = state.velocity + gvec * 0.5 * (state.last_dt + h)
+    return v, v - 0.5 * h * gvec, gvec
+
+
+def solver_bodies(model, state, v, v_at_t, gvec):
+    invI = world_inverse_inertia(model, state.orientation)
+    w = np.einsum("bij,bj->bi", invI, state.angular_momentum)
+    return SolverBodies(model.body_inv_mass, invI, state.position, v, v_at_t, w, gvec,
+                        model.body_fixed.copy())
+
+
+def drift(model, state, res, h, v_kick):
+    """Positions and orientations after the step; returns the new state."""
+    free = ~model.body_fixed
+    R = quat.to_matrix(state.orientation)
+    I_world = np.einsum("bij,bj,bkj->bik", R, model.body_inertia, R)
+    w0 = np.einsum("bij,bj->bi", world_inverse_inertia(model, state.orientation), state.angular_momentum)
+    L = state.angular_momentum + np.where(
+        free[:, None], np.einsum("bij,bj->bi", I_world, res.angular - w0) + res.momentum_fix, 0.0)
+    new = state.copy()
+    new.position = state.position + h * res.velocity + res.shift + h * res.pseudo_velocity
+    q = rotate_free(state.orientation, L, model.body_inv_inertia, h)
+    new.orientation = rotate_by(q, res.shift_rotation + h * res.pseudo_angular)
+    new.velocity = res.velocity
+    new.angular_momentum = L
+    new.contact_dv = res.velocity - v_kick - res.impact_dv
+    new.time = state.time + h
+    new.last_dt = h
+    return new
 
 
 def substep_count(model, state, dt, settings):
@@ -50,123 +207,22 @@ def substep_count(model, state, dt, settings):
 
 def step(model, state, dt, gravity, settings=ContactSettings()):
     """Advance ``state`` by ``dt`` seconds; returns the new state and the last substep's contacts."""
+    gravity = np.asarray(gravity, float)
     n = substep_count(model, state, dt, settings)
     contacts = None
     for _ in range(n):
-        state, contacts = _substep(model, state, dt / n, np.asarray(gravity, float), settings)
+        h = dt / n
+        v, v_at_t, gvec = kick(model, state, h, gravity)
+        bodies = solver_bodies(model, state, v, v_at_t, gvec)
+        contacts = detect(model, state.position, quat.to_matrix(state.orientation),
+                          reach(model, bodies, h), settings.margin)
+        res = resolve_contacts(bodies, contacts, h, gravity, settings)
+        state = drift(model, state, res, h, v)
     return state, contacts
 
 
-def time_of_impact(gap, vn, an, h):
-    """First time in [0, inf) at which gap + vn t + an t^2 / 2 reaches 0 (inf if never).
-
-    Uses the conjugate form 2 gap / (sqrt(vn^2 - 2 an gap) - vn), stable for an -> 0.
-    """
-    disc = vn * vn - 2.0 * an * np.maximum(gap, 0.0)
-    root = np.sqrt(np.maximum(disc, 0.0))
-    den = root - vn
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = np.where((disc >= 0) & (den > 0), 2.0 * np.maximum(gap, 0.0) / den, np.inf)
-    return np.where(gap <= 0, 0.0, tau)
-
-
-def _substep(model, state, h, g, settings):
-    free = ~model.body_fixed
-    gvec = np.where(free[:, None], g, 0.0)
-    inv_m = model.body_inv_mass
-    x, q, L = state.position, state.orientation, state.angular_momentum.copy()
-
-    # kick: mid-step velocity (leapfrog with a possibly changed step size) and the velocity at t
-    v = state.velocity + gvec * 0.5 * ((state.last_dt or 0.0) + h)
-    v_at_t = v - 0.5 * h * gvec
-    invI = world_inverse_inertia(model, q)
-    w = np.einsum("bij,bj->bi", invI, L)
-    R = quat.to_matrix(q)
-    sweep = (np.linalg.norm(v, axis=1) + np.linalg.norm(w, axis=1) * model.body_radius) * h
-    contacts = detect(model, x, R, sweep, settings.margin)
-
-    shift_x, shift_rot = np.zeros_like(x), np.zeros_like(x)
-    pseudo_v, pseudo_w = np.zeros_like(x), np.zeros_like(x)
-    v_kick = v.copy()
-    bounce_dv = np.zeros_like(x)
-    if contacts.count:
-        ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
-        ra, rb = arms(ia, ib, contacts.point, x)
-        ones = np.ones(contacts.count)
-        w_before = w.copy()
-
-        # 1. collisions: restitution at the time of impact within this step
-        vn_t = normal_velocity(ia, ib, ra, rb, nrm, v_at_t, w)
-        g_b = np.where((ib >= 0)[:, None], gvec[np.maximum(ib, 0)], 0.0)
-        an = np.einsum("ck,ck->c", gvec[ia] - g_b, nrm)
-        tau = time_of_impact(contacts.gap, vn_t, an, h)
-        approach = -(vn_t + an * np.minimum(tau, h))
-        # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
-        threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(g) * h)
-        impact = (tau <= h) & (approach > threshold)
-        if impact.any():
-            e = contacts.restitution
-            target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + e) * approach
-            lam = np.zeros((contacts.count, 3))
-            imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact, lam,
-                      inv_m, invI, v, w, settings.iterations)
-            # the impulse acted at t + tau: move each body back by tau * (its velocity change)
-            t_imp = np.where(impact, tau, 0.0)[:, None]
-            dva, dwa = imp * inv_m[ia][:, None], np.einsum("cij,cj->ci", invI[ia], np.cross(ra, imp))
-            np.add.at(shift_x, ia, -t_imp * dva)
-            np.add.at(shift_rot, ia, -t_imp * dwa)
-            np.add.at(bounce_dv, ia, dva)
-            # angular momentum stays exact when the arm is taken from where the body is at impact
-            np.add.at(L, ia, t_imp * np.cross(imp, v[ia]))
-            has_b = ib >= 0
-            if has_b.any():
-                jb, rbb, ib_ = -imp[has_b], rb[has_b], ib[has_b]
-                tb = t_imp[has_b]
-                dvb, dwb = jb * inv_m[ib_][:, None], np.einsum("cij,cj->ci", invI[ib_], np.cross(rbb, jb))
-                np.add.at(shift_x, ib_, -tb * dvb)
-                np.add.at(shift_rot, ib_, -tb * dwb)
-                np.add.at(bounce_dv, ib_, dvb)
-                np.add.at(L, ib_, tb * np.cross(jb, v[ib_]))
-
-        # 2. contacts: no gap may close by the end of the step (inelastic, Coulomb friction)
-        shift_n = (np.einsum("ck,ck->c", shift_x[ia] + np.cross(shift_rot[ia], ra), nrm)
-                   - np.einsum("ck,ck->c", np.where((ib >= 0)[:, None],
-                                                    shift_x[np.maximum(ib, 0)] + np.cross(shift_rot[np.maximum(ib, 0)], rb), 0.0), nrm))
-        target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
-        lam = np.zeros((contacts.count, 3))
-        all_on = np.ones(contacts.count, dtype=bool)
-        pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, all_on, lam, inv_m, invI, v, w,
-            settings.iterations)
-
-        # 3. shock propagation: sweep the stack bottom-up with the lower side frozen (Guendelman 2003)
-        gnorm = np.linalg.norm(g)
-        if gnorm > 0:
-            level = stack_levels(ia, ib, nrm, -g / gnorm, model.body_count, model.body_fixed)
-            c_level, sa, sb = shock_scales(ia, ib, level)
-            for lv in np.unique(c_level):
-                pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, c_level == lv, lam,
-                    inv_m, invI, v, w, settings.shock_iterations)
-        else:
-            sa = sb = ones
-
-        # 4. penetration recovery: move positions only (split impulse), never add velocity
-        deep = contacts.gap < -settings.slop
-        if deep.any():
-            target_p = settings.recovery * (-contacts.gap - settings.slop) / h
-            pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
-                np.zeros((contacts.count, 3)), inv_m, invI, pseudo_v, pseudo_w, settings.iterations)
-
-        # the solver changed w; carry the change into the angular momentum L = I w
-        I_world = np.einsum("bij,bj,bkj->bik", R, model.body_inertia, R)
-        L = L + np.where(free[:, None], np.einsum("bij,bj->bi", I_world, w - w_before), 0.0)
-
-    # drift
-    x = x + h * v + shift_x + h * pseudo_v
-    q = rotate_free(q, L, model.body_inv_inertia, h)
-    q = rotate_by(q, shift_rot + h * pseudo_w)
-    new = state.copy()
-    new.position, new.orientation, new.velocity, new.angular_momentum = x, q, v, L
-    new.contact_dv = v - v_kick - bounce_dv
-    new.time = state.time + h
-    new.last_dt = h
-    return new, contacts
+def reach(model, bodies, h):
+    """How far each rigid body's surface can move in a step (m): speculative contact margin."""
+    nb = model.body_count
+    return (np.linalg.norm(bodies.velocity[:nb], axis=1)
+            + np.linalg.norm(bodies.angular[:nb], axis=1) * model.body_radius) * h

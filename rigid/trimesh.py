@@ -14,7 +14,7 @@ def tet_boundary(tets):
     """
     tets = np.asarray(tets, dtype=np.int64)
     # faces opposite vertex 0..3, ordered so that their normal points away from the opposite vertex
-    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     faces = tets[:, local].reshape(-1, 3)
     key = np.sort(faces, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
@@ -24,7 +24,7 @@ def tet_boundary(tets):
 def tet_boundary_owner(tets):
     """Like :func:`tet_boundary` but also returns the owning tet and local face index of each face."""
     tets = np.asarray(tets, dtype=np.int64)
-    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     faces = tets[:, local].reshape(-1, 3)
     key = np.sort(faces, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)

@@ -1,0 +1,78 @@
+"""Build the coupled model and its initial state from a validated scene (done once per run)."""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigid.build import PlaneDesc, RigidBodyDesc, build_rigid
+from rigid.step import ContactSettings
+
+from . import geometry
+
+
+@dataclass
+class HybridModel:
+    """Everything constant during a run.
+
+    rigid: RigidModel of the rigid bodies; rigid_ids (r,) scene index of each rigid body.
+    fem: list of FemModel, one per deformable body; fem_ids: scene index of each.
+    names: every body's name in scene order. gravity (3,) m/s^2. dt s. settings: ContactSettings.
+    scene: the Scene it was built from.
+    """
+    rigid: object
+    rigid_ids: np.ndarray
+    fem: list
+    fem_ids: list
+    names: list
+    gravity: np.ndarray
+    dt: float
+    settings: ContactSettings
+    scene: object = None
+
+
+@dataclass
+class HybridState:
+    """Everything that changes: rigid state, one FemState per deformable body, time (s), steps."""
+    rigid: object
+    fem: list = field(default_factory=list)
+    time: float = 0.0
+    steps: int = 0
+
+
+def _shape_dict(shape):
+    d = {"type": shape.type}
+    for key in ("size", "radius", "height", "resolution"):
+        value = getattr(shape, key)
+        if value is not None:
+            d[key] = list(value) if isinstance(value, tuple) else value
+    return d
+
+
+def rigid_desc(body):
+    """RigidBodyDesc of a scene body (reads its mesh when it has one)."""
+    desc = RigidBodyDesc(name=body.name, density=body.density, position=body.position,
+                         orientation=body.orientation, velocity=body.velocity,
+                         angular_velocity=body.angular_velocity, friction=body.friction,
+                         restitution=body.restitution, fixed=body.fixed)
+    if body.shape is not None:
+        desc.shape = _shape_dict(body.shape)
+    else:
+        desc.vertices, desc.triangles = geometry.load_surface(body.mesh)
+    return desc
+
+
+def build(scene):
+    """HybridModel and initial HybridState of ``scene``."""
+    sim = scene.simulation
+    rigid_bodies = [b for b in scene.bodies if b.model == "rigid"]
+    fem_bodies = [b for b in scene.bodies if b.model != "rigid"]
+    planes = [PlaneDesc(p.point, p.normal, p.friction, p.restitution) for p in scene.planes]
+    rigid_model, rigid_state = build_rigid([rigid_desc(b) for b in rigid_bodies], planes)
+    index = {b.name: i for i, b in enumerate(scene.bodies)}
+    from . import deformable  # FEM bodies are built by their own module
+    fem_models, fem_states = deformable.build_bodies(fem_bodies, sim.dt)
+    settings = ContactSettings(iterations=sim.solver.iterations, margin=sim.solver.contact_margin)
+    model = HybridModel(rigid=rigid_model, rigid_ids=np.array([index[b.name] for b in rigid_bodies], dtype=int),
+                        fem=fem_models, fem_ids=[index[b.name] for b in fem_bodies],
+                        names=[b.name for b in scene.bodies], gravity=np.asarray(sim.gravity, float),
+                        dt=sim.dt, settings=settings, scene=scene)
+    return model, HybridState(rigid=rigid_state, fem=fem_states)

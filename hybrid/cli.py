@@ -1,0 +1,102 @@
+"""Command line: ``hybrid run [SCENE] [--out DIR]``, ``hybrid render DIR``, ``hybrid validate SCENE``.
+
+Exit codes: 0 success, 2 bad input (scene or mesh problems, missing run folder), 3 the
+simulation went unstable (frames written so far are kept), 4 rendering unavailable.
+"""
+import argparse
+import sys
+from importlib import resources
+from pathlib import Path
+
+from .scene import SceneError, load_scene, validate_command
+
+
+def _default_scene_path():
+    return Path(str(resources.files("hybrid.scenes").joinpath("default.toml")))
+
+
+def _run(args):
+    path = Path(args.scene) if args.scene else _default_scene_path()
+    try:
+        scene = load_scene(path)
+    except SceneError as err:
+        for problem in err.problems:
+            print(problem, file=sys.stderr)
+        print(f"{path}: {len(err.problems)} problem(s); nothing was run", file=sys.stderr)
+        return 2
+    from .geometry import MeshError
+    from .run import run_scene
+    from .step import InstabilityError
+    out = Path(args.out) if args.out else Path("outputs") / scene.name
+    print(f"running '{scene.name}' ({len(scene.bodies)} bodies, {scene.simulation.duration} s at "
+          f"dt = {scene.simulation.dt:g} s) -> {out}")
+    try:
+        summary = run_scene(scene, out, progress=not args.quiet,
+                            log=lambda m: print(m, file=sys.stderr))
+    except (MeshError, ValueError) as err:
+        print(f"{path}: {err}", file=sys.stderr)
+        return 2
+    except InstabilityError as err:
+        print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
+        return 3
+    c = summary["conservation"]
+    print(f"done: {summary['steps']} steps, {summary['frames']} frames in {summary['wall_time']:.1f} s "
+          f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g}")
+    print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv, summary.json")
+    print(f"render it with: hybrid render {out}")
+    return 0
+
+
+def _render(args):
+    from .output import read_run
+    from .render import render_run
+    run_dir = Path(args.dir)
+    try:
+        times, frames, _ = read_run(run_dir)
+    except (FileNotFoundError, OSError, ValueError) as err:
+        print(f"{run_dir}: not a finished run folder ({err})", file=sys.stderr)
+        return 2
+    if not frames:
+        print(f"{run_dir}: no frames to render", file=sys.stderr)
+        return 2
+
+    def progress(done, total):
+        print(f"\rrendering frame {done}/{total}", end="", file=sys.stderr, flush=True)
+
+    try:
+        result = render_run(run_dir, size=tuple(args.size), field=args.field, progress=progress)
+    except RuntimeError as err:
+        print(f"\n{err}", file=sys.stderr)
+        return 4
+    except ValueError as err:
+        print(f"\n{run_dir}: {err}", file=sys.stderr)
+        return 2
+    print(f"\nwrote {len(result['pngs'])} PNG frames and {result['movie']}")
+    return 0
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="hybrid", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("run", help="simulate a scene (the built-in default scene if none is given)")
+    p.add_argument("scene", nargs="?", help="scene file (TOML)")
+    p.add_argument("--out", help="output folder (default outputs/<scene name>/)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p = sub.add_parser("render", help="render a finished run off-screen to PNG frames and a movie")
+    p.add_argument("dir", help="run folder written by 'hybrid run'")
+    p.add_argument("--size", type=int, nargs=2, default=[960, 540], metavar=("W", "H"))
+    p.add_argument("--field", help="colour FEM bodies by a cell field (von_mises, principal_stress)")
+    p = sub.add_parser("validate", help="check a scene file and report every problem")
+    p.add_argument("scene")
+    args = parser.parse_args(argv)
+    if args.command == "validate":
+        return validate_command(args.scene)
+    try:
+        return {"run": _run, "render": _render}[args.command](args)
+    except KeyboardInterrupt:
+        print("\ninterrupted; whole frames written so far are kept", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""What a run reports about its state: frame geometry, per-body rows, conserved quantities."""
+import numpy as np
+
+from fem import dynamics as fem_dyn
+from fem.stress import element_stress, principal_stress_max
+from fem.plasticity import von_mises
+from rigid import quaternion as quat
+from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_energy, reported_velocity
+
+from .output import FramePiece
+
+
+def frame_pieces(model, state):
+    """One FramePiece per body: rigid surfaces and FEM tet meshes in world coordinates."""
+    pieces = []
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count:
+        R = quat.to_matrix(rs.orientation)
+        for i in range(rm.body_count):
+            pts = rs.position[i] + rm.surface_vertices[i] @ R[i].T
+            pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        sigma = element_stress(m, s)
+        cell = "tetra10" if m.order == 2 else "tetra"
+        pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)],
+                                 cell_data={"von_mises": von_mises(sigma),
+                                            "principal_stress": principal_stress_max(sigma)},
+                                 point_data={"displacement": s.x - m.rest_points, "velocity": s.v}))
+    pieces.sort(key=lambda p: p.body_id)
+    return pieces
+
+
+def body_rows(model, state):
+    """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy`` in scene order.
+
+    Rigid: centre of mass, orientation of the body's own frame, velocity at the frame's time.
+    FEM: centre of mass, best-fit orientation (shape matching), momentum / mass, and the angular
+    velocity I^-1 L of the node cloud about its centre of mass.
+    """
+    rows = {}
+    t = state.time
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count:
+        v = reported_velocity(rm, rs, model.gravity)
+        w = angular_velocity(rm, rs)
+        ke = kinetic_energy(rm, rs, v)
+        R_shape, _ = body_pose_in_shape_frame(rm, rs)
+        q = quat.from_matrix(R_shape)
+        for i in range(rm.body_count):
+            rows[int(model.rigid_ids[i])] = (t, model.names[model.rigid_ids[i]], *rs.position[i], *q[i],
+                                             *v[i], *w[i], float(ke[i]))
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        mass = m.node_mass.sum()
+        com = m.node_mass @ s.x / mass
+        p = m.node_mass @ s.v
+        r = s.x - com
+        L = np.cross(r, m.node_mass[:, None] * s.v).sum(axis=0)
+        I = (m.node_mass[:, None, None] * (np.einsum("ni,ni->n", r, r)[:, None, None] * np.eye(3)
+                                           - np.einsum("ni,nj->nij", r, r))).sum(axis=0)
+        w = np.linalg.solve(I, L)
+        q = quat.from_matrix(s.R)
+        ke = 0.5 * float(m.node_mass @ np.einsum("ni,ni->n", s.v, s.v))
+        rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w, ke)
+    return [tuple(float(x) if not isinstance(x, str) else x for x in rows[k]) for k in sorted(rows)]
+
+
+def region_rows(model, state):
+    """Rows ``time,body,region,fx,fy,fz,ux,uy,uz`` for every anchor and load region."""
+    from fem.stress import region_table
+    out = []
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        for name, *values in region_table(m, s):
+            out.append((state.time, model.names[model.fem_ids[j]], name, *values))
+    return out
+
+
+def totals(model, state):
+    """Total energy (kinetic + gravitational + elastic, J), linear momentum (kg m/s) and angular
+    momentum about the origin (kg m^2/s) of the moving bodies."""
+    g = model.gravity
+    energy, P, L = 0.0, np.zeros(3), np.zeros(3)
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count:
+        free = ~rm.body_fixed
+        v = reported_velocity(rm, rs, g)
+        m = np.where(free, rm.body_mass, 0.0)
+        energy += float(kinetic_energy(rm, rs, v).sum() - (m * (rs.position @ g)).sum())
+        P += (m[:, None] * v).sum(axis=0)
+        L += (np.cross(rs.position, m[:, None] * v) + rs.angular_momentum).sum(axis=0)
+    for mm, s in zip(model.fem, state.fem):
+        energy += fem_dyn.kinetic_energy(mm, s) + fem_dyn.elastic_energy(mm, s) - float(mm.node_mass @ (s.x @ g))
+        P += fem_dyn.linear_momentum(mm, s)
+        L += fem_dyn.angular_momentum(mm, s)
+    return energy, P, L

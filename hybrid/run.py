@@ -1,0 +1,139 @@
+"""Run a scene: step it, write frames at the output rate, report progress and a summary."""
+import sys
+import time as clock
+from pathlib import Path
+
+import numpy as np
+
+from rigid.contacts import detect
+from rigid import quaternion as quat
+
+from . import observe
+from .build import build
+from .output import RunWriter
+from .step import InstabilityError, step
+
+
+class Progress:
+    """A one-line progress bar on stderr (simulated time, steps/s); quiet when disabled."""
+
+    def __init__(self, duration, enabled=True, stream=sys.stderr):
+        self.duration, self.enabled, self.stream = duration, enabled, stream
+        self.start = clock.perf_counter()
+        self.last = -1.0
+        self.tty = hasattr(stream, "isatty") and stream.isatty()
+        self.last_decile = -1
+
+    def update(self, t, steps, force=False):
+        if not self.enabled:
+            return
+        now = clock.perf_counter()
+        frac = min(t / self.duration, 1.0) if self.duration > 0 else 1.0
+        rate = steps / max(now - self.start, 1e-9)
+        if self.tty:
+            if force or now - self.last > 0.2:
+                bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+                self.stream.write(f"\r[{bar}] t = {t:7.3f} / {self.duration:.3f} s  {rate:8.1f} steps/s")
+                self.stream.flush()
+                self.last = now
+        elif int(frac * 10) > self.last_decile or force:
+            self.last_decile = int(frac * 10)
+            self.stream.write(f"{100 * frac:5.1f}%  t = {t:.3f} s  {rate:.1f} steps/s\n")
+            self.stream.flush()
+
+    def done(self):
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+
+
+def overlapping_bodies(model, state, tolerance=1e-4):
+    """Pairs of rigid bodies (names) that start interpenetrating by more than ``tolerance`` m."""
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count < 2:
+        return []
+    c = detect(rm, rs.position, quat.to_matrix(rs.orientation), np.zeros(rm.body_count), 0.0)
+    deep = (c.gap < -tolerance) & (c.body_b >= 0)
+    pairs = {tuple(sorted((int(a), int(b)))) for a, b in zip(c.body_a[deep], c.body_b[deep])}
+    return [(model.names[model.rigid_ids[a]], model.names[model.rigid_ids[b]]) for a, b in sorted(pairs)]
+
+
+def _drift(values, reference):
+    values = np.asarray(values, float)
+    scale = max(float(np.max(np.abs(reference))), 1e-300)
+    return float(np.max(np.abs(values - reference)) / scale)
+
+
+def run_scene(scene, out_dir, progress=True, log=print):
+    """Simulate ``scene`` and write its results into ``out_dir``; returns the summary dict.
+
+    On instability the frames written so far are kept, the summary records the failure, and the
+    InstabilityError is raised again for the caller to report.
+    """
+    sim = scene.simulation
+    model, state = build(scene)
+    for a, b in overlapping_bodies(model, state):
+        log(f"warning: bodies '{a}' and '{b}' overlap at the start")
+    steps_total = int(round(sim.duration / sim.dt))
+    frame_every = 1.0 / sim.output_fps
+    bar = Progress(sim.duration, enabled=progress)
+    energies, momenta, angular = [], [], []
+    failure = None
+    wall0 = clock.perf_counter()
+    out_dir = Path(out_dir)
+    with RunWriter(out_dir, scene.name) as writer:
+        next_frame = 0.0
+
+        def record(state):
+            writer.write_frame(state.time, observe.frame_pieces(model, state), observe.body_rows(model, state))
+            regions = observe.region_rows(model, state)
+            if regions:
+                writer.write_regions(regions)
+            e, p, l = observe.totals(model, state)
+            energies.append(e), momenta.append(p), angular.append(l)
+
+        record(state)
+        next_frame += frame_every
+        try:
+            for _ in range(steps_total):
+                state = step(model, state)
+                if state.time >= next_frame - 1e-9 * sim.dt:
+                    record(state)
+                    next_frame += frame_every
+                bar.update(state.time, state.steps)
+        except InstabilityError as err:
+            failure = err
+        bar.update(state.time, state.steps, force=True)
+        bar.done()
+        wall = clock.perf_counter() - wall0
+        summary = _summary(scene, model, state, wall, energies, momenta, angular, writer.frames_written, failure)
+        writer.close(summary)
+    if failure is not None:
+        raise failure
+    return summary
+
+
+def _summary(scene, model, state, wall, energies, momenta, angular, frames, failure):
+    no_external = not np.any(model.gravity) and model.rigid.plane_point.shape[0] == 0 \
+        and not np.any(model.rigid.body_fixed) and not any(m.anchor_nodes or m.load_nodes for m in model.fem)
+    E, P, L = np.array(energies), np.array(momenta), np.array(angular)
+    return {
+        "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
+        "scene_file": str(scene.source_path),
+        "status": "ok" if failure is None else "unstable",
+        "error": None if failure is None else str(failure),
+        "bodies": model.names,
+        "simulated_time": state.time,
+        "steps": state.steps,
+        "frames": frames,
+        "wall_time": wall,
+        "steps_per_second": state.steps / wall if wall > 0 else None,
+        "conservation": {
+            "momentum_conserved_expected": bool(no_external),
+            "energy_relative_drift": _drift(E, E[0]) if len(E) else None,
+            "linear_momentum_relative_drift": _drift(P, P[0]) if len(P) and np.any(P[0]) else None,
+            "angular_momentum_relative_drift": _drift(L, L[0]) if len(L) and np.any(L[0]) else None,
+            "note": "drifts are max |q(t) - q(0)| / max |q(0)| over written frames; energy includes "
+                    "gravity and elastic energy and is conserved only without friction, inelastic "
+                    "contact or damping; momenta only without gravity, planes, fixed bodies or anchors",
+        },
+    }
