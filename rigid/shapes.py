@@ -33,7 +33,8 @@ def box_surface(size, resolution=None):
 
     Each edge of length ``s`` is split into ``max(2, ceil(s / resolution))`` segments, so every face
     has at least 3x3 vertices (an interior vertex, needed for face-on-face contact). The default
-    ``resolution`` is ``max(size) / 4``: a cube gets 5x5 vertices per face (98 vertices in all).
+    ``resolution`` is ``max(size) / 2``: a cube gets 3x3 vertices per face (26 vertices in all),
+    enough for flat face contact (corners, edge midpoints and the centre) at the lowest cost.
     Face quads are split along alternating diagonals, so the mesh has no preferred direction.
     """
     size = np.broadcast_to(np.asarray(size, dtype=float), (3,)).copy()
@@ -41,7 +42,7 @@ def box_surface(size, resolution=None):
         _positive(f"box size along {axis}", s)
     resolution = _resolution(resolution)
     if resolution is None:
-        resolution = size.max() / 4.0
+        resolution = size.max() / 2.0
     divisions = np.maximum(2, np.ceil(size / resolution - 1e-9)).astype(np.int64)
 
     # Vertices live on the integer lattice (0..divisions); shared edge/corner nodes are merged by

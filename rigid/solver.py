@@ -19,37 +19,10 @@ def _cross(a, b):
 
 
 @nb.njit(cache=True)
-def _tangents(n):
-    if abs(n[0]) > 0.57735:
-        t = np.array([n[1], -n[0], 0.0])
-    else:
-        t = np.array([0.0, n[2], -n[1]])
-    t /= math.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
-    return t, _cross(n, t)
-
-
-@nb.njit(cache=True)
-def _inv_eff_mass(i, r, d, inv_m, invI, scale):
-    """d . (M^-1 applied to a unit impulse along d at arm r) for body i (0 if static)."""
-    if i < 0 or scale == 0.0:
-        return 0.0
-    rd = _cross(r, d)
-    return scale * (inv_m[i] + np.dot(_cross(invI[i] @ rd, r), d))
-
-
-@nb.njit(cache=True)
 def _velocity_at(i, r, v, w):
     if i < 0:
         return np.zeros(3)
     return v[i] + _cross(w[i], r)
-
-
-@nb.njit(cache=True)
-def _apply(i, r, impulse, inv_m, invI, v, w, scale):
-    if i < 0 or scale == 0.0:
-        return
-    v[i] += scale * inv_m[i] * impulse
-    w[i] += scale * (invI[i] @ _cross(r, impulse))
 
 
 @nb.njit(cache=True)
@@ -75,6 +48,34 @@ def normal_velocity(ia, ib, ra, rb, normal, v, w):
 
 
 @nb.njit(cache=True)
+def _side(i, r0, r1, r2, d0, d1, d2, inv_m, invI, scale):
+    """Inverse effective mass d . M^-1 (impulse d at arm r) of body i, and its angular response."""
+    if i < 0 or scale == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    c0, c1, c2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0   # r x d
+    I = invI[i]
+    a0 = I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
+    a1 = I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
+    a2 = I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
+    k = inv_m[i] + (a1 * r2 - a2 * r1) * d0 + (a2 * r0 - a0 * r2) * d1 + (a0 * r1 - a1 * r0) * d2
+    return scale * k, scale * a0, scale * a1, scale * a2
+
+
+@nb.njit(cache=True)
+def _rel_velocity(a, b, ra, rb, v, w, k):
+    x = y = z = 0.0
+    if a >= 0:
+        x = v[a, 0] + w[a, 1] * ra[k, 2] - w[a, 2] * ra[k, 1]
+        y = v[a, 1] + w[a, 2] * ra[k, 0] - w[a, 0] * ra[k, 2]
+        z = v[a, 2] + w[a, 0] * ra[k, 1] - w[a, 1] * ra[k, 0]
+    if b >= 0:
+        x -= v[b, 0] + w[b, 1] * rb[k, 2] - w[b, 2] * rb[k, 1]
+        y -= v[b, 1] + w[b, 2] * rb[k, 0] - w[b, 0] * rb[k, 2]
+        z -= v[b, 2] + w[b, 0] * rb[k, 1] - w[b, 1] * rb[k, 0]
+    return x, y, z
+
+
+@nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
         iterations):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
@@ -82,60 +83,97 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
     contact's tangent basis. scale_a/scale_b (c,) multiply each side's inverse mass: 0 makes that
     side immovable for this call (shock propagation). Only contacts with active[k] take part.
+    Returns the world impulse on side a of each contact, (c, 3) N s.
     """
-    c = len(ia)
-    kn = np.zeros(c)
-    kt = np.zeros((c, 2))
-    tan = np.zeros((c, 2, 3))
-    for k in range(c):
-        if not active[k]:
-            continue
-        n = normal[k]
-        t1, t2 = _tangents(n)
-        tan[k, 0] = t1
-        tan[k, 1] = t2
-        a, b = ia[k], ib[k]
-        kn[k] = (_inv_eff_mass(a, ra[k], n, inv_m, invI, scale_a[k])
-                 + _inv_eff_mass(b, rb[k], n, inv_m, invI, scale_b[k]))
-        kt[k, 0] = (_inv_eff_mass(a, ra[k], t1, inv_m, invI, scale_a[k])
-                    + _inv_eff_mass(b, rb[k], t1, inv_m, invI, scale_b[k]))
-        kt[k, 1] = (_inv_eff_mass(a, ra[k], t2, inv_m, invI, scale_a[k])
-                    + _inv_eff_mass(b, rb[k], t2, inv_m, invI, scale_b[k]))
+    idx = np.nonzero(active)[0]
+    m = len(idx)
+    # per active contact and direction (normal, t1, t2): direction, 1/k, angular responses
+    dirs = np.zeros((m, 3, 3))
+    invk = np.zeros((m, 3))
+    resp = np.zeros((m, 3, 2, 3))   # [contact, direction, side, xyz] = scale invI (r x d)
+    for j in range(m):
+        k = idx[j]
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        if abs(n0) > 0.57735:
+            t0, t1, t2 = n1, -n0, 0.0
+        else:
+            t0, t1, t2 = 0.0, n2, -n1
+        tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / tl, t1 / tl, t2 / tl
+        s0, s1, s2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
+        dirs[j, 0, 0], dirs[j, 0, 1], dirs[j, 0, 2] = n0, n1, n2
+        dirs[j, 1, 0], dirs[j, 1, 1], dirs[j, 1, 2] = t0, t1, t2
+        dirs[j, 2, 0], dirs[j, 2, 1], dirs[j, 2, 2] = s0, s1, s2
+        for d in range(3):
+            e0, e1, e2 = dirs[j, d, 0], dirs[j, d, 1], dirs[j, d, 2]
+            ka, x0, x1, x2 = _side(ia[k], ra[k, 0], ra[k, 1], ra[k, 2], e0, e1, e2, inv_m, invI, scale_a[k])
+            kb, y0, y1, y2 = _side(ib[k], rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
+            resp[j, d, 0, 0], resp[j, d, 0, 1], resp[j, d, 0, 2] = x0, x1, x2
+            resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
+            invk[j, d] = 1.0 / (ka + kb) if ka + kb > 0.0 else 0.0
     for _ in range(iterations):
-        for k in range(c):
-            if not active[k] or kn[k] <= 0.0:
+        for j in range(m):
+            if invk[j, 0] == 0.0:
                 continue
+            k = idx[j]
             a, b = ia[k], ib[k]
-            n = normal[k]
-            vrel = _velocity_at(a, ra[k], v, w) - _velocity_at(b, rb[k], v, w)
-            # normal: reach the target normal velocity, accumulated impulse >= 0
-            d = (target[k] - np.dot(vrel, n)) / kn[k]
-            new = max(lam[k, 0] + d, 0.0)
-            d = new - lam[k, 0]
-            lam[k, 0] = new
-            if d != 0.0:
-                _apply(a, ra[k], d * n, inv_m, invI, v, w, scale_a[k])
-                _apply(b, rb[k], -d * n, inv_m, invI, v, w, scale_b[k])
-            # friction: stop tangential sliding, inside the Coulomb disk
-            if mu[k] <= 0.0:
-                continue
-            vrel = _velocity_at(a, ra[k], v, w) - _velocity_at(b, rb[k], v, w)
-            f1 = lam[k, 1] - np.dot(vrel, tan[k, 0]) / kt[k, 0]
-            f2 = lam[k, 2] - np.dot(vrel, tan[k, 1]) / kt[k, 1]
-            limit = mu[k] * lam[k, 0]
-            norm = math.sqrt(f1 * f1 + f2 * f2)
-            if norm > limit:
-                f1 *= limit / norm
-                f2 *= limit / norm
-            d1, d2 = f1 - lam[k, 1], f2 - lam[k, 2]
-            lam[k, 1], lam[k, 2] = f1, f2
-            imp = d1 * tan[k, 0] + d2 * tan[k, 1]
-            _apply(a, ra[k], imp, inv_m, invI, v, w, scale_a[k])
-            _apply(b, rb[k], -imp, inv_m, invI, v, w, scale_b[k])
-    # world impulse on side a of each contact
-    out = np.zeros((c, 3))
-    for k in range(c):
-        out[k] = lam[k, 0] * normal[k] + lam[k, 1] * tan[k, 0] + lam[k, 2] * tan[k, 1]
+            for d in range(3):
+                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k)
+                vd = x * dirs[j, d, 0] + y * dirs[j, d, 1] + z * dirs[j, d, 2]
+                if d == 0:
+                    # normal: reach the target normal velocity, accumulated impulse >= 0
+                    new = max(lam[k, 0] + (target[k] - vd) * invk[j, 0], 0.0)
+                    delta = new - lam[k, 0]
+                    lam[k, 0] = new
+                else:
+                    # friction: stop sliding, inside the Coulomb disk mu * lambda_n
+                    if mu[k] <= 0.0:
+                        break
+                    f = lam[k, d] - vd * invk[j, d]
+                    other = lam[k, 3 - d]
+                    limit = mu[k] * lam[k, 0]
+                    norm = math.sqrt(f * f + other * other)
+                    if norm > limit:
+                        f = f * limit / norm if norm > 0 else 0.0
+                    delta = f - lam[k, d]
+                    lam[k, d] = f
+                if delta == 0.0:
+                    continue
+                if a >= 0 and scale_a[k] != 0.0:
+                    sm = scale_a[k] * inv_m[a] * delta
+                    for c in range(3):
+                        v[a, c] += sm * dirs[j, d, c]
+                        w[a, c] += delta * resp[j, d, 0, c]
+                if b >= 0 and scale_b[k] != 0.0:
+                    sm = scale_b[k] * inv_m[b] * delta
+                    for c in range(3):
+                        v[b, c] -= sm * dirs[j, d, c]
+                        w[b, c] -= delta * resp[j, d, 1, c]
+            if mu[k] > 0.0:
+                # the disk clamp may have left the first tangent outside after the second moved
+                l1, l2 = lam[k, 1], lam[k, 2]
+                limit = mu[k] * lam[k, 0]
+                norm = math.sqrt(l1 * l1 + l2 * l2)
+                if norm > limit * (1 + 1e-12) and norm > 0:
+                    s = limit / norm
+                    for d in (1, 2):
+                        delta = lam[k, d] * s - lam[k, d]
+                        lam[k, d] += delta
+                        if a >= 0 and scale_a[k] != 0.0:
+                            sm = scale_a[k] * inv_m[a] * delta
+                            for c in range(3):
+                                v[a, c] += sm * dirs[j, d, c]
+                                w[a, c] += delta * resp[j, d, 0, c]
+                        if b >= 0 and scale_b[k] != 0.0:
+                            sm = scale_b[k] * inv_m[b] * delta
+                            for c in range(3):
+                                v[b, c] -= sm * dirs[j, d, c]
+                                w[b, c] -= delta * resp[j, d, 1, c]
+    out = np.zeros((len(ia), 3))
+    for j in range(m):
+        k = idx[j]
+        for c in range(3):
+            out[k, c] = lam[k, 0] * dirs[j, 0, c] + lam[k, 1] * dirs[j, 1, c] + lam[k, 2] * dirs[j, 2, c]
     return out
 
 

@@ -36,7 +36,7 @@ class ContactSettings:
     slop: float = 0.0005
     recovery: float = 0.4
     restitution_threshold: float = 0.05
-    shock_iterations: int = 4
+    shock_iterations: int = 10
     max_substeps: int = 32
 
 
