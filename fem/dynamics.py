@@ -127,6 +127,11 @@ def elastic_force(model, state, tet_R=None):
     return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
 
 
+def _plastic_force(model, state, tet_R=None):
+    from fem.plastic_flow import plastic_force   # fem.plastic_flow imports this module
+    return plastic_force(model, state, tet_R)
+
+
 def gravity_force(model, gravity):
     """Node weights ``(n, 3)`` (N) for gravity ``(3,)`` m/s^2 (M applied to a uniform field)."""
     g = np.broadcast_to(np.asarray(gravity, dtype=float), (model.node_count, 3))
@@ -156,12 +161,16 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     if model.frame == "corotated":
         tet_R = tet_rotations(model, state.x)
         force += elastic_force(model, state, tet_R)
+        if model.plastic:
+            force += _plastic_force(model, state, tet_R)
         K = warped_stiffness(model, tet_R)
         A = (a_M * model.M + a_K * K).tocsr()
         R = np.eye(3)
         solve, iterations = _corotated_solver(model, dt, A, state)
     else:
         force += elastic_force(model, state)
+        if model.plastic:
+            force += _plastic_force(model, state)
         K, R = model.K, state.R
         A = None
         solve = system_factorisation(model, dt).solve
@@ -235,9 +244,9 @@ def apply_impulse(model, state, step, node_impulse):
 
 
 def finish(model, state, step, dt):
-    """Advance positions with the step's velocities, update the best-fit frame and anchor reactions.
-
-    Returns the new :class:`fem.model.FemState`.
+    """Advance positions with the step's velocities, update the best-fit frame and anchor reactions,
+    and (plastic bodies only) return-map the new strain onto the yield surface
+    (``fem.plastic_flow.plastic_update``). Returns the new :class:`fem.model.FemState`.
     """
     if model.integrator == "newmark":
         x = state.x + 0.5 * dt * (state.v + step.v)
@@ -251,7 +260,11 @@ def finish(model, state, step, dt):
         r[model.fixed_dofs] = residual[model.fixed_dofs] / dt
         reaction = r.reshape(-1, 3) @ step.R.T
     R, c = body_frame(model, x)
-    return state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
+    new = state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
+    if model.plastic:
+        from fem.plastic_flow import plastic_update   # fem.plastic_flow imports this module
+        new = plastic_update(model, new)
+    return new
 
 
 def step(model, state, dt, gravity=(0.0, 0.0, 0.0)):
@@ -273,7 +286,10 @@ def kinetic_energy(model, state):
 
 
 def elastic_energy(model, state):
-    """Strain energy of the linear model in its frame (J)."""
+    """Strain energy of the linear model in its frame (J); plastic bodies: of ``eps - eps_p``."""
+    if model.plastic and state.tet_plastic_strain is not None:
+        from fem.plastic_flow import elastic_energy as plastic_elastic_energy
+        return plastic_elastic_energy(model, state)
     if model.frame == "corotated":
         u = _corotated_displacement(model, state.x, tet_rotations(model, state.x))
         t = len(u)

@@ -145,6 +145,54 @@ def crack_faces(points: np.ndarray, tets: np.ndarray, element: np.ndarray,
     return faces.face_vertices[np.unique(chosen[valid])]
 
 
+def chosen_faces(points, tets, element, normal, faces):
+    """Per cracking element, its interior face most parallel to the crack plane:
+    (face index (k,) with -1 where it has none, face centroid (k, 3))."""
+    corner = points[np.asarray(tets)[element][:, FACE_VERTEX_SLOTS]]
+    face_normal = np.cross(corner[:, :, 1] - corner[:, :, 0],
+                           corner[:, :, 2] - corner[:, :, 0])
+    face_normal /= np.linalg.norm(face_normal, axis=2, keepdims=True)
+    alignment = np.abs(np.einsum("kfi,ki->kf", face_normal, normal))
+    face_index = faces.tet_face[element]
+    alignment = np.where(faces.interior[face_index], alignment, -np.inf)
+    best = np.argmax(alignment, axis=1)
+    chosen = np.where(np.isfinite(alignment.max(axis=1)),
+                      np.take_along_axis(face_index, best[:, None], 1)[:, 0], -1)
+    centroid = np.take_along_axis(corner, best[:, None, None, None], 1)[:, 0].mean(axis=1)
+    return chosen, centroid
+
+
+def planar_crack(points: np.ndarray, tets: np.ndarray, candidates: CrackCandidates,
+                 faces: TetFaces | None = None, tolerance: float = 0.35,
+                 max_cracks: int | None = None) -> CrackCandidates:
+    """The candidates that open one planar crack: the most overstressed element (the seed)
+    and every candidate whose chosen face lies on the seed's crack plane.
+
+    The plane passes through the centroid of the seed's chosen face (see `crack_faces`) with
+    the seed's crack normal; a candidate joins when its chosen face's centroid is within
+    `tolerance` times the seed's mean edge length of that plane. One plane per call keeps a
+    uniformly stressed body from opening many parallel cracks at once (it breaks where it is
+    weakest, then unloads); the rest are re-examined at the next check. `max_cracks` then
+    keeps the most overstressed of the plane's elements.
+    """
+    points = np.asarray(points, dtype=float)
+    faces = tet_faces(tets) if faces is None else faces
+    if candidates.element.size == 0:
+        return candidates
+    chosen, centroid = chosen_faces(points, tets, candidates.element, candidates.normal, faces)
+    valid = np.flatnonzero(chosen >= 0)
+    if valid.size == 0:
+        return CrackCandidates(*(a[:0] for a in candidates))
+    seed = valid[0]
+    corner = points[np.asarray(tets)[candidates.element[seed], :4]]
+    edge = np.linalg.norm(corner[:, None] - corner[None], axis=2).sum() / 12.0
+    distance = np.abs((centroid - centroid[seed]) @ candidates.normal[seed])
+    keep = np.flatnonzero((chosen >= 0) & (distance <= tolerance * edge))
+    if max_cracks is not None:
+        keep = keep[:max(int(max_cracks), 1)]
+    return CrackCandidates(*(a[keep] for a in candidates))
+
+
 def find_crack_faces(points: np.ndarray, tets: np.ndarray, sigma: np.ndarray,
                      volume: np.ndarray, fracture_stress, max_cracks: int | None = None,
                      unbreakable: np.ndarray | None = None,

@@ -52,6 +52,14 @@ class FemModel:
     surface: ``(f, 3)`` outward boundary triangles (P2: four per boundary face).
     surface_nodes: ``(s,)`` sorted indices of the nodes on the boundary.
     factor_cache: :class:`fem.solver.FactorCache` of the system matrix (floating frame).
+    yield_stress: von Mises yield stress Y (Pa), or None for a purely elastic body (then no
+        plasticity pass runs and the state carries no plastic strain).
+    plastic_update_strain: equivalent plastic strain (-) accumulated in some quadrature point since
+        the last reference-shape update at which the next update is due (``fem.reference``).
+    max_plastic_strain: cap (-) on the equivalent plastic strain ``sqrt(2/3) |eps_p|``, or None.
+    reference_peeq: ``(t, q)`` accumulated equivalent plastic strain at the last reference-shape
+        update (-), zeros when built; None for elastic bodies.
+    reference_updates: number of reference-shape updates that led to this model.
     """
     rest_points: np.ndarray
     tets: np.ndarray
@@ -83,6 +91,11 @@ class FemModel:
     surface: np.ndarray
     surface_nodes: np.ndarray
     factor_cache: FactorCache = field(default_factory=FactorCache, compare=False)
+    yield_stress: float | None = None
+    plastic_update_strain: float = 0.02
+    max_plastic_strain: float | None = None
+    reference_peeq: np.ndarray | None = None
+    reference_updates: int = 0
 
     @property
     def node_count(self):
@@ -91,6 +104,16 @@ class FemModel:
     @property
     def tet_count(self):
         return len(self.tets)
+
+    @property
+    def plastic(self):
+        """True when the body has a yield stress (von Mises perfect plasticity)."""
+        return self.yield_stress is not None
+
+    @property
+    def quadrature_count(self):
+        """Quadrature points per element ``q`` (1 for P1): one plastic strain each."""
+        return self.elements.tet_weights.shape[1]
 
     @property
     def anchored(self):
@@ -114,6 +137,14 @@ class FemState:
     node_reaction: ``(n, 3)`` force the anchors exerted on each anchored node over the last step
         (N), zero elsewhere.
     time: simulated time (s).
+    Plastic bodies only (None / 0 for elastic ones, see ``fem.plastic_flow``):
+    tet_plastic_strain: ``(t, q, 3, 3)`` plastic strain eps_p at each quadrature point (-), rest
+        (material) coordinates; q = 1 for P1.
+    tet_peeq: ``(t, q)`` accumulated equivalent plastic strain ``sum sqrt(2/3) |d eps_p|`` (-).
+    tet_yielded: ``(t,)`` bool, the element yielded in the last step.
+    node_plastic_force: ``(n, 3)`` equivalent plastic force ``f_p = sum_e int B^T C eps_p`` (N),
+        body (rest) frame; None for corotated bodies (rotated per element in ``predict``).
+    plastic_dissipation: plastic work dissipated since the start (J).
     """
     x: np.ndarray
     v: np.ndarray
@@ -121,9 +152,45 @@ class FemState:
     c: np.ndarray
     node_reaction: np.ndarray
     time: float = 0.0
+    tet_plastic_strain: np.ndarray | None = None
+    tet_peeq: np.ndarray | None = None
+    tet_yielded: np.ndarray | None = None
+    node_plastic_force: np.ndarray | None = None
+    plastic_dissipation: float = 0.0
 
     def replace(self, **changes):
         return replace(self, **changes)
+
+
+def _mass_matrices(M_scalar, mass):
+    """``(node_mass (n,), M (3n, 3n))`` from the consistent scalar mass: HRZ lumping (diagonal
+    scaled to the total mass, all positive) and the integrator's mass (lumped or consistent)."""
+    diag = M_scalar.diagonal()
+    node_mass = diag * (M_scalar.sum() / diag.sum())
+    if mass == "lumped":
+        return node_mass, sp.diags(np.repeat(node_mass, 3)).tocsr()
+    return node_mass, sp.kron(M_scalar, sp.identity(3), format="csr")
+
+
+def with_rest_points(model, points, dt=None, **changes):
+    """A new model with rest shape ``points`` ``(n, 3)`` m (same mesh, material, anchors, loads).
+
+    K, M, element data, lumped masses and shape-matching offsets are rebuilt for the new shape; the
+    new model has its own (empty) factorisation cache, factorised now for ``dt`` s if given and the
+    frame is floating. Other models keep theirs. ``changes`` replace further fields. Loads keep
+    their node forces. Used by events such as reference-shape updates (``fem.reference``).
+    """
+    points = np.asarray(points, dtype=float)
+    K, M_scalar, elements = assemble(points, model.tets, model.young, model.poisson, model.density)
+    node_mass, M = _mass_matrices(M_scalar, model.mass_kind)
+    rest_center = node_mass @ points / node_mass.sum()
+    new = replace(model, rest_points=points, K=K, M=M, elements=elements, node_mass=node_mass,
+                  rest_center=rest_center, rest_offsets=points - rest_center,
+                  factor_cache=FactorCache(), **changes)
+    if dt is not None and new.frame == "floating":
+        from fem.dynamics import system_factorisation
+        system_factorisation(new, dt)
+    return new
 
 
 def _node_indices(selection, n):
@@ -149,7 +216,8 @@ def _surface_node_area(points, surface):
 
 def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_mass=0.0,
                     damping_stiffness=0.0, frame="floating", mass="lumped",
-                    integrator="backward_euler", anchors=(), loads=(), dt=None):
+                    integrator="backward_euler", anchors=(), loads=(), dt=None, yield_stress=None,
+                    plastic_update_strain=0.02, max_plastic_strain=None):
     """Build a deformable body.
 
     points ``(n, 3)`` m and tets ``(t, 4)``: a linear tet mesh (``order=1``), or with ``order=2``
@@ -164,6 +232,9 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         a constant total force (N) spread over the nodes by lumped mass (default) or by surface
         area.
     dt: if given, the system matrix for this step size (s) is factorised now.
+    yield_stress: von Mises yield stress (Pa); None (default) for a purely elastic body.
+    plastic_update_strain: accumulated equivalent plastic strain between reference-shape updates.
+    max_plastic_strain: cap on the equivalent plastic strain, or None.
     Returns a :class:`FemModel`. Note: with ``order=2`` from a linear mesh, select anchor/load
     nodes on ``fem.mesh.quadratic_tets(points, tets)[0]`` (same as ``model.rest_points``).
     """
@@ -179,13 +250,7 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
     tets, _ = check_tets(points, tets)
     n = len(points)
     K, M_scalar, elements = assemble(points, tets, young, poisson, density)
-    # HRZ lumping: diagonal of the consistent mass scaled to the total mass (all positive)
-    diag = M_scalar.diagonal()
-    node_mass = diag * (M_scalar.sum() / diag.sum())
-    if mass == "lumped":
-        M = sp.diags(np.repeat(node_mass, 3)).tocsr()
-    else:
-        M = sp.kron(M_scalar, sp.identity(3), format="csr")
+    node_mass, M = _mass_matrices(M_scalar, mass)
     mu = young / (2 * (1 + poisson))
     lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
     rest_center = node_mass @ points / node_mass.sum()
@@ -222,7 +287,11 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         anchor_velocity=anchor_velocity, node_anchor=node_anchor,
         free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0],
         load_nodes=tuple(load_nodes), load_force=np.array(load_force).reshape(-1, 3),
-        node_load=node_load, surface=surface, surface_nodes=np.unique(surface))
+        node_load=node_load, surface=surface, surface_nodes=np.unique(surface),
+        yield_stress=None if yield_stress is None else float(yield_stress),
+        plastic_update_strain=float(plastic_update_strain),
+        max_plastic_strain=None if max_plastic_strain is None else float(max_plastic_strain),
+        reference_peeq=None if yield_stress is None else np.zeros(elements.tet_weights.shape))
     if dt is not None and frame == "floating":
         from fem.dynamics import system_factorisation
         system_factorisation(model, dt)
@@ -236,4 +305,8 @@ def rest_state(model, x=None, v=None):
     x = model.rest_points.copy() if x is None else np.array(x, dtype=float)
     v = np.zeros_like(x) if v is None else np.array(v, dtype=float)
     R, c = body_frame(model, x)
-    return FemState(x=x, v=v, R=R, c=c, node_reaction=np.zeros_like(x))
+    state = FemState(x=x, v=v, R=R, c=c, node_reaction=np.zeros_like(x))
+    if model.plastic:
+        from fem.plastic_flow import initial_plastic_fields
+        state = state.replace(**initial_plastic_fields(model))
+    return state

@@ -259,3 +259,16 @@ def plastic_nodal_forces(grad_n, eps_p, mu, lam, volume, tets, node_count):
         nodal[:, component] = np.bincount(tets.ravel(), weights=element_forces[..., component].ravel(),
                                           minlength=node_count)
     return nodal
+
+
+def quadrature_plastic_forces(tet_gradients, tet_weights, eps_p, mu, lam):
+    """Element plastic forces ``int_e B^T (C : eps_p)`` with one plastic strain per quadrature point.
+
+    ``tet_gradients`` (t, q, b, 3) 1/m and ``tet_weights`` (t, q) m^3 (quadrature weight times
+    |J|, as in ``fem.assembly.ElementData``); ``eps_p`` (t, q, 3, 3). Returns ``(t, b, 3)`` N in the
+    elements' rest frame; with q = 1 (P1) this is ``plastic_element_forces``. Scatter to nodes with
+    the element node indices (see ``plastic_nodal_forces`` for the sign convention).
+    """
+    sigma_p = isotropic_stress(eps_p, mu, lam)                                 # (t, q, 3, 3)
+    return np.einsum("tq,tqij,tqaj->tai", np.asarray(tet_weights, dtype=float), sigma_p,
+                     np.asarray(tet_gradients), optimize=True)

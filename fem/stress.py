@@ -21,17 +21,21 @@ def quadrature_strain(model, state):
         u = _corotated_displacement(model, state.x, tet_rotations(model, state.x))
     else:
         u = ((state.x - state.c) @ state.R - model.rest_offsets)[data.tet_nodes]
-    grad_u = np.einsum("tai,tqaj->tqij", u, data.tet_gradients)
+    # grad_u[t, q] = u_t^T G_tq, as one batched matmul (several times faster than einsum here)
+    grad_u = np.swapaxes(u, 1, 2)[:, None] @ data.tet_gradients
     return 0.5 * (grad_u + grad_u.transpose(0, 1, 3, 2))
 
 
 def quadrature_stress(model, state, tet_plastic_strain=None):
     """Cauchy stress at each quadrature point ``(t, q, 3, 3)`` (Pa), rest coordinates.
 
-    tet_plastic_strain: optional ``(t, 3, 3)`` plastic strain subtracted from the strain.
+    tet_plastic_strain: optional plastic strain subtracted from the strain, ``(t, 3, 3)`` (one per
+    element) or ``(t, q, 3, 3)`` (one per quadrature point, as ``FemState.tet_plastic_strain``).
     """
     eps = quadrature_strain(model, state)
-    eps_p = 0.0 if tet_plastic_strain is None else np.asarray(tet_plastic_strain)[:, None]
+    eps_p = 0.0 if tet_plastic_strain is None else np.asarray(tet_plastic_strain)
+    if np.ndim(eps_p) == 3:
+        eps_p = eps_p[:, None]
     return elastic_stress(eps, eps_p, model.mu, model.lam)
 
 

@@ -15,8 +15,10 @@ class HybridModel:
 
     rigid: RigidModel of the rigid bodies; rigid_ids (r,) scene index of each rigid body.
     fem: list of FemModel, one per deformable body; fem_ids: scene index of each.
-    names: every body's name in scene order. gravity (3,) m/s^2. dt s. settings: ContactSettings.
-    scene: the Scene it was built from.
+    names: every body's name in scene order (fragments appended as they appear).
+    gravity (3,) m/s^2. dt s. settings: ContactSettings. scene: the Scene it was built from.
+    fragment_of: per name, the scene index of the body it came from (itself for scene bodies).
+    fracture: per FEM body, its fracture data (hybrid.events), None until first used.
     """
     rigid: object
     rigid_ids: np.ndarray
@@ -27,6 +29,8 @@ class HybridModel:
     dt: float
     settings: ContactSettings
     scene: object = None
+    fragment_of: list = None
+    fracture: list = None
 
 
 @dataclass
@@ -63,6 +67,10 @@ def rigid_desc(body):
 def build(scene):
     """HybridModel and initial HybridState of ``scene``."""
     sim = scene.simulation
+    auto = [b.name for b in scene.bodies if b.model == "auto"]
+    if auto:
+        raise ValueError(f"body '{auto[0]}': model = \"auto\" (switching between rigid and FEM) is "
+                         f"not implemented yet; use \"rigid\" or \"fem\"")
     rigid_bodies = [b for b in scene.bodies if b.model == "rigid"]
     fem_bodies = [b for b in scene.bodies if b.model != "rigid"]
     planes = [PlaneDesc(p.point, p.normal, p.friction, p.restitution) for p in scene.planes]
@@ -74,5 +82,6 @@ def build(scene):
     model = HybridModel(rigid=rigid_model, rigid_ids=np.array([index[b.name] for b in rigid_bodies], dtype=int),
                         fem=fem_models, fem_ids=[index[b.name] for b in fem_bodies],
                         names=[b.name for b in scene.bodies], gravity=np.asarray(sim.gravity, float),
-                        dt=sim.dt, settings=settings, scene=scene)
+                        dt=sim.dt, settings=settings, scene=scene,
+                        fragment_of=list(range(len(scene.bodies))))
     return model, HybridState(rigid=rigid_state, fem=fem_states)

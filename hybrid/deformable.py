@@ -14,14 +14,17 @@ def _tet_mesh(body):
         return geometry.load_tet_mesh(body.mesh)
     s = body.shape
     resolution = s.resolution
+    # the fem.mesh generators take cell counts; scene resolutions are edge lengths in metres
     if s.type == "box":
         size = np.broadcast_to(np.asarray(s.size, float), (3,))
-        res = resolution or float(np.min(size)) / 3
-        points, tets = box_tet_mesh(size, res)
+        h = resolution or float(np.min(size)) / 3
+        points, tets = box_tet_mesh(size, np.maximum(1, np.ceil(size / h - 1e-9)).astype(int))
     elif s.type == "sphere":
-        points, tets = sphere_tet_mesh(s.radius, resolution or s.radius / 3)
+        h = resolution or s.radius / 2
+        points, tets = sphere_tet_mesh(s.radius, 2 * s.radius / h)
     elif s.type == "cylinder":
-        points, tets = cylinder_tet_mesh(s.radius, s.height, resolution or s.radius / 2)
+        h = resolution or s.radius / 2
+        points, tets = cylinder_tet_mesh(s.radius, s.height, 2 * s.radius / h)
     else:
         raise ValueError(f"body '{body.name}': FEM bodies support box, sphere and cylinder shapes "
                          f"or a tet mesh, not '{s.type}'")
@@ -51,7 +54,9 @@ def build_bodies(bodies, dt):
                                 young=body.young, poisson=body.poisson,
                                 damping_mass=body.damping.mass, damping_stiffness=body.damping.stiffness,
                                 frame=body.frame, mass=body.mass_matrix, integrator=body.integrator,
-                                anchors=anchors, loads=loads, dt=dt)
+                                anchors=anchors, loads=loads, dt=dt, yield_stress=body.yield_stress,
+                                plastic_update_strain=body.plastic_update_strain,
+                                max_plastic_strain=body.max_plastic_strain)
         x = model.rest_points
         w = np.asarray(body.angular_velocity, float)
         center = np.average(x, axis=0, weights=model.node_mass)

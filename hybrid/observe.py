@@ -20,12 +20,20 @@ def frame_pieces(model, state):
             pts = rs.position[i] + rm.surface_vertices[i] @ R[i].T
             pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
-        sigma = element_stress(m, s)
+        sigma = element_stress(m, s, s.tet_plastic_strain)
         cell = "tetra10" if m.order == 2 else "tetra"
-        pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)],
-                                 cell_data={"von_mises": von_mises(sigma),
-                                            "principal_stress": principal_stress_max(sigma)},
+        cell_data = {"von_mises": von_mises(sigma), "principal_stress": principal_stress_max(sigma),
+                     "plastic_strain": 0.0, "yielded": 0}
+        if s.tet_peeq is not None:
+            # accumulated equivalent plastic strain (the element's largest over its points)
+            cell_data["plastic_strain"] = s.tet_peeq.max(axis=1)
+            cell_data["yielded"] = s.tet_yielded.astype(np.int8)
+        pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)], cell_data=cell_data,
                                  point_data={"displacement": s.x - m.rest_points, "velocity": s.v}))
+    # the original scene body each piece came from (itself unless it is a fracture fragment)
+    origin = model.fragment_of if model.fragment_of is not None else list(range(len(model.names)))
+    for piece in pieces:
+        piece.cell_data["fragment_of"] = np.int64(origin[piece.body_id])
     pieces.sort(key=lambda p: p.body_id)
     return pieces
 
@@ -72,6 +80,11 @@ def region_rows(model, state):
         for name, *values in region_table(m, s):
             out.append((state.time, model.names[model.fem_ids[j]], name, *values))
     return out
+
+
+def plastic_dissipation(model, state):
+    """Plastic work dissipated by all FEM bodies since the start (J); 0 without plastic bodies."""
+    return float(sum(s.plastic_dissipation for s in state.fem))
 
 
 def totals(model, state):

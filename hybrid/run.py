@@ -11,6 +11,7 @@ from rigid import quaternion as quat
 from . import observe
 from .build import build
 from .output import RunWriter
+from .events import between_steps
 from .step import InstabilityError, step
 
 
@@ -77,13 +78,14 @@ def run_scene(scene, out_dir, progress=True, log=print):
     frame_every = 1.0 / sim.output_fps
     bar = Progress(sim.duration, enabled=progress)
     energies, momenta, angular = [], [], []
+    events, timings = [], {}
     failure = None
     wall0 = clock.perf_counter()
     out_dir = Path(out_dir)
     with RunWriter(out_dir, scene.name) as writer:
         next_frame = 0.0
 
-        def record(state):
+        def record(model, state):
             writer.write_frame(state.time, observe.frame_pieces(model, state), observe.body_rows(model, state))
             regions = observe.region_rows(model, state)
             if regions:
@@ -91,13 +93,17 @@ def run_scene(scene, out_dir, progress=True, log=print):
             e, p, l = observe.totals(model, state)
             energies.append(e), momenta.append(p), angular.append(l)
 
-        record(state)
+        record(model, state)
         next_frame += frame_every
         try:
             for _ in range(steps_total):
                 state = step(model, state)
+                model, state, happened = between_steps(model, state, timings)
+                for event in happened:
+                    log(event.message)
+                events.extend(happened)
                 if state.time >= next_frame - 1e-9 * sim.dt:
-                    record(state)
+                    record(model, state)
                     next_frame += frame_every
                 bar.update(state.time, state.steps)
         except InstabilityError as err:
@@ -106,6 +112,13 @@ def run_scene(scene, out_dir, progress=True, log=print):
         bar.done()
         wall = clock.perf_counter() - wall0
         summary = _summary(scene, model, state, wall, energies, momenta, angular, writer.frames_written, failure)
+        summary["events"] = [e.as_dict() for e in events]
+        summary["fracture"] = {
+            "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
+            "bodies_at_end": len(model.names),
+            "fragments": len(model.names) - len(scene.bodies),
+            "timings": timings,
+        }
         writer.close(summary)
     if failure is not None:
         raise failure
@@ -127,6 +140,9 @@ def _summary(scene, model, state, wall, energies, momenta, angular, frames, fail
         "frames": frames,
         "wall_time": wall,
         "steps_per_second": state.steps / wall if wall > 0 else None,
+        "plastic_dissipation": observe.plastic_dissipation(model, state),
+        "plastic_dissipation_note": "plastic work (J) dissipated by von Mises flow in bodies with a "
+                                    "yield_stress, since the start; 0 when no body has one",
         "conservation": {
             "momentum_conserved_expected": bool(no_external),
             "energy_relative_drift": _drift(E, E[0]) if len(E) else None,

@@ -154,6 +154,11 @@ LOAD = Section("bodies.loads", "[[bodies.loads]]", "Constant force on the nodes 
           "Total force over the region, shared among its nodes (world frame)."),
 ))
 
+UNBREAKABLE = Section("bodies.unbreakable", "[[bodies.unbreakable]]", "Region of an FEM body that never "
+                      "cracks: the elements whose centroid is inside `box` (body coordinates, rest shape).", (
+    Field("box", "box", REQUIRED, "m", REGION_DOC),
+))
+
 BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("name", "string", REQUIRED, "", "Unique name."),
     Field("model", "choice", "rigid", "", "`rigid`, `fem` (deformable) or `auto` (switches when stress "
@@ -187,9 +192,33 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           fem=True, default_text="none"),
     Field("loads", "tables", (), "", "Applied forces, see `[[bodies.loads]]`.", table="bodies.loads",
           fem=True, default_text="none"),
+    _positive("yield_stress", None, "Pa", "Von Mises yield stress: von Mises perfect plasticity "
+              "(plastic strain per element, or per quadrature point for order 2). Absent: purely "
+              "elastic, no plasticity pass runs.", fem=True, default_text="none (elastic)"),
+    _positive("plastic_update_strain", 0.02, "", "Equivalent plastic strain, accumulated in some "
+              "element since the last update, at which the plastic deformation is baked into the rest "
+              "shape (one refactorisation of this body); needs `yield_stress`.", fem=True),
+    _positive("max_plastic_strain", None, "", "Cap on the equivalent plastic strain of an element "
+              "(further flow is elastic); needs `yield_stress`.", fem=True, default_text="none (no cap)"),
+    _positive("fracture_stress", None, "Pa", "Tensile strength: an element whose smoothed largest "
+              "principal stress exceeds it cracks. Absent: the body never breaks.", fem=True,
+              default_text="none (unbreakable)"),
+    _positive("tearing_strain", None, "", "Equivalent plastic strain at which an element tears "
+              "(ductile fracture); needs `yield_stress`.", fem=True, default_text="none"),
+    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid`, or `auto` "
+          "(fragments with fewer than `rigid_fragment_tets` elements become rigid).",
+          choices=("fem", "rigid", "auto"), fem=True),
+    Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
+          "becomes rigid.", low=1, fem=True),
+    Field("max_cracks_per_step", "integer", 16, "", "Most elements that crack in one step (the most "
+          "overstressed first).", low=1, fem=True),
+    Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
+          table="bodies.unbreakable", fem=True, default_text="none"),
 ), rules=("Exactly one of `shape` or `mesh` is required.",
           "Names must be unique.",
           "FEM fields (marked FEM) need `model = \"fem\"` or `\"auto\"`; `young` is then required.",
+          "`tearing_strain` needs `yield_stress`.",
+          "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
           "A mesh must be readable and closed; an FEM body's mesh must contain tetra (order 1) or "
           "tetra10 (order 2) cells."))
 
@@ -199,7 +228,8 @@ TOP = Section("", "top level", "The scene file.", (
     Field("bodies", "tables", (), "", "Bodies.", table="bodies"),
 ))
 
-SCHEMA = {s.key: s for s in (TOP, SIMULATION, SOLVER, PLANE, BODY, SHAPE, DAMPING, ANCHOR, LOAD)}
+SCHEMA = {s.key: s for s in (TOP, SIMULATION, SOLVER, PLANE, BODY, SHAPE, DAMPING, ANCHOR, LOAD,
+                                  UNBREAKABLE)}
 
 
 def _default(section, name):
@@ -357,6 +387,11 @@ class Load:
 
 
 @dataclass(frozen=True)
+class Unbreakable:
+    box: Box
+
+
+@dataclass(frozen=True)
 class Body:
     name: str
     model: str = _default(BODY, "model")
@@ -379,6 +414,15 @@ class Body:
     integrator: str = _default(BODY, "integrator")
     anchors: tuple[Anchor, ...] = ()
     loads: tuple[Load, ...] = ()
+    yield_stress: float | None = None
+    plastic_update_strain: float = _default(BODY, "plastic_update_strain")
+    max_plastic_strain: float | None = None
+    fracture_stress: float | None = None
+    tearing_strain: float | None = None
+    fragment_model: str = _default(BODY, "fragment_model")
+    rigid_fragment_tets: int = _default(BODY, "rigid_fragment_tets")
+    max_cracks_per_step: int = _default(BODY, "max_cracks_per_step")
+    unbreakable: tuple[Unbreakable, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -419,6 +463,7 @@ Shape.__doc__ = _attribute_doc(SHAPE, "An analytic body shape; fields a type doe
 Damping.__doc__ = _attribute_doc(DAMPING, "Rayleigh damping of an FEM body.")
 Anchor.__doc__ = _attribute_doc(ANCHOR, "A held region of an FEM body; ``box`` is ``(min, max)``.")
 Load.__doc__ = _attribute_doc(LOAD, "A loaded region of an FEM body; ``box`` is ``(min, max)``.")
+Unbreakable.__doc__ = _attribute_doc(UNBREAKABLE, "A region of an FEM body that never cracks.")
 Body.__doc__ = _attribute_doc(BODY, "A body (``[[bodies]]``).", "\n    ``mesh`` is the resolved absolute "
                               "path; ``orientation`` is a unit quaternion (w, x, y, z).")
 
@@ -526,6 +571,12 @@ def _parse_body(table, source, index, base_dir, problems):
     if fem_model and values["young"] is None:
         problems.append(where.problem("young", f"is required for model = \"{model}\": "
                                                f"{_describe(BODY.field('young'))} (Pa)"))
+    for key in ("plastic_update_strain", "max_plastic_strain"):
+        if fem_model and key in given and values["yield_stress"] is None:
+            problems.append(where.problem(key, "needs field 'yield_stress' (the body is elastic without it)"))
+    if fem_model and values["tearing_strain"] is not None and values.get("yield_stress") is None:
+        problems.append(where.problem("tearing_strain", "needs field 'yield_stress' (tearing is "
+                                                        "measured in plastic strain)"))
 
     # exactly one of shape or mesh
     has_shape, has_mesh = "shape" in given, "mesh" in given
@@ -541,7 +592,8 @@ def _parse_body(table, source, index, base_dir, problems):
     values["damping"] = Damping()
     if fem_model and isinstance(damping, dict):
         values["damping"] = Damping(**_read_table(damping, DAMPING, where.nested("damping"), problems))
-    for key, section, kind in (("anchors", ANCHOR, Anchor), ("loads", LOAD, Load)):
+    for key, section, kind in (("anchors", ANCHOR, Anchor), ("loads", LOAD, Load),
+                               ("unbreakable", UNBREAKABLE, Unbreakable)):
         entries = values[key]
         values[key] = ()
         if fem_model and entries:

@@ -62,12 +62,12 @@ def _side(i, r0, r1, r2, d0, d1, d2, inv_m, invI, scale):
 
 
 @nb.njit(cache=True)
-def _rel_velocity(a, b, ra, rb, v, w, k):
-    x = y = z = 0.0
+def _rel_velocity(a, b, ra, rb, v, w, k, bias):
+    x, y, z = bias[k, 0], bias[k, 1], bias[k, 2]
     if a >= 0:
-        x = v[a, 0] + w[a, 1] * ra[k, 2] - w[a, 2] * ra[k, 1]
-        y = v[a, 1] + w[a, 2] * ra[k, 0] - w[a, 0] * ra[k, 2]
-        z = v[a, 2] + w[a, 0] * ra[k, 1] - w[a, 1] * ra[k, 0]
+        x += v[a, 0] + w[a, 1] * ra[k, 2] - w[a, 2] * ra[k, 1]
+        y += v[a, 1] + w[a, 2] * ra[k, 0] - w[a, 0] * ra[k, 2]
+        z += v[a, 2] + w[a, 0] * ra[k, 1] - w[a, 1] * ra[k, 0]
     if b >= 0:
         x -= v[b, 0] + w[b, 1] * rb[k, 2] - w[b, 2] * rb[k, 1]
         y -= v[b, 1] + w[b, 2] * rb[k, 0] - w[b, 0] * rb[k, 2]
@@ -77,13 +77,17 @@ def _rel_velocity(a, b, ra, rb, v, w, k):
 
 @nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
-        iterations):
+        iterations, bias, compliance, lam_start):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
 
     lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
     contact's tangent basis. scale_a/scale_b (c,) multiply each side's inverse mass: 0 makes that
     side immovable for this call (shock propagation). Only contacts with active[k] take part.
-    Returns the world impulse on side a of each contact, (c, 3) N s.
+    bias (c, 3) is added to each contact's relative velocity (a deformable body's node velocity
+    relative to the rigid motion of its proxy); compliance (c,) 1/kg is added in series to each
+    contact's inverse effective mass (the node's own elastic give): the contact's relative
+    velocity then also moves by compliance * (lam - lam_start), the give of the impulses this call
+    added (lam_start: the accumulated impulses the velocities already include). Returns the world impulse on side a of each contact, (c, 3) N s.
     """
     idx = np.nonzero(active)[0]
     m = len(idx)
@@ -110,7 +114,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
             kb, y0, y1, y2 = _side(ib[k], rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
             resp[j, d, 0, 0], resp[j, d, 0, 1], resp[j, d, 0, 2] = x0, x1, x2
             resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
-            invk[j, d] = 1.0 / (ka + kb) if ka + kb > 0.0 else 0.0
+            kk = ka + kb + compliance[k] if ka + kb > 0.0 else 0.0
+            invk[j, d] = 1.0 / kk if kk > 0.0 else 0.0
     for _ in range(iterations):
         for j in range(m):
             if invk[j, 0] == 0.0:
@@ -118,8 +123,9 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
             k = idx[j]
             a, b = ia[k], ib[k]
             for d in range(3):
-                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k)
+                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k, bias)
                 vd = x * dirs[j, d, 0] + y * dirs[j, d, 1] + z * dirs[j, d, 2]
+                vd += compliance[k] * (lam[k, d] - lam_start[k, d])
                 if d == 0:
                     # normal: reach the target normal velocity, accumulated impulse >= 0
                     new = max(lam[k, 0] + (target[k] - vd) * invk[j, 0], 0.0)
@@ -169,7 +175,7 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                             for c in range(3):
                                 v[b, c] -= sm * dirs[j, d, c]
                                 w[b, c] -= delta * resp[j, d, 1, c]
-    out = np.zeros((len(ia), 3))
+    out = np.full((len(ia), 3), np.nan)
     for j in range(m):
         k = idx[j]
         for c in range(3):

@@ -48,6 +48,7 @@ class SolverBodies:
     position (n, 3) m; velocity (n, 3) m/s, the velocity the step drifts with; velocity_at_t
     (n, 3) m/s, the velocity at the start of the step (for times of impact); angular (n, 3) rad/s;
     accel (n, 3) m/s^2, free acceleration during the step (gravity); static (n,) bool.
+    A deformable body enters as a rigid proxy (its mass and inertia about its centre of mass).
     """
     inv_mass: np.ndarray
     inv_inertia: np.ndarray
@@ -64,7 +65,9 @@ class Resolution:
     """What contact resolution did (all (n, 3)): new velocity and angular velocity (m/s, rad/s),
     position and rotation shifts for impulses that acted at their time of impact (m, rad),
     pseudo-velocities that remove penetration (positions only), the part of the velocity change
-    due to impacts (m/s), and angular momentum corrections (kg m^2/s) that keep L exact."""
+    due to impacts (m/s), angular momentum corrections (kg m^2/s) that keep L exact; per contact
+    (c, 3): the collision impulse and the contact-pass impulse on side a (world, N s), and the
+    contact pass's accumulated impulses in its contact basis (to warm-start a repeat solve)."""
     velocity: np.ndarray
     angular: np.ndarray
     shift: np.ndarray
@@ -73,6 +76,9 @@ class Resolution:
     pseudo_angular: np.ndarray
     impact_dv: np.ndarray
     momentum_fix: np.ndarray
+    collision_impulse: np.ndarray = None
+    contact_impulse: np.ndarray = None
+    contact_lambda: np.ndarray = None
 
 
 def time_of_impact(gap, vn, an, h):
@@ -93,13 +99,24 @@ def _scatter(target, index, values):
     np.add.at(target, index[keep], values[keep])
 
 
-def resolve_contacts(bodies, contacts, h, gravity, settings):
-    """Collisions, resting contact, shock propagation and penetration recovery for one step."""
+def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias=None,
+                     compliance=None):
+    """Collisions, resting contact, shock propagation and penetration recovery for one step.
+
+    ``previous``: the Resolution of an earlier solve of the same step; this one starts from its
+    accumulated contact impulses (which it may lower as well as raise) and its position shifts,
+    and does no new collisions or penetration recovery (coupling rounds). ``bias`` (c, 3)
+    m/s is added to each contact's relative velocity and ``compliance`` (c,) 1/kg to its inverse
+    effective mass (deformable bodies, see hybrid.step).
+    """
     n = len(bodies.inv_mass)
     v, w = bodies.velocity.copy(), bodies.angular.copy()
-    out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)))
+    c3 = lambda: np.zeros((contacts.count, 3))
+    out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)), c3(), c3(), c3())
     if contacts.count == 0:
         return out
+    bias = np.zeros((contacts.count, 3)) if bias is None else bias
+    soft = np.zeros(contacts.count) if compliance is None else compliance
     ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
     inv_m, invI = bodies.inv_mass, bodies.inv_inertia
     ra, rb = arms(ia, ib, contacts.point, bodies.position)
@@ -108,17 +125,25 @@ def resolve_contacts(bodies, contacts, h, gravity, settings):
     ib0 = np.maximum(ib, 0)
 
     # 1. collisions: restitution at each impact's time within the step
-    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w)
+    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w) + np.einsum("ck,ck->c", bias, nrm)
     an = np.einsum("ck,ck->c", bodies.accel[ia] - np.where(has_b, bodies.accel[ib0], 0.0), nrm)
     tau = time_of_impact(contacts.gap, vn_t, an, h)
     approach = -(vn_t + an * np.minimum(tau, h))
     # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
     threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
-    impact = (tau <= h) & (approach > threshold)
-    if impact.any():
-        target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + contacts.restitution) * approach
+    # contacts on deformable bodies (compliance > 0) bounce through the body's own elasticity
+    impact = (tau <= h) & (approach > threshold) & (soft == 0)
+    if previous is not None:     # position-level results belong to the first solve of the step
+        for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
+                     "momentum_fix", "collision_impulse"):
+            setattr(out, name, getattr(previous, name))
+    elif impact.any():
+        target = (normal_velocity(ia, ib, ra, rb, nrm, v, w) + np.einsum("ck,ck->c", bias, nrm)
+                  + (1.0 + contacts.restitution) * approach)
         imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact,
-                  np.zeros((contacts.count, 3)), inv_m, invI, v, w, settings.iterations)
+                  c3(), inv_m, invI, v, w, settings.iterations, bias, soft, c3())
+        imp = np.nan_to_num(imp)
+        out.collision_impulse = imp
         t_imp = np.where(impact, tau, 0.0)[:, None]
         for side, r, j in ((ia, ra, imp), (ib, rb, -imp)):
             s = np.maximum(side, 0)
@@ -135,10 +160,11 @@ def resolve_contacts(bodies, contacts, h, gravity, settings):
     moved_b = np.where(has_b, out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
     shift_n = np.einsum("ck,ck->c", moved - moved_b, nrm)
     target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
-    lam = np.zeros((contacts.count, 3))
+    lam = c3() if previous is None else previous.contact_lambda.copy()
+    lam_start = lam.copy()
     every = np.ones(contacts.count, dtype=bool)
-    pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m, invI, v, w,
-        settings.iterations)
+    contact_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m,
+                      invI, v, w, settings.iterations, bias, soft, lam_start)
 
     # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
     sa = sb = ones
@@ -147,16 +173,20 @@ def resolve_contacts(bodies, contacts, h, gravity, settings):
         level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static)
         c_level, sa, sb = shock_scales(ia, ib, level)
         for lv in np.unique(c_level):
-            pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, c_level == lv, lam,
-                inv_m, invI, v, w, settings.shock_iterations)
+            at_level = c_level == lv
+            level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
+                            inv_m, invI, v, w, settings.shock_iterations, bias, soft, lam_start)
+            contact_imp[at_level] = level_imp[at_level]
+    out.contact_impulse = np.nan_to_num(contact_imp)
+    out.contact_lambda = lam
 
     # 4. penetration recovery: move positions only (split impulse), never add velocity
     deep = contacts.gap < -settings.slop
-    if deep.any():
+    if deep.any() and previous is None:
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
         pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
             np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
-            settings.iterations)
+            settings.iterations, c3(), np.zeros(contacts.count), c3())
     return out
 
 

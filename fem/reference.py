@@ -1,0 +1,105 @@
+"""Reference-shape updates: bake accumulated plastic strain into a plastic body's rest shape.
+
+An event between steps (it returns a new model and state, and refactorises only that body).
+
+Method (what "shape matching removes the rigid motion and the elastic part" means here): the
+plastic part of the deformation is the displacement ``u_p`` the plastic strain alone produces in
+the unloaded body, the static solution of
+
+    K u_p = f_p = sum_e int B^T C eps_p      (anchored nodes held at u = 0)
+
+For a free body K is singular; f_p is self-equilibrated, so ``(K + s M) u = f_p`` with a tiny
+shift ``s`` plus a few steps of iterative refinement converges to it, and the rigid part is
+removed after every refinement by the mass-weighted projection on the rigid modes (translations
+and small rotations: the linearised form of shape matching's best-fit frame, which keeps the
+plastic stretch exact where the nonlinear fit would mix the large rigid round-off of the singular
+solve into it). The new rest shape is ``X_new = X + u_p`` (body frame) and the plastic strain is reset
+to ``eps_p - eps(u_p)``, the incompatible part that no displacement can relieve (~0 for a
+compatible plastic strain, and it keeps the residual stress of a dent exactly). Because the total
+strain ``eps(u) - eps_p`` is unchanged by the reset, the stress, the elastic energy and the
+positions do not jump at the update: the body keeps its shape, springs back only by its elastic
+part, and vibrates about the new rest shape.
+
+An update is due when the accumulated equivalent plastic strain of some quadrature point has grown
+by ``model.plastic_update_strain`` since the last update; each update therefore bakes at most
+that much (plus one step's increment) into the rest shape.
+"""
+import numpy as np
+
+from fem.dynamics import body_frame
+from fem.model import with_rest_points
+from fem.plastic_flow import rest_frame_plastic_force
+from fem.solver import Factorisation
+
+# shift of the singular free-body stiffness, relative to the mean of diag(K)/diag(M)
+_SHIFT = 1e-10
+_REFINEMENTS = 4
+
+
+def reference_update_due(model, state):
+    """True when a plastic body has flowed by ``plastic_update_strain`` since its last update."""
+    if not model.plastic or state.tet_peeq is None:
+        return False
+    return float(np.max(state.tet_peeq - model.reference_peeq)) > model.plastic_update_strain
+
+
+def plastic_displacement(model, eps_p):
+    """Displacement ``u_p`` ``(n, 3)`` (m, rest frame) of plastic strain ``eps_p`` ``(t, q, 3, 3)``
+    in the unloaded body: ``K u_p = f_p`` with anchors held, rigid motion removed (free bodies)."""
+    f = rest_frame_plastic_force(model, eps_p).ravel()
+    u = np.zeros_like(f)
+    if model.anchored:
+        free = model.free_dofs
+        u[free] = Factorisation(model.K[free][:, free]).solve(f[free])
+        return u.reshape(-1, 3)
+    shift = _SHIFT * float(np.mean(model.K.diagonal() / model.M.diagonal()))
+    solve = Factorisation(model.K + shift * model.M).solve
+    remove_rigid = _rigid_projector(model)
+    for _ in range(_REFINEMENTS):
+        u = remove_rigid(u + solve(f - model.K @ u))
+    return u.reshape(-1, 3)
+
+
+def _rigid_projector(model):
+    """``u -> u - G (G^T M G)^-1 G^T M u``: removes the mass-weighted best-fit (linearised) rigid
+    motion, translations and small rotations ``w x (X - X_c)`` (the linear form of shape matching)."""
+    n, r = model.node_count, model.rest_offsets
+    G = np.zeros((n, 3, 6))
+    G[:, :, :3] = np.eye(3)
+    for k in range(3):   # rotation about axis k: e_k x r
+        G[:, :, 3 + k] = np.cross(np.eye(3)[k], r)
+    G = G.reshape(3 * n, 6)
+    MG = model.M @ G
+    gram = G.T @ MG
+    return lambda u: u - G @ np.linalg.solve(gram, MG.T @ u)
+
+
+def update_reference(model, state, dt=None):
+    """Bake the plastic deformation into the rest shape. Returns ``(new_model, new_state)``.
+
+    The new model has rest points ``X + u_p`` (see the module docstring), rebuilt K, M and element
+    data, and its own factorisation (done now for ``dt`` s if given, floating frame); positions and
+    velocities are unchanged, the plastic strain is reset to ``eps_p - eps(u_p)``.
+    """
+    eps_p = state.tet_plastic_strain
+    u_p = plastic_displacement(model, eps_p)
+    e = model.elements
+    grad_u = np.einsum("tai,tqaj->tqij", u_p[e.tet_nodes], e.tet_gradients)
+    eps_p_new = eps_p - 0.5 * (grad_u + np.swapaxes(grad_u, -1, -2))
+    new_model = with_rest_points(model, model.rest_points + u_p, dt,
+                                 reference_peeq=state.tet_peeq.copy(),
+                                 reference_updates=model.reference_updates + 1)
+    R, c = body_frame(new_model, state.x)
+    force = None if model.frame == "corotated" else rest_frame_plastic_force(new_model, eps_p_new)
+    return new_model, state.replace(R=R, c=c, tet_plastic_strain=eps_p_new, node_plastic_force=force)
+
+
+def apply_reference_updates(models, states, dt):
+    """Run the update on every body that is due. ``models``/``states``: sequences of FemModel and
+    FemState. Returns ``(models, states, updated)`` as new lists and the indices updated."""
+    models, states, updated = list(models), list(states), []
+    for j, (m, s) in enumerate(zip(models, states)):
+        if reference_update_due(m, s):
+            models[j], states[j] = update_reference(m, s, dt)
+            updated.append(j)
+    return models, states, updated

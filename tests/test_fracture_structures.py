@@ -1,0 +1,208 @@
+"""Fracture at structure level: scenes stepped with hybrid.step and hybrid.events.apply_fracture."""
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from hybrid.build import build
+from hybrid.events import apply_fracture, fragment_of
+from hybrid.observe import totals
+from hybrid.scene import parse_scene
+from hybrid.step import step
+
+STRENGTH = 1.0e6   # Pa
+
+BAR = f"""
+[simulation]
+dt = 0.001
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = {{ type = "box", size = [1.0, 0.1, 0.1], resolution = 0.05 }}
+young = 1.0e8
+poisson = 0.0            # uniaxial stress is then exact for linear tets
+density = 1000.0
+fracture_stress = {STRENGTH}
+damping = {{ stiffness = 0.0005 }}
+[[bodies.anchors]]
+box = [[-0.5, -1, -1], [-0.5, 1, 1]]
+[[bodies.anchors]]
+box = [[0.5, -1, -1], [0.5, 1, 1]]
+velocity = [0.05, 0.0, 0.0]
+"""
+
+BEAM = f"""
+[simulation]
+dt = 0.001
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "beam"
+model = "fem"
+shape = {{ type = "box", size = [0.6, 0.04, 0.08], resolution = 0.02 }}
+young = 1.0e8
+poisson = 0.25
+density = 1000.0
+fracture_stress = {STRENGTH}
+damping = {{ stiffness = 0.0005 }}
+# pinned on the neutral axis at both ends (no arching), pressed down on top at mid-span
+[[bodies.anchors]]
+box = [[-0.3, -1, 0], [-0.3, 1, 0]]
+[[bodies.anchors]]
+box = [[0.3, -1, 0], [0.3, 1, 0]]
+[[bodies.anchors]]
+box = [[0, -1, 0.04], [0, 1, 0.04]]
+velocity = [0.0, 0.0, -0.05]
+# point supports and the pressing line concentrate stress: keep those regions whole
+[[bodies.unbreakable]]
+box = [[-0.3, -1, -1], [-0.26, 1, 1]]
+[[bodies.unbreakable]]
+box = [[0.26, -1, -1], [0.3, 1, 1]]
+[[bodies.unbreakable]]
+box = [[-0.02, -1, 0.02], [0.02, 1, 0.04]]
+"""
+
+SHATTER = """
+[simulation]
+dt = 0.001
+gravity = [0.0, 0.0, -9.81]
+[[planes]]
+friction = 0.6
+[[bodies]]
+name = "left"
+shape = { type = "box", size = [0.06, 0.5, 0.3] }
+position = [-0.22, 0.0, 0.15]
+fixed = true
+[[bodies]]
+name = "right"
+shape = { type = "box", size = [0.06, 0.5, 0.3] }
+position = [0.22, 0.0, 0.15]
+fixed = true
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.04 }
+density = 7800.0
+position = [0.0, 0.0, 0.36]
+velocity = [0.0, 0.0, -20.0]
+[[bodies]]
+name = "plate"
+model = "fem"
+shape = { type = "box", size = [0.5, 0.3, 0.02], resolution = 0.04 }
+position = [0.0, 0.0, 0.31]
+young = 5.0e8
+poisson = 0.25
+density = 2500.0
+fracture_stress = 2.0e6
+fragment_model = "auto"
+rigid_fragment_tets = 4
+damping = { stiffness = 0.0002 }
+"""
+
+
+def build_scene(text):
+    return build(parse_scene(tomllib.loads(text), "<test scene>", Path(".")))
+
+
+def run(model, state, steps, each=None):
+    """Step with fracture events in between; returns model, state and all events."""
+    events = []
+    for _ in range(steps):
+        state = step(model, state)
+        before = (model, state)
+        model, state, new = apply_fracture(model, state)
+        events += new
+        if each is not None:
+            each(before, (model, state), new)
+    return model, state, events
+
+
+def test_bar_in_tension_breaks_at_strength_across_its_axis():
+    model, state = build_scene(BAR)
+    area = 0.1 * 0.1
+    reaction = []
+
+    def watch(before, after, new):
+        m, s = before
+        if not new and len(after[0].fem) == 1:
+            reaction.append(-s.fem[0].node_reaction[m.fem[0].anchor_nodes[0]].sum(axis=0)[0])
+
+    model, state, events = run(model, state, 260, watch)
+    assert events, "the bar never broke"
+    first = events[0]
+    # peak force before the break matches strength x area (stress rises 0.5 % per step)
+    assert abs(max(reaction) - STRENGTH * area) < 0.05 * STRENGTH * area
+    # it broke when the stress got there: E * v t / L = strength at t = 0.2 s
+    assert abs(first.time - 0.2) < 0.01
+    # crack plane perpendicular to the axis: normals within 15 degrees of x ...
+    assert np.all(np.abs(events[0].normal[:, 0]) > np.cos(np.radians(15)))
+    # ... and the two big pieces lie on either side of a plane x = const
+    sizes = [m.tet_count for m in model.fem]
+    big = np.argsort(sizes)[-2:]
+    spans = sorted((model.fem[j].rest_points[:, 0].min(), model.fem[j].rest_points[:, 0].max())
+                   for j in big)
+    assert spans[0][1] <= spans[1][0] + 1e-9
+    assert sum(sizes) == 6 * 20 * 2 * 2
+    # each piece holds one anchor; the pulled one follows its anchor, the stress is released
+    state_after = [s for s in state.fem]
+    assert all(m.anchored for m in (model.fem[j] for j in big))
+    peak = max(np.abs(s.node_reaction).sum(axis=0)[0] for s in state_after)
+    assert peak < 0.2 * STRENGTH * area
+    # fragments are named after the original body and remember it
+    assert model.names[0] == "bar" and all(n.startswith("bar.") for n in model.names[1:])
+    assert fragment_of(model) == [0] * len(model.names)
+
+
+def test_three_point_bending_cracks_from_bottom_of_mid_span_upward():
+    model, state = build_scene(BEAM)
+    centroids = []
+
+    def watch(before, after, new):
+        m = before[0]
+        for event in new:
+            j = m.names.index(event.body)
+            fem_index = m.fem_ids.index(j)
+            c = m.fem[fem_index].rest_points[m.fem[fem_index].tets[event.element]].mean(axis=1)
+            centroids.append(c)
+
+    model, state, events = run(model, state, 240, watch)
+    assert len(events) >= 3
+    first = centroids[0]
+    # starts in the bottom (tension) half, at mid-span
+    assert np.all(first[:, 2] < -0.02) and np.all(np.abs(first[:, 0]) < 0.05)
+    # the crack front rises: later cracks reach above the first, up past the neutral axis
+    heights = [c[:, 2].max() for c in centroids]
+    assert max(heights) > 0.0 > heights[0]
+    assert np.all(np.diff(np.maximum.accumulate(heights)) >= 0)
+    assert heights[-1] > heights[0] + 0.02
+    # the crack runs near mid-span and opens across the beam axis
+    everything = np.concatenate(centroids)
+    assert np.all(np.abs(everything[:, 0]) < 0.06)
+    assert np.all(np.abs(events[0].normal[:, 0]) > np.cos(np.radians(30)))
+
+
+def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
+    model, state = build_scene(SHATTER)
+    energy0 = totals(model, state)[0]
+    checks = {"momentum": []}
+
+    def watch(before, after, new):
+        if new:
+            p_before, p_after = totals(*before)[1], totals(*after)[1]
+            checks["momentum"].append(np.abs(p_after - p_before).max() / np.abs(p_before).max())
+
+    model, state, events = run(model, state, 150, watch)
+    assert len(model.names) >= 4 + 3, "expected several fragments"
+    assert max(checks["momentum"]) < 1e-9        # splitting never changes momentum
+    model, state, more = run(model, state, 550)
+    energy, _, _ = totals(model, state)
+    assert energy <= energy0
+    # everything has landed and is nearly at rest, nothing flew off
+    kinetic = sum(0.5 * float(m.node_mass @ (s.v ** 2).sum(axis=1)) for m, s in zip(model.fem, state.fem))
+    assert kinetic < 0.5
+    for s in state.fem:
+        assert s.x[:, 2].min() > -0.005 and np.abs(s.x[:, :2]).max() < 1.5
+    rigid = model.rigid
+    fragments = [i for i, j in enumerate(model.rigid_ids) if fragment_of(model)[j] == 3]
+    assert np.all(state.rigid.position[fragments, 2] > -0.005)
+    assert np.all(np.linalg.norm(state.rigid.velocity[fragments], axis=1) < 1.0)
+    assert rigid.body_count == len(model.rigid_ids)

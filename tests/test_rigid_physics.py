@@ -1,0 +1,223 @@
+"""Rigid-body dynamics against closed forms and conservation laws, each on a scene written as TOML.
+
+Free rotation (Euler's equations), ballistic flight with restitution, Coulomb friction on an
+incline, resting stacks, extreme mass ratios, momentum in collisions and thin-wall tunnelling.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from hybrid.observe import totals
+from hybrid.run import overlapping_bodies
+from rigid import quaternion as quat
+from rigid.model import angular_velocity, kinetic_energy, reported_velocity
+
+G = 9.81
+DT_240 = 1.0 / 240.0
+
+
+def _box(name, size, position=(0.0, 0.0, 0.0), **extra):
+    """A ``[[bodies]]`` table of a box; ``extra`` values are written with repr (TOML-compatible)."""
+    lines = [f'[[bodies]]', f'name = "{name}"',
+             f'shape = {{ type = "box", size = [{", ".join(repr(float(s)) for s in size)}] }}',
+             f'position = [{", ".join(repr(float(p)) for p in position)}]']
+    for key, value in extra.items():
+        if isinstance(value, bool):
+            value = "true" if value else "false"
+        elif isinstance(value, (tuple, list)):
+            value = "[" + ", ".join(repr(float(v)) for v in value) + "]"
+        else:
+            value = repr(float(value))
+        lines.append(f"{key} = {value}")
+    return "\n".join(lines) + "\n"
+
+
+def _simulation(dt, gravity=(0.0, 0.0, -G)):
+    return f"[simulation]\ndt = {dt!r}\ngravity = [{', '.join(repr(float(g)) for g in gravity)}]\n"
+
+
+def _plane(normal=(0.0, 0.0, 1.0), friction=0.5, restitution=0.0):
+    return (f"[[planes]]\nnormal = [{', '.join(repr(float(n)) for n in normal)}]\n"
+            f"friction = {float(friction)!r}\nrestitution = {float(restitution)!r}\n")
+
+
+def _sign_change_times(t, y):
+    """Times where ``y`` changes sign, linearly interpolated between samples."""
+    i = np.nonzero(np.sign(y[1:]) != np.sign(y[:-1]))[0]
+    return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
+
+
+# ----------------------------------------------------------------------------- free rotation
+def test_tennis_racket_flip_period_matches_euler_equations_and_conserves_energy_and_momentum(sim):
+    # Box 0.3 x 0.2 x 0.05 m, 1000 kg/m^3: I = (0.010625, 0.023125, 0.0325) kg m^2, y intermediate.
+    # Spun at (0.01, 10, 0) rad/s it flips about y; Euler's equations (integrated to 1e-12)
+    # give a half-period of 2.8355 s between sign changes of the body-frame w_y.
+    s = sim(_simulation(0.01, gravity=(0, 0, 0))
+            + _box("racket", (0.3, 0.2, 0.05), density=1000.0, angular_velocity=(0.01, 10.0, 0.0)))
+    rm = s.model.rigid
+    np.testing.assert_allclose(rm.body_inertia[0], [0.010625, 0.023125, 0.0325], rtol=1e-12)
+    energy0 = kinetic_energy(rm, s.state.rigid)[0]
+    momentum0 = np.linalg.norm(s.state.rigid.angular_momentum[0])
+    times, body_wy = [0.0], [10.0]
+
+    def record(s):
+        R = quat.to_matrix(s.state.rigid.orientation)[0]
+        times.append(s.state.time)
+        body_wy.append((R.T @ angular_velocity(rm, s.state.rigid)[0])[1])
+
+    s.advance(10.0, each=record)
+    crossings = _sign_change_times(np.array(times), np.array(body_wy))
+    assert len(crossings) >= 3, f"the racket did not flip repeatedly: w_y crossed zero at {crossings}"
+    half_period = np.mean(np.diff(crossings))
+    assert half_period == pytest.approx(2.8355, rel=0.01)
+    assert kinetic_energy(rm, s.state.rigid)[0] == pytest.approx(energy0, rel=1e-3)
+    assert np.linalg.norm(s.state.rigid.angular_momentum[0]) == pytest.approx(momentum0, rel=1e-3)
+
+
+# ----------------------------------------------------------------------------- restitution
+@pytest.mark.parametrize("ball_e, plane_e", [(0.5, 0.5), (0.5, 0.0), (0.0, 0.5)])
+def test_ball_dropped_from_one_metre_bounces_to_e_squared_heights(sim, ball_e, plane_e):
+    # Restitution combines by max, so each pair acts as e = 0.5: apexes 1 m * e^2k.
+    s = sim(_simulation(DT_240) + _plane(friction=0.5, restitution=plane_e)
+            + '[[bodies]]\nname = "ball"\nshape = { type = "sphere", radius = 0.1 }\n'
+              f'position = [0.0, 0.0, 1.1]\nrestitution = {ball_e!r}\nfriction = 0.5\n')
+    heights = [1.0]
+    s.advance(1.3, each=lambda s: heights.append(s.state.rigid.position[0, 2] - 0.1))
+    z = np.array(heights)
+    apex = np.nonzero((z[1:-1] > z[:-2]) & (z[1:-1] >= z[2:]))[0] + 1
+    assert len(apex) >= 3, f"expected three bounces, found apexes {z[apex]}"
+    np.testing.assert_allclose(z[apex[:3]], [0.25, 0.0625, 0.015625], rtol=0.03)
+    assert z.min() > -1e-3, "the ball sank into the plane"
+
+
+# ----------------------------------------------------------------------------- Coulomb friction
+def _incline_slide(sim, mu_box, mu_plane, seconds=1.0, angle_deg=30.0):
+    """Distance a 0.1 m cube resting flat on a plane tilted by ``angle_deg`` slides along it."""
+    a = math.radians(angle_deg)
+    normal = (-math.sin(a), 0.0, math.cos(a))
+    s = sim(_simulation(DT_240) + _plane(normal, friction=mu_plane)
+            + _box("cube", (0.1, 0.1, 0.1), position=[0.05 * n for n in normal],
+                   orientation=(math.cos(a / 2), 0.0, -math.sin(a / 2), 0.0), friction=mu_box))
+    x0 = s.state.rigid.position[0].copy()
+    s.advance(seconds)
+    moved = s.state.rigid.position[0] - x0
+    n = np.array(normal)
+    assert abs(moved @ n) < 1e-3, "the cube left or sank into the incline"
+    return float(np.linalg.norm(moved - (moved @ n) * n)), a
+
+
+def test_cube_slides_down_30_degree_incline_with_coulomb_friction(sim):
+    distance, a = _incline_slide(sim, 0.3, 0.3)
+    assert distance == pytest.approx(0.5 * G * (math.sin(a) - 0.3 * math.cos(a)), rel=0.01)
+
+
+def test_cube_sticks_on_30_degree_incline_when_friction_exceeds_tan_angle(sim):
+    distance, _ = _incline_slide(sim, 0.7, 0.7)
+    assert distance < 1e-3
+
+
+@pytest.mark.parametrize("mu_box, mu_plane, mu_combined", [(0.5, 0.5, 0.5), (0.2, 0.45, 0.3), (0.0, 0.5, 0.0)])
+def test_friction_coefficients_combine_by_geometric_mean(sim, mu_box, mu_plane, mu_combined):
+    # Equal coefficients give that coefficient; a frictionless side gives a frictionless contact.
+    # The coefficient the cube actually felt, from d = g (sin a - mu cos a) t^2 / 2:
+    distance, a = _incline_slide(sim, mu_box, mu_plane)
+    mu_felt = (math.sin(a) - 2.0 * distance / G) / math.cos(a)
+    assert mu_felt == pytest.approx(mu_combined, rel=0.01, abs=1e-6)
+
+
+# ----------------------------------------------------------------------------- resting contact
+@pytest.mark.parametrize("dt", [DT_240, 1.0 / 60.0])
+def test_stack_of_ten_cubes_stands_still_for_five_seconds(sim, dt):
+    cubes = "".join(_box(f"cube{i}", (0.1, 0.1, 0.1), (0.0, 0.0, 0.05 + 0.1 * i),
+                         density=1000.0, friction=0.5, restitution=0.0) for i in range(10))
+    s = sim(_simulation(dt) + _plane(friction=0.5) + cubes)
+    top0 = s.state.rigid.position[-1].copy()
+    worst = [0.0, 0.0]
+
+    def record(s):
+        d = s.state.rigid.position[-1] - top0
+        worst[0] = max(worst[0], float(np.hypot(d[0], d[1])))
+        worst[1] = max(worst[1], abs(float(d[2])))
+
+    s.advance(5.0, each=record)
+    assert s.model.rigid.body_mass == pytest.approx(1.0, rel=1e-12)
+    assert worst[0] < 1e-3, f"the top cube drifted {worst[0]:.3g} m sideways"
+    assert worst[1] < 1e-3, f"the stack settled or grew by {worst[1]:.3g} m"
+
+
+def test_1000_kg_box_resting_on_1_kg_box_neither_sinks_nor_jitters(sim):
+    s = sim(_simulation(DT_240) + _plane(friction=0.5)
+            + _box("light", (0.1, 0.1, 0.1), (0.0, 0.0, 0.05), density=1000.0)
+            + _box("heavy", (0.1, 0.1, 0.1), (0.0, 0.0, 0.15), density=1.0e6))
+    rm = s.model.rigid
+    np.testing.assert_allclose(rm.body_mass, [1.0, 1000.0], rtol=1e-12)
+    rows = []
+
+    def record(s):
+        rs = s.state.rigid
+        R = quat.to_matrix(rs.orientation)
+        light, heavy = (rs.position[i] + rm.surface_vertices[i] @ R[i].T for i in range(2))
+        v = reported_velocity(rm, rs, s.model.gravity)
+        tilt = 2.0 * np.arccos(np.clip(np.abs(rs.orientation[:, 0]), 0.0, 1.0)).max()
+        # both boxes stay level, so face heights measure penetration directly
+        rows.append((rs.time, -light[:, 2].min(), light[:, 2].max() - heavy[:, 2].min(),
+                     abs(v[0, 2]), abs(v[1, 2]), tilt))
+
+    s.advance(5.0, each=record)
+    t, into_ground, into_light, v_light, v_heavy, tilt = np.array(rows).T
+    assert tilt.max() < 1e-3
+    assert into_ground.max() < 1e-3
+    assert into_light.max() < 1e-3
+    settled = t > 0.5
+    assert v_light[settled].max() < 1e-3
+    assert v_heavy[settled].max() < 1e-3
+
+
+# ----------------------------------------------------------------------------- conservation
+def test_off_centre_collision_of_spinning_box_conserves_linear_and_angular_momentum(sim):
+    s = sim(_simulation(DT_240, gravity=(0, 0, 0))
+            + _box("spinner", (0.2, 0.1, 0.05), (-0.3, 0.03, 0.01), velocity=(2.0, 0.0, 0.0),
+                   angular_velocity=(1.0, 2.0, 15.0), friction=0.3, restitution=0.3)
+            + _box("target", (0.1, 0.15, 0.1), density=700.0, friction=0.3, restitution=0.3))
+    _, p0, l0 = totals(s.model, s.state)
+    v0 = s.state.rigid.velocity.copy()
+    w0 = angular_velocity(s.model.rigid, s.state.rigid)
+    s.advance(0.5)
+    _, p1, l1 = totals(s.model, s.state)
+    dv = np.linalg.norm(s.state.rigid.velocity - v0, axis=1)
+    dw = np.linalg.norm(angular_velocity(s.model.rigid, s.state.rigid) - w0, axis=1)
+    assert dv.min() > 0.1 and dw.min() > 0.1, "the boxes did not collide"
+    assert np.linalg.norm(p1 - p0) <= 1e-9 * np.linalg.norm(p0)
+    assert np.linalg.norm(l1 - l0) <= 1e-6 * np.linalg.norm(l0)
+
+
+# ----------------------------------------------------------------------------- tunnelling
+@pytest.mark.parametrize("restitution", [0.0, 0.5])
+def test_box_thrown_at_20_m_per_s_never_passes_through_2_cm_slab(sim, restitution):
+    # At dt = 1/240 the box moves 8.3 cm per step, four times the slab's thickness.
+    s = sim(_simulation(DT_240, gravity=(0, 0, 0))
+            + _box("slab", (0.02, 1.0, 1.0), fixed=True, restitution=restitution)
+            + _box("bullet", (0.1, 0.1, 0.1), (-0.5, 0.0, 0.0), velocity=(20.0, 0.0, 0.0),
+                   restitution=restitution))
+    front = []
+    s.advance(0.2, each=lambda s: front.append(s.state.rigid.position[1, 0] + 0.05))
+    assert max(front) < -0.01 + 1e-3, f"the box's front face reached x = {max(front):.4f} m"
+    vx = s.state.rigid.velocity[1, 0]
+    if restitution == 0.0:
+        assert abs(vx) < 1e-6
+    else:
+        assert vx == pytest.approx(-20.0 * restitution, rel=0.02)
+
+
+# ----------------------------------------------------------------------------- warnings
+def test_overlap_warning_names_the_two_interpenetrating_bodies(sim):
+    s = sim(_box("a", (0.1, 0.1, 0.1)) + _box("b", (0.1, 0.1, 0.1), (0.05, 0.0, 0.0))
+            + '[[bodies]]\nname = "apart"\nshape = { type = "sphere", radius = 0.05 }\n'
+              'position = [1.0, 0.0, 0.0]\n')
+    assert overlapping_bodies(s.model, s.state) == [("a", "b")]
+
+
+def test_overlap_warning_is_silent_for_bodies_that_only_touch(sim):
+    s = sim(_box("a", (0.1, 0.1, 0.1)) + _box("b", (0.1, 0.1, 0.1), (0.1, 0.0, 0.0)))
+    assert overlapping_bodies(s.model, s.state) == []
