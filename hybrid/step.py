@@ -2,14 +2,16 @@
 
     step(model, state) -> state
 
-FEM surface nodes enter the contact solver as particles carrying their lumped mass, so rigid
-bodies, planes and deformable bodies exchange momentum through one impulse mechanism
-(rigid.step.resolve_contacts). The impulses a body's nodes receive are then fed back through that
-body's own implicit system (one more back-substitution), so the elastic response is consistent.
+FEM surface nodes in contact enter the contact solver as particles that answer impulses through
+their body's exact implicit response (fem.contact_response), so rigid bodies, planes and
+deformable bodies exchange momentum through one impulse mechanism (rigid.step.resolve_contacts).
+The impulses a body's nodes receive are then fed through that body's own implicit system (one
+more back-substitution), which gives the velocities the solver expected.
 """
 import numpy as np
 
 from fem import dynamics as fem_dyn
+from fem.contact_response import delassus_block
 from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import concatenate, detect, detect_points
@@ -24,10 +26,6 @@ class InstabilityError(RuntimeError):
         self.body, self.time, self.quantity, self.value = body, time, quantity, value
         super().__init__(f"unstable: body '{body}' at t = {time:.6g} s: {quantity} = {value:.3g}")
 
-
-# contact solve <-> elastic response rounds per step (measured: 3 keep a steel ball from sinking
-# into a soft block; each round costs one back-substitution per touched body)
-COUPLING_ROUNDS = 6
 
 # above these the run is declared unstable (no scene of everyday objects gets near them)
 MAX_SPEED = 1.0e4       # m/s
@@ -48,7 +46,7 @@ def step(model, state):
 def _coupled_step(model, state):
     h, g = model.dt, model.gravity
     rm, rs = model.rigid, state.rigid
-    nb, nf = rm.body_count, len(model.fem)
+    nb = rm.body_count
 
     # 1. deformable bodies: implicit step without contact (prefactored system)
     predicted = [fem_dyn.predict(m, s, h, g) for m, s in zip(model.fem, state.fem)]
@@ -57,24 +55,11 @@ def _coupled_step(model, state):
     v, v_at_t, gvec = rigid_step.kick(rm, rs, h, g)
     rigid_bodies = rigid_step.solver_bodies(rm, rs, v, v_at_t, gvec)
 
-    # 3. each deformable body joins the solver as a rigid proxy (its mass and inertia), so contacts
-    #    on many of its nodes share the body's real inertia; each node's own deformation velocity
-    #    enters as a per-contact bias
-    proxies = [_proxy(m, s, p.v) for m, s, p in zip(model.fem, state.fem, predicted)]
-    bodies = rigid_step.SolverBodies(
-        inv_mass=np.concatenate([rigid_bodies.inv_mass, [p.inv_mass for p in proxies]]),
-        inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.array([p.inv_inertia for p in proxies])]),
-        position=np.concatenate([rigid_bodies.position, np.array([p.center for p in proxies])]),
-        velocity=np.concatenate([rigid_bodies.velocity, np.array([p.velocity for p in proxies])]),
-        velocity_at_t=np.concatenate([rigid_bodies.velocity_at_t, np.array([p.velocity for p in proxies])]),
-        angular=np.concatenate([rigid_bodies.angular, np.array([p.angular for p in proxies])]),
-        accel=np.concatenate([rigid_bodies.accel, np.zeros((nf, 3))]),
-        static=np.concatenate([rigid_bodies.static, [p.inv_mass == 0 for p in proxies]]))
-
-    # 4. contacts: rigid bodies among themselves and with planes; surface nodes with planes and
-    #    rigid shapes (node k of the stacked surface nodes belongs to proxy nb + node_body[k])
+    # 3. contacts: rigid bodies among themselves and with planes; surface nodes with planes and
+    #    rigid shapes (stacked surface node k belongs to deformable body node_body[k])
     nodes = [m.surface_nodes for m in model.fem]
     node_body = np.concatenate([np.full(len(n), j) for j, n in enumerate(nodes)])
+    node_local = np.concatenate(nodes)
     node_x = np.concatenate([s.x[n] for s, n in zip(state.fem, nodes)])
     node_v = np.concatenate([p.v[n] for p, n in zip(predicted, nodes)])
     R = quat.to_matrix(rs.orientation)
@@ -84,112 +69,82 @@ def _coupled_step(model, state):
     e = np.array([b.restitution for b in fem_bodies])[node_body]
     c_nodes = detect_points(rm, rs.position, R, node_x, np.linalg.norm(node_v, axis=1) * h,
                             model.settings.margin, mu, e)
-    contact_node = c_nodes.body_a.copy()
-    node_give = np.concatenate([_node_compliance(m, h)[n] for m, n in zip(model.fem, nodes)])
-    c_nodes.body_a = nb + node_body[contact_node]
-    contacts = concatenate(c_rigid, c_nodes, 0, 0)
-    on_node = np.arange(contacts.count) >= c_rigid.count
-    compliance = np.zeros(contacts.count)
-    compliance[on_node] = node_give[contact_node]
 
-    # 5. one contact resolution for everything; each deformable body answers the impulses on its
-    #    nodes through its own implicit system (one back-substitution), and the contacts are
-    #    solved again from the velocities that gives, so solver and elastic response agree
+    # 4. touched nodes join the solver as particles, grouped by body, each group answering
+    #    impulses through its body's exact Delassus block (fem.contact_response)
+    touched = np.unique(c_nodes.body_a)
+    touched = touched[np.argsort(node_body[touched], kind="stable")]
+    particle_of = -np.ones(len(node_x), dtype=np.int64)
+    particle_of[touched] = nb + np.arange(len(touched))
+    group = node_body[touched]
+    bodies_touched = np.unique(group)
+    group_id = -np.ones(len(model.fem), dtype=np.int64)
+    group_id[bodies_touched] = np.arange(len(bodies_touched))
+    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]], state.fem[j].R)
+              for j in bodies_touched]
+    sizes = np.array([len(b) for b in blocks], dtype=np.int64) // 3
+    p = len(touched)
+    # anchored nodes do not answer at all: static for the stacking order
+    held = (np.concatenate([np.diag(b).reshape(-1, 3).sum(axis=1) for b in blocks]) == 0
+            if blocks else np.zeros(0, bool))
+    bodies = rigid_step.SolverBodies(
+        inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
+        inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.zeros((p, 3, 3))]),
+        position=np.concatenate([rigid_bodies.position, node_x[touched]]),
+        velocity=np.concatenate([rigid_bodies.velocity, node_v[touched]]),
+        velocity_at_t=np.concatenate([rigid_bodies.velocity_at_t, node_v[touched]]),
+        angular=np.concatenate([rigid_bodies.angular, np.zeros((p, 3))]),
+        accel=np.concatenate([rigid_bodies.accel, np.zeros((p, 3))]),
+        static=np.concatenate([rigid_bodies.static, held]),
+        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[group]]),
+        group_start=np.concatenate([[nb], nb + np.cumsum(sizes)]).astype(np.int64),
+        W=np.concatenate([b.ravel() for b in blocks]) if blocks else np.zeros(1),
+        w_off=np.concatenate([[0], np.cumsum(sizes ** 2 * 9)[:-1]]).astype(np.int64) if blocks else np.zeros(1, np.int64))
+    c_nodes.body_a = particle_of[c_nodes.body_a]
+    contacts = concatenate(c_rigid, c_nodes, 0, 0)
+
+    # 5. one contact resolution for everything; each deformable body then takes the impulses on
+    #    its nodes through its own implicit system (one back-substitution). The blocks are exact for
+    #    floating and anchored bodies; for corotated ones a second round corrects the difference.
+    rounds = 2 if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
     res, applied = None, np.zeros((contacts.count, 3))
-    for _ in range(COUPLING_ROUNDS):
-        bias = np.zeros((contacts.count, 3))
-        bias[on_node] = _deformation_velocity(proxies, node_body[contact_node], node_v[contact_node],
-                                              contacts.point[on_node])
+    for _ in range(rounds):
         if res is not None:     # solve again from the velocities the bodies really took
-            bodies = rigid_step.SolverBodies(
-                bodies.inv_mass, bodies.inv_inertia, bodies.position,
-                np.concatenate([res.velocity[:nb], [p.velocity for p in proxies]]),
-                np.concatenate([res.velocity[:nb], [p.velocity for p in proxies]]),
-                np.concatenate([res.angular[:nb], [p.angular for p in proxies]]),
-                bodies.accel, bodies.static)
-        res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res,
-                                          bias=bias, compliance=compliance)
-        if not on_node.any():
-            break
+            bodies.velocity = np.concatenate([res.velocity[:nb]] + [
+                predicted[j].v[node_local[touched[group == j]]] for j in bodies_touched])
+            bodies.velocity_at_t = bodies.velocity
+            bodies.angular = res.angular
+        res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res)
         total = res.collision_impulse + res.contact_impulse
         increment, applied = total - applied, total
-        node_impulse = np.zeros((len(node_x), 3))
-        np.add.at(node_impulse, contact_node, increment[on_node])
-        if np.abs(node_impulse).max() == 0.0:
+        on_particle = contacts.body_a >= nb
+        if not on_particle.any():
             break
-        start = 0
-        for j, (m, n) in enumerate(zip(model.fem, nodes)):
-            jn = node_impulse[start:start + len(n)]
-            start += len(n)
-            if np.any(jn):
-                impulse = np.zeros((m.node_count, 3))
-                impulse[n] = jn
-                predicted[j] = fem_dyn.apply_impulse(m, state.fem[j], predicted[j], impulse)
-                proxies[j] = _proxy(m, state.fem[j], predicted[j].v)
-        node_v = np.concatenate([p.v[n] for p, n in zip(predicted, nodes)])
+        impulse = np.zeros((p, 3))
+        np.add.at(impulse, contacts.body_a[on_particle] - nb, increment[on_particle])
+        for j in bodies_touched:
+            sel = group == j
+            node_impulse = np.zeros((model.fem[j].node_count, 3))
+            node_impulse[node_local[touched[sel]]] = impulse[sel]
+            predicted[j] = fem_dyn.apply_impulse(model.fem[j], state.fem[j], predicted[j], node_impulse)
 
-    # 6. rigid drift; deformable bodies finish their step and take the proxy's position
-    #    corrections (impacts at their time of impact, penetration recovery) as a rigid motion
+    # 6. rigid drift; deformable bodies finish their step; touched nodes take their share of
+    #    penetration recovery (positions only)
     rigid_res = rigid_step.Resolution(*(a[:nb] for a in (
         res.velocity, res.angular, res.shift, res.shift_rotation, res.pseudo_velocity,
         res.pseudo_angular, res.impact_dv, res.momentum_fix)))
     new_rigid = rigid_step.drift(rm, rs, rigid_res, h, v)
     new_fem = []
-    for j, (m, s, p) in enumerate(zip(model.fem, state.fem, predicted)):
-        s_new = fem_dyn.finish(m, s, p, h)
-        move = res.shift[nb + j] + h * res.pseudo_velocity[nb + j]
-        turn = res.shift_rotation[nb + j] + h * res.pseudo_angular[nb + j]
-        if np.any(move) or np.any(turn):
-            c = m.node_mass @ s_new.x / m.node_mass.sum()
-            x = s_new.x + move + np.cross(turn, s_new.x - c)
-            R_fit, c_fit = fem_dyn.body_frame(m, x)      # the frame moves with the body
+    for j, (m, s, pr) in enumerate(zip(model.fem, state.fem, predicted)):
+        s_new = fem_dyn.finish(m, s, pr, h)
+        sel = group == j
+        if sel.any() and np.any(res.pseudo_velocity[nb:][sel]):
+            x = s_new.x.copy()
+            x[node_local[touched[sel]]] += h * res.pseudo_velocity[nb:][sel]
+            R_fit, c_fit = fem_dyn.body_frame(m, x)
             s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
         new_fem.append(s_new)
     return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1)
-
-
-class _Proxy:
-    """Rigid stand-in of a deformable body for the contact solver (world frame, SI)."""
-    __slots__ = ("inv_mass", "inv_inertia", "center", "velocity", "angular")
-
-
-def _proxy(m, s, v):
-    """Mass, inertia about the centre of mass, and the rigid part (P/M, I^-1 L) of velocities v.
-
-    A body held by anchors does not move as a whole: its proxy is static."""
-    p = _Proxy()
-    mass = m.node_mass.sum()
-    p.center = m.node_mass @ s.x / mass
-    if m.anchored:
-        p.inv_mass, p.inv_inertia = 0.0, np.zeros((3, 3))
-        p.velocity, p.angular = np.zeros(3), np.zeros(3)
-        return p
-    r = s.x - p.center
-    inertia = np.einsum("n,nij->ij", m.node_mass,
-                        np.einsum("ni,ni->n", r, r)[:, None, None] * np.eye(3) - np.einsum("ni,nj->nij", r, r))
-    p.inv_mass, p.inv_inertia = 1.0 / mass, np.linalg.inv(inertia)
-    p.velocity = m.node_mass @ v / mass
-    p.angular = p.inv_inertia @ np.cross(r, m.node_mass[:, None] * v).sum(axis=0)
-    return p
-
-
-def _node_compliance(m, h):
-    """Each node's own give within a step in the contact solver (1/kg): 1/(a_M m_i), the give of
-    a free particle, which no elastic response exceeds (A >= a_M M). The solver therefore never
-    pushes harder than the body can answer (no energy is created at impacts), and the coupling
-    rounds add what the stiffness of the body really resisted."""
-    a_M, _ = fem_dyn.system_coefficients(m, h)
-    return 1.0 / (a_M * m.node_mass)
-
-
-def _deformation_velocity(proxies, body, node_v, point):
-    """Node velocity minus the proxy's rigid velocity at the contact point, per node contact."""
-    out = np.empty((len(body), 3))
-    for j, p in enumerate(proxies):
-        sel = body == j
-        if sel.any():
-            out[sel] = node_v[sel] - (p.velocity + np.cross(p.angular, point[sel] - p.center))
-    return out
 
 
 def _fem_bodies(model):

@@ -62,8 +62,8 @@ def _side(i, r0, r1, r2, d0, d1, d2, inv_m, invI, scale):
 
 
 @nb.njit(cache=True)
-def _rel_velocity(a, b, ra, rb, v, w, k, bias):
-    x, y, z = bias[k, 0], bias[k, 1], bias[k, 2]
+def _rel_velocity(a, b, ra, rb, v, w, k):
+    x = y = z = 0.0
     if a >= 0:
         x += v[a, 0] + w[a, 1] * ra[k, 2] - w[a, 2] * ra[k, 1]
         y += v[a, 1] + w[a, 2] * ra[k, 0] - w[a, 0] * ra[k, 2]
@@ -76,18 +76,54 @@ def _rel_velocity(a, b, ra, rb, v, w, k, bias):
 
 
 @nb.njit(cache=True)
+def _group_diag(i, d0, d1, d2, group_of, group_start, W, w_off):
+    """d . W_ii d for particle i: its inverse effective mass along d (Delassus diagonal)."""
+    g = group_of[i]
+    k3 = 3 * (group_start[g + 1] - group_start[g])
+    li = i - group_start[g]
+    base = w_off[g]
+    d = (d0, d1, d2)
+    out = 0.0
+    for a in range(3):
+        for b in range(3):
+            out += d[a] * W[base + (3 * li + a) * k3 + 3 * li + b] * d[b]
+    return out
+
+
+@nb.njit(cache=True)
+def _push(i, imp0, imp1, imp2, r, resp, inv_m, v, w, group_of, group_start, W, w_off):
+    """Apply impulse (imp) to solver body i: a rigid body's velocity and angular velocity, or the
+    velocities of every particle of i's group through the group's Delassus block."""
+    g = group_of[i]
+    if g < 0:
+        for c in range(3):
+            v[i, c] += inv_m[i] * (imp0, imp1, imp2)[c]
+            w[i, c] += resp[c]
+        return
+    lo, hi = group_start[g], group_start[g + 1]
+    k3 = 3 * (hi - lo)
+    li = i - lo
+    base = w_off[g]
+    for l in range(hi - lo):
+        for a in range(3):
+            row = base + (3 * l + a) * k3 + 3 * li
+            v[lo + l, a] += W[row] * imp0 + W[row + 1] * imp1 + W[row + 2] * imp2
+
+
+@nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
-        iterations, bias, compliance, lam_start):
+        iterations, group_of, group_start, W, w_off):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
 
     lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
-    contact's tangent basis. scale_a/scale_b (c,) multiply each side's inverse mass: 0 makes that
-    side immovable for this call (shock propagation). Only contacts with active[k] take part.
-    bias (c, 3) is added to each contact's relative velocity (a deformable body's node velocity
-    relative to the rigid motion of its proxy); compliance (c,) 1/kg is added in series to each
-    contact's inverse effective mass (the node's own elastic give): the contact's relative
-    velocity then also moves by compliance * (lam - lam_start), the give of the impulses this call
-    added (lam_start: the accumulated impulses the velocities already include). Returns the world impulse on side a of each contact, (c, 3) N s.
+    contact's tangent basis (warm start: the velocities already include what lam holds).
+    scale_a/scale_b (c,) multiply each side's response: 0 makes that side immovable for this call
+    (shock propagation). Only contacts with active[k] take part. Solver bodies with
+    group_of[i] >= 0 are particles (FEM surface nodes) whose group (one deformable body) answers an
+    impulse on any of them through its Delassus block: the particles of group g are the solver
+    bodies group_start[g]..group_start[g+1]-1 and their block W[w_off[g]:] is (3k, 3k) row-major
+    (velocity of particle l per unit impulse on particle i). Returns the world impulse on side a
+    of each contact, (c, 3) N s (NaN rows for inactive contacts).
     """
     idx = np.nonzero(active)[0]
     m = len(idx)
@@ -108,14 +144,20 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
         dirs[j, 0, 0], dirs[j, 0, 1], dirs[j, 0, 2] = n0, n1, n2
         dirs[j, 1, 0], dirs[j, 1, 1], dirs[j, 1, 2] = t0, t1, t2
         dirs[j, 2, 0], dirs[j, 2, 1], dirs[j, 2, 2] = s0, s1, s2
+        a, b = ia[k], ib[k]
         for d in range(3):
             e0, e1, e2 = dirs[j, d, 0], dirs[j, d, 1], dirs[j, d, 2]
-            ka, x0, x1, x2 = _side(ia[k], ra[k, 0], ra[k, 1], ra[k, 2], e0, e1, e2, inv_m, invI, scale_a[k])
-            kb, y0, y1, y2 = _side(ib[k], rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
-            resp[j, d, 0, 0], resp[j, d, 0, 1], resp[j, d, 0, 2] = x0, x1, x2
-            resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
-            kk = ka + kb + compliance[k] if ka + kb > 0.0 else 0.0
-            invk[j, d] = 1.0 / kk if kk > 0.0 else 0.0
+            if a >= 0 and group_of[a] >= 0:
+                ka = scale_a[k] * _group_diag(a, e0, e1, e2, group_of, group_start, W, w_off)
+            else:
+                ka, x0, x1, x2 = _side(a, ra[k, 0], ra[k, 1], ra[k, 2], e0, e1, e2, inv_m, invI, scale_a[k])
+                resp[j, d, 0, 0], resp[j, d, 0, 1], resp[j, d, 0, 2] = x0, x1, x2
+            if b >= 0 and group_of[b] >= 0:
+                kb = scale_b[k] * _group_diag(b, e0, e1, e2, group_of, group_start, W, w_off)
+            else:
+                kb, y0, y1, y2 = _side(b, rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
+                resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
+            invk[j, d] = 1.0 / (ka + kb) if ka + kb > 0.0 else 0.0
     for _ in range(iterations):
         for j in range(m):
             if invk[j, 0] == 0.0:
@@ -123,9 +165,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
             k = idx[j]
             a, b = ia[k], ib[k]
             for d in range(3):
-                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k, bias)
+                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k)
                 vd = x * dirs[j, d, 0] + y * dirs[j, d, 1] + z * dirs[j, d, 2]
-                vd += compliance[k] * (lam[k, d] - lam_start[k, d])
                 if d == 0:
                     # normal: reach the target normal velocity, accumulated impulse >= 0
                     new = max(lam[k, 0] + (target[k] - vd) * invk[j, 0], 0.0)
@@ -133,7 +174,7 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                     lam[k, 0] = new
                 else:
                     # friction: stop sliding, inside the Coulomb disk mu * lambda_n
-                    if mu[k] <= 0.0:
+                    if mu[k] <= 0.0 or invk[j, d] == 0.0:
                         break
                     f = lam[k, d] - vd * invk[j, d]
                     other = lam[k, 3 - d]
@@ -145,16 +186,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                     lam[k, d] = f
                 if delta == 0.0:
                     continue
-                if a >= 0 and scale_a[k] != 0.0:
-                    sm = scale_a[k] * inv_m[a] * delta
-                    for c in range(3):
-                        v[a, c] += sm * dirs[j, d, c]
-                        w[a, c] += delta * resp[j, d, 0, c]
-                if b >= 0 and scale_b[k] != 0.0:
-                    sm = scale_b[k] * inv_m[b] * delta
-                    for c in range(3):
-                        v[b, c] -= sm * dirs[j, d, c]
-                        w[b, c] -= delta * resp[j, d, 1, c]
+                _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
+                            group_of, group_start, W, w_off)
             if mu[k] > 0.0:
                 # the disk clamp may have left the first tangent outside after the second moved
                 l1, l2 = lam[k, 1], lam[k, 2]
@@ -165,22 +198,30 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                     for d in (1, 2):
                         delta = lam[k, d] * s - lam[k, d]
                         lam[k, d] += delta
-                        if a >= 0 and scale_a[k] != 0.0:
-                            sm = scale_a[k] * inv_m[a] * delta
-                            for c in range(3):
-                                v[a, c] += sm * dirs[j, d, c]
-                                w[a, c] += delta * resp[j, d, 0, c]
-                        if b >= 0 and scale_b[k] != 0.0:
-                            sm = scale_b[k] * inv_m[b] * delta
-                            for c in range(3):
-                                v[b, c] -= sm * dirs[j, d, c]
-                                w[b, c] -= delta * resp[j, d, 1, c]
+                        _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b,
+                                    inv_m, v, w, group_of, group_start, W, w_off)
     out = np.full((len(ia), 3), np.nan)
     for j in range(m):
         k = idx[j]
         for c in range(3):
             out[k, c] = lam[k, 0] * dirs[j, 0, c] + lam[k, 1] * dirs[j, 1, c] + lam[k, 2] * dirs[j, 2, c]
     return out
+
+
+@nb.njit(cache=True)
+def _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
+                group_of, group_start, W, w_off):
+    """Apply +delta along contact direction d to side a and -delta to side b."""
+    if a >= 0 and scale_a[k] != 0.0:
+        sa = scale_a[k] * delta
+        _push(a, sa * dirs[j, d, 0], sa * dirs[j, d, 1], sa * dirs[j, d, 2], ra[k],
+              (delta * resp[j, d, 0, 0], delta * resp[j, d, 0, 1], delta * resp[j, d, 0, 2]),
+              inv_m, v, w, group_of, group_start, W, w_off)
+    if b >= 0 and scale_b[k] != 0.0:
+        sb = -scale_b[k] * delta
+        _push(b, sb * dirs[j, d, 0], sb * dirs[j, d, 1], sb * dirs[j, d, 2], rb[k],
+              (-delta * resp[j, d, 1, 0], -delta * resp[j, d, 1, 1], -delta * resp[j, d, 1, 2]),
+              inv_m, v, w, group_of, group_start, W, w_off)
 
 
 @nb.njit(cache=True)

@@ -48,7 +48,9 @@ class SolverBodies:
     position (n, 3) m; velocity (n, 3) m/s, the velocity the step drifts with; velocity_at_t
     (n, 3) m/s, the velocity at the start of the step (for times of impact); angular (n, 3) rad/s;
     accel (n, 3) m/s^2, free acceleration during the step (gravity); static (n,) bool.
-    A deformable body enters as a rigid proxy (its mass and inertia about its centre of mass).
+    Particles (FEM surface nodes in contact) have group_of >= 0: the particles of group g (one
+    deformable body) are bodies group_start[g]..group_start[g+1]-1 and answer impulses through the
+    group's Delassus block W[w_off[g]:] (see rigid.solver.pgs). No particles: group_of all -1.
     """
     inv_mass: np.ndarray
     inv_inertia: np.ndarray
@@ -58,6 +60,17 @@ class SolverBodies:
     angular: np.ndarray
     accel: np.ndarray
     static: np.ndarray
+    group_of: np.ndarray = None
+    group_start: np.ndarray = None
+    W: np.ndarray = None
+    w_off: np.ndarray = None
+
+    def groups(self):
+        """(group_of, group_start, W, w_off) for the solver kernel (empty when no particles)."""
+        if self.group_of is None:
+            n = len(self.inv_mass)
+            return (np.full(n, -1, np.int64), np.zeros(1, np.int64), np.zeros(1), np.zeros(1, np.int64))
+        return self.group_of, self.group_start, self.W, self.w_off
 
 
 @dataclass
@@ -99,15 +112,12 @@ def _scatter(target, index, values):
     np.add.at(target, index[keep], values[keep])
 
 
-def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias=None,
-                     compliance=None):
+def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
     """Collisions, resting contact, shock propagation and penetration recovery for one step.
 
     ``previous``: the Resolution of an earlier solve of the same step; this one starts from its
     accumulated contact impulses (which it may lower as well as raise) and its position shifts,
-    and does no new collisions or penetration recovery (coupling rounds). ``bias`` (c, 3)
-    m/s is added to each contact's relative velocity and ``compliance`` (c,) 1/kg to its inverse
-    effective mass (deformable bodies, see hybrid.step).
+    and does no new collisions or penetration recovery (coupling rounds).
     """
     n = len(bodies.inv_mass)
     v, w = bodies.velocity.copy(), bodies.angular.copy()
@@ -115,8 +125,8 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias
     out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)), c3(), c3(), c3())
     if contacts.count == 0:
         return out
-    bias = np.zeros((contacts.count, 3)) if bias is None else bias
-    soft = np.zeros(contacts.count) if compliance is None else compliance
+    groups = bodies.groups()
+    particle = groups[0] >= 0
     ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
     inv_m, invI = bodies.inv_mass, bodies.inv_inertia
     ra, rb = arms(ia, ib, contacts.point, bodies.position)
@@ -125,23 +135,23 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias
     ib0 = np.maximum(ib, 0)
 
     # 1. collisions: restitution at each impact's time within the step
-    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w) + np.einsum("ck,ck->c", bias, nrm)
+    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w)
     an = np.einsum("ck,ck->c", bodies.accel[ia] - np.where(has_b, bodies.accel[ib0], 0.0), nrm)
     tau = time_of_impact(contacts.gap, vn_t, an, h)
     approach = -(vn_t + an * np.minimum(tau, h))
     # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
     threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
-    # contacts on deformable bodies (compliance > 0) bounce through the body's own elasticity
-    impact = (tau <= h) & (approach > threshold) & (soft == 0)
+    # contacts on deformable bodies (particles) bounce through the body's own elasticity
+    on_particle = particle[ia] | (particle[ib0] & (ib >= 0))
+    impact = (tau <= h) & (approach > threshold) & ~on_particle
     if previous is not None:     # position-level results belong to the first solve of the step
         for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
                      "momentum_fix", "collision_impulse"):
             setattr(out, name, getattr(previous, name))
     elif impact.any():
-        target = (normal_velocity(ia, ib, ra, rb, nrm, v, w) + np.einsum("ck,ck->c", bias, nrm)
-                  + (1.0 + contacts.restitution) * approach)
+        target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + contacts.restitution) * approach
         imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact,
-                  c3(), inv_m, invI, v, w, settings.iterations, bias, soft, c3())
+                  c3(), inv_m, invI, v, w, settings.iterations, *groups)
         imp = np.nan_to_num(imp)
         out.collision_impulse = imp
         t_imp = np.where(impact, tau, 0.0)[:, None]
@@ -161,10 +171,9 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias
     shift_n = np.einsum("ck,ck->c", moved - moved_b, nrm)
     target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
     lam = c3() if previous is None else previous.contact_lambda.copy()
-    lam_start = lam.copy()
     every = np.ones(contacts.count, dtype=bool)
     contact_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m,
-                      invI, v, w, settings.iterations, bias, soft, lam_start)
+                      invI, v, w, settings.iterations, *groups)
 
     # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
     sa = sb = ones
@@ -175,7 +184,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias
         for lv in np.unique(c_level):
             at_level = c_level == lv
             level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
-                            inv_m, invI, v, w, settings.shock_iterations, bias, soft, lam_start)
+                            inv_m, invI, v, w, settings.shock_iterations, *groups)
             contact_imp[at_level] = level_imp[at_level]
     out.contact_impulse = np.nan_to_num(contact_imp)
     out.contact_lambda = lam
@@ -186,7 +195,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, bias
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
         pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
             np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
-            settings.iterations, c3(), np.zeros(contacts.count), c3())
+            settings.iterations, *groups)
     return out
 
 

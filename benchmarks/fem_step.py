@@ -1,0 +1,221 @@
+"""FEM step cost: an elastic slab on the ground with a rigid box resting on it.
+
+Scene (built with hybrid.scene.parse_scene + hybrid.build.build, stepped with hybrid.step.step):
+a 1 m x 1 m x 0.2 m FEM slab (E = 1 MPa, nu = 0.3, 1000 kg/m^3, mass damping 1/s, P1 tets,
+lumped mass, backward Euler) lying on a ground plane, and a rigid 0.3 m cube (2000 kg/m^3) resting
+on its top face; gravity -9.81 m/s^2, dt = 1 ms. The slab resolution is chosen so the mesh has
+about the requested number of tets (box cells split into six tets each). For each size and frame
+(floating, corotated), measured in the same run, side by side:
+
+  step     the coupled step (contacts with the ground and the box, coupling rounds), after
+           ``--warmup`` steps so the box has settled into contact; median of ``--steps`` steps
+  elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
+           loaded state; median of ``--steps`` repetitions
+  floor    one back-substitution of the same prefactored system,
+           ``fem.dynamics.system_factorisation(model, dt).solve`` on a random right-hand side;
+           median of 20 repetitions
+  naive    per step: a scikit-fem basis on the current node positions, K (linear elasticity) and
+           M (vector mass) assembled with ``skfem.asm``, and ``scipy.sparse.linalg.spsolve`` of
+           ``(M + h^2 K) v+ = M v + h (f_gravity - K u)``; median of ``--naive-steps`` steps
+           (frame-independent, measured once per size)
+
+Goals reported against: floating step within 2x of the floor; coupled step at least 20x faster
+than naive at 10k tets.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/fem_step.py [--sizes 1000 10000] [--big] [--steps 30]
+
+Prints the table and writes outputs/bench/fem_step.csv. Default run: ~1k and ~10k tets
+(about 2 minutes on two shared cores); ``--big`` adds ~50k tets (several more minutes).
+"""
+import argparse
+import csv
+import math
+import os
+import time
+import tomllib
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import scipy.sparse.linalg as spla
+import skfem
+from skfem.helpers import dot
+from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+from fem import dynamics as fem_dyn
+from hybrid.build import build
+from hybrid.scene import parse_scene
+from hybrid.step import step
+
+SLAB = (1.0, 1.0, 0.2)      # m
+BOX = 0.3                    # m, edge of the rigid cube
+YOUNG, POISSON, DENSITY = 1e6, 0.3, 1000.0
+DT = 1e-3
+FRAMES = ("floating", "corotated")
+CSV_PATH = Path("outputs/bench/fem_step.csv")
+
+
+def slab_cells(target_tets):
+    """Cells ``k`` along x and y (z gets ceil(0.2 k)) giving the tet count closest to the target."""
+    def tets(k):
+        return 6 * k * k * math.ceil(SLAB[2] * k - 1e-9)
+    return min(range(2, 200), key=lambda k: abs(tets(k) - target_tets))
+
+
+def scene_text(cells, frame):
+    # a hair above 1/k so the scene mesher's ceil(size / resolution) gives exactly k cells
+    resolution = SLAB[0] / cells * (1 + 1e-6)
+    return f"""
+[simulation]
+dt = {DT}
+[[planes]]
+[[bodies]]
+name = "slab"
+model = "fem"
+shape = {{ type = "box", size = {list(SLAB)}, resolution = {resolution!r} }}
+position = [0.0, 0.0, {SLAB[2] / 2}]
+young = {YOUNG}
+poisson = {POISSON}
+density = {DENSITY}
+frame = "{frame}"
+damping = {{ mass = 1.0 }}
+[[bodies]]
+name = "box"
+shape = {{ type = "box", size = [{BOX}, {BOX}, {BOX}] }}
+position = [0.0, 0.0, {SLAB[2] + BOX / 2}]
+density = 2000
+"""
+
+
+def median_ms(fn, repeat):
+    """Median wall time of ``fn()`` over ``repeat`` calls (ms), and the last result."""
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times)), out
+
+
+def floor_ms(model, repeat=20):
+    """One back-substitution of the prefactored rest system on a random right-hand side (ms)."""
+    factorisation = fem_dyn.system_factorisation(model, DT)
+    rhs = np.random.default_rng(0).standard_normal(factorisation.matrix.shape[0])
+    return median_ms(lambda: factorisation.solve(rhs), repeat)[0]
+
+
+def naive_step(points_rest, tets, x, v, gravity):
+    """The naive step: reassemble K and M with scikit-fem on the current mesh, spsolve M + h^2 K."""
+    mesh = skfem.MeshTet(np.ascontiguousarray(x.T), np.ascontiguousarray(tets.T))
+    basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP1()))
+    lam, mu = lame_parameters(YOUNG, POISSON)
+
+    @skfem.BilinearForm
+    def mass(u, w, _):
+        return DENSITY * dot(u, w)
+
+    K = skfem.asm(linear_elasticity(lam, mu), basis)
+    M = skfem.asm(mass, basis)
+    dofs = basis.nodal_dofs            # (3, n): scikit-fem DOF of each node's component
+    u = np.zeros(basis.N)
+    vel = np.zeros(basis.N)
+    g = np.zeros(basis.N)
+    u[dofs] = (x - points_rest).T
+    vel[dofs] = v.T
+    g[dofs] = np.asarray(gravity, float)[:, None]
+    rhs = M @ vel + DT * (M @ g - K @ u)
+    v_new = spla.spsolve((M + DT * DT * K).tocsc(), rhs)
+    return v_new[dofs].T
+
+
+def measure(cells, frame, steps, warmup):
+    scene = parse_scene(tomllib.loads(scene_text(cells, frame)), "fem_step", Path("."))
+    model, state = build(scene)
+    for _ in range(warmup):
+        state = step(model, state)
+    fem_model = model.fem[0]
+    floor = floor_ms(fem_model)
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        state = step(model, state)
+        times.append(time.perf_counter() - t0)
+    step_ms = 1e3 * float(np.median(times))
+    q1, q3 = 1e3 * np.percentile(times, [25, 75])
+    # elastic-only FEM step from the settled, loaded state (same input every repetition)
+    settled = state.fem[0]
+    elastic, _ = median_ms(lambda: fem_dyn.step(fem_model, settled, DT, model.gravity), steps)
+    floor = min(floor, floor_ms(fem_model))     # before and after the step timings
+    sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
+    return model, state, dict(step_ms=step_ms, step_q1=q1, step_q3=q3, elastic_ms=elastic,
+                              floor_ms=floor, **sanity)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000],
+                        help="target tet counts (default 1000 10000)")
+    parser.add_argument("--big", action="store_true", help="add ~50k tets")
+    parser.add_argument("--steps", type=int, default=30, help="timed steps per configuration")
+    parser.add_argument("--warmup", type=int, default=20, help="steps before timing (box settles)")
+    parser.add_argument("--naive-steps", type=int, default=3, help="timed naive steps per size")
+    args = parser.parse_args()
+    sizes = args.sizes + ([50000] if args.big and 50000 not in args.sizes else [])
+
+    rows = []
+    for target in sizes:
+        cells = slab_cells(target)
+        naive = None
+        for frame in FRAMES:
+            model, state, r = measure(cells, frame, args.steps, args.warmup)
+            m = model.fem[0]
+            if naive is None:
+                s = state.fem[0]
+                naive, _ = median_ms(lambda: naive_step(m.rest_points, m.tets, s.x, s.v, model.gravity),
+                                     args.naive_steps)
+            row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, frame=frame, **r,
+                       naive_ms=naive)
+            row["step_over_floor"] = row["step_ms"] / row["floor_ms"]
+            row["elastic_over_floor"] = row["elastic_ms"] / row["floor_ms"]
+            row["naive_over_step"] = naive / row["step_ms"]
+            row["naive_over_elastic"] = naive / row["elastic_ms"]
+            rows.append(row)
+            print(f"  {row['tets']} tets {frame}: step {row['step_ms']:.1f} ms "
+                  f"(box z {row['box_z']:.4f} m, slab min z {row['slab_min_z']:.2e} m)", flush=True)
+
+    header = (f"{'tets':>6} {'dofs':>6} {'frame':>9} {'step ms':>8} {'elastic ms':>10} {'floor ms':>8} "
+              f"{'naive ms':>9} {'step/floor':>10} {'elastic/floor':>13} {'naive/step':>10} "
+              f"{'naive/elastic':>13}")
+    print(f"\nmedians; coupled step over {args.steps} steps after {args.warmup} warm-up, floor over 20 "
+          f"solves, naive over {args.naive_steps} steps; dt = {DT} s")
+    print(header)
+    for r in rows:
+        print(f"{r['tets']:>6} {r['dofs']:>6} {r['frame']:>9} {r['step_ms']:>8.2f} {r['elastic_ms']:>10.2f} "
+              f"{r['floor_ms']:>8.2f} {r['naive_ms']:>9.1f} {r['step_over_floor']:>10.1f} "
+              f"{r['elastic_over_floor']:>13.2f} {r['naive_over_step']:>10.1f} {r['naive_over_elastic']:>13.1f}")
+
+    print("\ngoals")
+    for r in rows:
+        if r["frame"] == "floating":
+            print(f"  {r['tets']} tets floating within 2x of floor: coupled {r['step_over_floor']:.1f}x "
+                  f"({'met' if r['step_over_floor'] <= 2 else 'NOT met'}), elastic-only "
+                  f"{r['elastic_over_floor']:.2f}x ({'met' if r['elastic_over_floor'] <= 2 else 'NOT met'})")
+    for r in rows:
+        if 5000 <= r["tets"] <= 20000:
+            print(f"  {r['tets']} tets {r['frame']} >= 20x faster than naive: coupled "
+                  f"{r['naive_over_step']:.1f}x ({'met' if r['naive_over_step'] >= 20 else 'NOT met'}), "
+                  f"elastic-only {r['naive_over_elastic']:.1f}x "
+                  f"({'met' if r['naive_over_elastic'] >= 20 else 'NOT met'})")
+
+    CSV_PATH.parent.mkdir(parents=True, exist_ok=True)
+    with CSV_PATH.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {CSV_PATH}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+"""Exact contact response of a deformable body: the Delassus block of its touched nodes.
+
+An impulse ``j`` on the nodes of a body changes its end-of-step velocities by ``A^-1 j`` (A the
+implicit system matrix), so the velocity of node ``l`` per unit impulse on node ``i`` is the
+3x3 block ``W[l, i]`` of ``A^-1``. The contact solver uses these blocks, which makes its impulses
+exactly the ones the body can answer: a soft ball gives locally, a stiff slab on the ground
+holds a box still, and nothing is created or lost between solver and body.
+
+In the body frame of a floating body (and for an anchored body, whose frame is the world) A is
+constant, so the columns ``A^-1 e`` of each node are solved once (one batched back-substitution
+with the prefactored matrix) and cached until the model changes; a corotated body uses its rest
+system in its best-fit frame, an approximation the coupling rounds correct.
+"""
+import numpy as np
+
+from .dynamics import system_factorisation
+
+# nodes whose columns a model keeps (each column block is 3 x 3n floats)
+MAX_CACHED_NODES = 4000
+
+
+class _ColumnCache:
+    def __init__(self, dt):
+        self.dt = dt
+        self.columns = {}          # node -> (3n, 3) response to unit impulses at the node (body frame)
+
+
+def _cache(model, dt):
+    cache = getattr(model, "_contact_columns", None)
+    if cache is None or cache.dt != dt:
+        cache = _ColumnCache(dt)
+        object.__setattr__(model, "_contact_columns", cache)
+    return cache
+
+
+def _solve_columns(model, dt, nodes):
+    """A^-1 columns (3n, 3 len(nodes)) for unit impulses at ``nodes`` (body frame)."""
+    n3 = 3 * model.node_count
+    dofs = (3 * np.asarray(nodes)[:, None] + np.arange(3)).ravel()
+    out = np.zeros((n3, len(dofs)))
+    fact = system_factorisation(model, dt)
+    if model.anchored:
+        free_index = -np.ones(n3, dtype=np.int64)
+        free_index[model.free_dofs] = np.arange(len(model.free_dofs))
+        cols = np.nonzero(free_index[dofs] >= 0)[0]       # held DOFs do not respond
+        rhs = np.zeros((len(model.free_dofs), len(dofs)))
+        rhs[free_index[dofs[cols]], cols] = 1.0
+        out[model.free_dofs] = fact.solve(rhs).reshape(len(model.free_dofs), -1)
+    else:
+        rhs = np.zeros((n3, len(dofs)))
+        rhs[dofs, np.arange(len(dofs))] = 1.0
+        out[:] = fact.solve(rhs).reshape(n3, -1)
+    return out
+
+
+def delassus_block(model, dt, nodes, R):
+    """World-frame block ``W`` (3k, 3k): velocity of node l (rows 3l..3l+2) per unit impulse on
+    node i (columns 3i..3i+2), for the k ``nodes``; ``R`` (3, 3) is the body's solve frame."""
+    cache = _cache(model, dt)
+    nodes = np.asarray(nodes, dtype=np.int64)
+    missing = [int(i) for i in nodes if int(i) not in cache.columns]
+    if missing:
+        if len(cache.columns) + len(missing) > MAX_CACHED_NODES:
+            cache.columns.clear()
+            missing = [int(i) for i in nodes]
+        cols = _solve_columns(model, dt, missing)
+        for k, node in enumerate(missing):
+            cache.columns[node] = cols[:, 3 * k:3 * k + 3]
+    C = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)     # (3n, 3k)
+    rows = (3 * nodes[:, None] + np.arange(3)).ravel()
+    k = len(nodes)
+    W_body = C[rows].reshape(k, 3, k, 3)
+    # A_world^-1 = R A_body^-1 R^T, node block by node block
+    W = np.einsum("ab,ibjc,dc->iajd", R, W_body, R).reshape(3 * k, 3 * k)
+    return 0.5 * (W + W.T)
