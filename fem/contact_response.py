@@ -23,6 +23,8 @@ class _ColumnCache:
     def __init__(self, dt):
         self.dt = dt
         self.columns = {}          # node -> (3n, 3) response to unit impulses at the node (body frame)
+        self.last_nodes = None     # the last touched set and its body-frame block (resting contact
+        self.last_block = None     # touches the same nodes step after step)
 
 
 def _cache(model, dt):
@@ -58,18 +60,24 @@ def delassus_block(model, dt, nodes, R):
     node i (columns 3i..3i+2), for the k ``nodes``; ``R`` (3, 3) is the body's solve frame."""
     cache = _cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
-    missing = [int(i) for i in nodes if int(i) not in cache.columns]
-    if missing:
-        if len(cache.columns) + len(missing) > MAX_CACHED_NODES:
-            cache.columns.clear()
-            missing = [int(i) for i in nodes]
-        cols = _solve_columns(model, dt, missing)
-        for k, node in enumerate(missing):
-            cache.columns[node] = cols[:, 3 * k:3 * k + 3]
-    C = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)     # (3n, 3k)
-    rows = (3 * nodes[:, None] + np.arange(3)).ravel()
     k = len(nodes)
-    W_body = C[rows].reshape(k, 3, k, 3)
+    if cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes):
+        W_body = cache.last_block
+    else:
+        missing = [int(i) for i in nodes if int(i) not in cache.columns]
+        if missing:
+            if len(cache.columns) + len(missing) > MAX_CACHED_NODES:
+                cache.columns.clear()
+                missing = [int(i) for i in nodes]
+            cols = _solve_columns(model, dt, missing)
+            for j, node in enumerate(missing):
+                cache.columns[node] = cols[:, 3 * j:3 * j + 3]
+        rows = (3 * nodes[:, None] + np.arange(3)).ravel()
+        # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
+        W_body = np.stack([cache.columns[int(i)][rows] for i in nodes], axis=1)
+        W_body = W_body.reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+        cache.last_nodes, cache.last_block = nodes.copy(), W_body
     # A_world^-1 = R A_body^-1 R^T, node block by node block
-    W = np.einsum("ab,ibjc,dc->iajd", R, W_body, R).reshape(3 * k, 3 * k)
+    W = np.matmul(np.matmul(R, W_body), R.T) if not np.array_equal(R, np.eye(3)) else W_body
+    W = W.transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
     return 0.5 * (W + W.T)
