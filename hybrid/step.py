@@ -14,9 +14,10 @@ from fem import dynamics as fem_dyn
 from fem.contact_response import delassus_block
 from rigid import quaternion as quat
 from rigid import step as rigid_step
-from rigid.contacts import concatenate, detect, detect_points
+from rigid.contacts import Contacts, concatenate, detect, detect_points
 
 from .build import HybridState
+from .fem_contact import detect_fem_pairs
 
 
 class InstabilityError(RuntimeError):
@@ -55,8 +56,8 @@ def _coupled_step(model, state):
     v, v_at_t, gvec = rigid_step.kick(rm, rs, h, g)
     rigid_bodies = rigid_step.solver_bodies(rm, rs, v, v_at_t, gvec)
 
-    # 3. contacts: rigid bodies among themselves and with planes; surface nodes with planes and
-    #    rigid shapes (stacked surface node k belongs to deformable body node_body[k])
+    # 3. contacts: rigid bodies among themselves and with planes; surface nodes with planes, rigid
+    #    shapes and other deformable bodies (stacked surface node k belongs to body node_body[k])
     nodes = [m.surface_nodes for m in model.fem]
     node_body = np.concatenate([np.full(len(n), j) for j, n in enumerate(nodes)])
     node_local = np.concatenate(nodes)
@@ -67,12 +68,15 @@ def _coupled_step(model, state):
     fem_bodies = _fem_bodies(model)
     mu = np.array([b.friction for b in fem_bodies])[node_body]
     e = np.array([b.restitution for b in fem_bodies])[node_body]
-    c_nodes = detect_points(rm, rs.position, R, node_x, np.linalg.norm(node_v, axis=1) * h,
-                            model.settings.margin, mu, e)
+    sweep = np.linalg.norm(node_v, axis=1) * h
+    c_nodes = detect_points(rm, rs.position, R, node_x, sweep, model.settings.margin, mu, e)
+    node_offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
+    fa, fb, fp, fn, fg, fmu, fe = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset,
+                                                   node_x, sweep, model.settings.margin)
 
     # 4. touched nodes join the solver as particles, grouped by body, each group answering
     #    impulses through its body's exact Delassus block (fem.contact_response)
-    touched = np.unique(c_nodes.body_a)
+    touched = np.unique(np.concatenate([c_nodes.body_a, fa, fb]))
     touched = touched[np.argsort(node_body[touched], kind="stable")]
     particle_of = -np.ones(len(node_x), dtype=np.int64)
     particle_of[touched] = nb + np.arange(len(touched))
@@ -101,7 +105,8 @@ def _coupled_step(model, state):
         W=np.concatenate([b.ravel() for b in blocks]) if blocks else np.zeros(1),
         w_off=np.concatenate([[0], np.cumsum(sizes ** 2 * 9)[:-1]]).astype(np.int64) if blocks else np.zeros(1, np.int64))
     c_nodes.body_a = particle_of[c_nodes.body_a]
-    contacts = concatenate(c_rigid, c_nodes, 0, 0)
+    c_pairs = Contacts(particle_of[fa], particle_of[fb], fp, fn, fg, fmu, fe)
+    contacts = concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0)
 
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
     #    its nodes through its own implicit system (one back-substitution). The blocks are exact for
@@ -117,11 +122,12 @@ def _coupled_step(model, state):
         res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res)
         total = res.collision_impulse + res.contact_impulse
         increment, applied = total - applied, total
-        on_particle = contacts.body_a >= nb
-        if not on_particle.any():
+        on_a, on_b = contacts.body_a >= nb, contacts.body_b >= nb
+        if not (on_a.any() or on_b.any()):
             break
         impulse = np.zeros((p, 3))
-        np.add.at(impulse, contacts.body_a[on_particle] - nb, increment[on_particle])
+        np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
+        np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
         for j in bodies_touched:
             sel = group == j
             node_impulse = np.zeros((model.fem[j].node_count, 3))

@@ -45,7 +45,7 @@ dt = 0.002
 [[bodies]]
 name = "slab"
 model = "fem"
-shape = { type = "box", size = [0.4, 0.4, 0.06], resolution = 0.04 }
+shape = { type = "box", size = [0.4, 0.4, 0.06], resolution = 0.08 }
 position = [0.0, 0.0, 0.03]
 density = 1000.0
 young = 2e6
@@ -104,3 +104,64 @@ damping = { mass = 0.5, stiffness = 0.002 }
     assert vz[first_impact:].max() > 0.2            # m/s upward: it bounced (elastic rebound)
     assert kinetic[-50:].max() < 1e-3 * kinetic.max()   # and came to rest
     assert min(lowest) > -0.003                     # never sank more than 3 mm into the ground
+
+
+def test_two_fem_bodies_collide_exchanging_momentum_without_passing_through(sim):
+    s = sim("""
+[simulation]
+dt = 0.002
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.034 }
+position = [-0.1, 0.0, 0.0]
+velocity = [1.0, 0.0, 0.0]
+young = 1e5
+[[bodies]]
+name = "ball"
+model = "fem"
+shape = { type = "sphere", radius = 0.05, resolution = 0.025 }
+position = [0.1, 0.02, 0.0]
+young = 1e5
+""")
+    E0, P0, _ = totals(s.model, s.state)
+    s.advance(0.3)
+    E1, P1, _ = totals(s.model, s.state)
+    v_block, v_ball = fem_com_velocity(s.model, s.state, 0), fem_com_velocity(s.model, s.state, 1)
+    assert v_ball[0] > v_block[0] > 0.0                       # hit, and now moving apart
+    assert np.linalg.norm(P1 - P0) / np.linalg.norm(P0) < 1e-9
+    assert E1 <= E0 * (1 + 1e-9)                               # no energy from nowhere
+    # no node of the block got inside the ball
+    ball = s.state.fem[1].x
+    centre = s.model.fem[1].node_mass @ ball / s.model.fem[1].node_mass.sum()
+    assert np.linalg.norm(s.state.fem[0].x - centre, axis=1).min() > 0.045
+
+
+def test_soft_block_rests_on_soft_block_on_the_ground(sim):
+    s = sim("""
+[simulation]
+dt = 0.002
+[[planes]]
+[[bodies]]
+name = "lower"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.2, 0.1], resolution = 0.05 }
+position = [0.0, 0.0, 0.05]
+young = 2e5
+damping = { mass = 0.0, stiffness = 0.01 }
+[[bodies]]
+name = "upper"
+model = "fem"
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }
+position = [0.0, 0.0, 0.151]
+young = 2e5
+damping = { mass = 0.0, stiffness = 0.01 }
+""")
+    heights = []
+    s.advance(1.5, lambda sim_: heights.append(fem_com_velocity(sim_.model, sim_.state, 1)[2]))
+    upper, lower = s.state.fem[1].x, s.state.fem[0].x
+    assert np.abs(heights[-100:]).max() < 2e-3                # m/s: settled
+    # the upper block sits on the lower one (its bottom above the lower's top, within 2 mm)
+    assert upper[:, 2].min() > lower[:, 2].max() - 0.002
+    assert upper[:, 2].min() < lower[:, 2].max() + 0.006
