@@ -96,13 +96,13 @@ def plot(rows, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    for order in (1, 2):
+    for order, color in ((1, "C0"), (2, "C3")):
         for frame, style in zip(FRAMES, ("-o", "--s")):
             sel = [r for r in rows if r["order"] == order and r["frame"] == frame]
             if not sel:
                 continue
             ax.loglog([r["wall_per_sim_s"] for r in sel], [r["error"] for r in sel], style,
-                      label=f"P{order} {frame}")
+                      color=color, label=f"P{order} {frame}")
             for r in sel:
                 ax.annotate(f"{r['tets']}", (r["wall_per_sim_s"], r["error"]), fontsize=7,
                             textcoords="offset points", xytext=(4, 3))

@@ -15,8 +15,8 @@ import numpy as np
 
 from .dynamics import system_factorisation
 
-# nodes whose columns a model keeps (each column block is 3 x 3n floats)
-MAX_CACHED_NODES = 4000
+# memory the cached columns of one model may take (each touched node keeps 3 x 3n floats)
+MAX_CACHE_BYTES = 400e6
 
 
 class _ColumnCache:
@@ -55,9 +55,24 @@ def _solve_columns(model, dt, nodes):
     return out
 
 
+def contact_set(model, dt, nodes):
+    """The nodes to give the solver: ``nodes`` (touched now), or the last set when it still holds
+    them and is not much larger. Resting contact flickers a few nodes in and out of the margin;
+    keeping the set lets the block be reused instead of rebuilt (the extra nodes carry no contact).
+    """
+    cache = _cache(model, dt)
+    nodes = np.unique(np.asarray(nodes, dtype=np.int64))
+    last = cache.last_nodes
+    if last is not None:
+        union = np.union1d(last, nodes)
+        if len(union) <= 1.5 * len(nodes) + 8:
+            return union if len(union) > len(last) else last
+    return nodes
+
+
 def delassus_block(model, dt, nodes, R):
-    """World-frame block ``W`` (3k, 3k): velocity of node l (rows 3l..3l+2) per unit impulse on
-    node i (columns 3i..3i+2), for the k ``nodes``; ``R`` (3, 3) is the body's solve frame."""
+    """World-frame blocks ``W`` (k, k, 3, 3): block [l, i] is the velocity of node l per unit
+    impulse on node i, for the k ``nodes``; ``R`` (3, 3) is the body's solve frame."""
     cache = _cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
     k = len(nodes)
@@ -66,7 +81,8 @@ def delassus_block(model, dt, nodes, R):
     else:
         missing = [int(i) for i in nodes if int(i) not in cache.columns]
         if missing:
-            if len(cache.columns) + len(missing) > MAX_CACHED_NODES:
+            per_node = 9 * model.node_count * 8
+            if (len(cache.columns) + len(missing)) * per_node > MAX_CACHE_BYTES:
                 cache.columns.clear()
                 missing = [int(i) for i in nodes]
             cols = _solve_columns(model, dt, missing)
@@ -75,9 +91,12 @@ def delassus_block(model, dt, nodes, R):
         rows = (3 * nodes[:, None] + np.arange(3)).ravel()
         # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
         W_body = np.stack([cache.columns[int(i)][rows] for i in nodes], axis=1)
-        W_body = W_body.reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+        W_body = np.ascontiguousarray(W_body.reshape(k, 3, k, 3).transpose(0, 2, 1, 3))
         cache.last_nodes, cache.last_block = nodes.copy(), W_body
     # A_world^-1 = R A_body^-1 R^T, node block by node block
-    W = np.matmul(np.matmul(R, W_body), R.T) if not np.array_equal(R, np.eye(3)) else W_body
-    W = W.transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
-    return 0.5 * (W + W.T)
+    if np.array_equal(R, np.eye(3)):
+        return W_body
+    # R B R^T for every 3x3 block B, as two large matrix products
+    WR = (W_body.reshape(-1, 3) @ R.T).reshape(k, k, 3, 3)                  # B R^T
+    return np.ascontiguousarray(                                             # R (B R^T)
+        (WR.transpose(0, 1, 3, 2).reshape(-1, 3) @ R.T).reshape(k, k, 3, 3).transpose(0, 1, 3, 2))

@@ -202,7 +202,8 @@ def find_cracks(fem_model, fem_state, data):
     ``cut`` holds the pending faces and the new ones; it is empty when no new face was chosen.
 
     Brittle: smoothed largest principal stress above ``fracture_stress``. Ductile: equivalent
-    plastic strain above ``tearing_strain`` (crack normal = largest principal stress direction).
+    plastic strain above ``tearing_strain`` in an element still flowing (crack normal = largest
+    principal stress direction).
     Both skip unbreakable elements; at most ``max_cracks`` elements per call.
     """
     eps_p = _plastic_strain(fem_state)
@@ -211,7 +212,7 @@ def find_cracks(fem_model, fem_state, data):
     found = fracture_candidates(smoothed, data.fracture_stress, None, data.tet_unbreakable)
     peeq = getattr(fem_state, "tet_peeq", None)
     if data.tearing_strain is not None and peeq is not None:
-        found = _add_tearing(found, smoothed, peeq.max(axis=1), data)
+        found = _add_tearing(found, smoothed, peeq.max(axis=1), fem_state.tet_yielded, data)
     found = planar_crack(fem_model.rest_points, fem_model.tets, found, data.faces,
                          max_cracks=data.max_cracks)
     chosen, _ = chosen_faces(fem_model.rest_points, fem_model.tets, found.element, found.normal,
@@ -223,20 +224,29 @@ def find_cracks(fem_model, fem_state, data):
     return np.union1d(pending, chosen), found
 
 
-def _add_tearing(found, smoothed, tet_peeq, data):
+def _add_tearing(found, smoothed, tet_peeq, tet_yielded, data):
     """Append elements whose accumulated equivalent plastic strain ``(t,)`` exceeds the tearing
-    strain (ductile tearing; crack normal = largest principal stress direction)."""
-    torn = (tet_peeq > data.tearing_strain) & ~data.tet_unbreakable
+    strain while they are flowing (``tet_yielded`` ``(t,)``, last step) (ductile tearing; crack
+    normal = largest principal stress direction). Unloaded elements do not tear: peeq never
+    decreases, so without this the elements of a fresh tear surface would keep cracking every
+    step along the arbitrary principal directions of their residual stress."""
+    torn = (tet_peeq > data.tearing_strain) & tet_yielded & ~data.tet_unbreakable
     torn[found.element] = False
     element = np.flatnonzero(torn)
     if element.size == 0:
         return found
+    # most strained first: planar_crack seeds the crack plane at the first candidate and applies
+    # max_cracks itself, so all torn elements stay candidates (a uniformly flowing bar tears
+    # across one whole section instead of chipping at the first max_cracks by index)
+    element = element[np.argsort(-tet_peeq[element], kind="stable")]
     eigenvalue, eigenvector = np.linalg.eigh(smoothed[element])
-    element = element[: max(data.max_cracks - found.element.size, 0)]
-    normal = eigenvector[: element.size, :, -1]
+    normal = eigenvector[:, :, -1]
+    # canonical sign (CrackCandidates): largest-magnitude component positive
+    lead = np.take_along_axis(normal, np.argmax(np.abs(normal), axis=1)[:, None], 1)
+    normal = normal * np.where(lead < 0.0, -1.0, 1.0)
     return type(found)(np.concatenate([found.element, element]),
                        np.concatenate([found.normal, normal]),
-                       np.concatenate([found.principal_stress, eigenvalue[: element.size, -1]]))
+                       np.concatenate([found.principal_stress, eigenvalue[:, -1]]))
 
 
 # --- splitting a body ------------------------------------------------------------------------

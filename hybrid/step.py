@@ -11,7 +11,7 @@ more back-substitution), which gives the velocities the solver expected.
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.contact_response import delassus_block
+from fem.contact_response import contact_set, delassus_block
 from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
@@ -77,7 +77,10 @@ def _coupled_step(model, state):
     # 4. touched nodes join the solver as particles, grouped by body, each group answering
     #    impulses through its body's exact Delassus block (fem.contact_response)
     touched = np.unique(np.concatenate([c_nodes.body_a, fa, fb]))
-    touched = touched[np.argsort(node_body[touched], kind="stable")]
+    # per body, the solver's node set (kept across steps while contact rests, see contact_set)
+    touched = np.concatenate([node_offset[j] + np.searchsorted(
+        nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
+        for j in np.unique(node_body[touched])]).astype(np.int64) if len(touched) else touched
     particle_of = -np.ones(len(node_x), dtype=np.int64)
     particle_of[touched] = nb + np.arange(len(touched))
     group = node_body[touched]
@@ -86,10 +89,10 @@ def _coupled_step(model, state):
     group_id[bodies_touched] = np.arange(len(bodies_touched))
     blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]], state.fem[j].R)
               for j in bodies_touched]
-    sizes = np.array([len(b) for b in blocks], dtype=np.int64) // 3
+    sizes = np.array([len(b) for b in blocks], dtype=np.int64)
     p = len(touched)
     # anchored nodes do not answer at all: static for the stacking order
-    held = (np.concatenate([np.diag(b).reshape(-1, 3).sum(axis=1) for b in blocks]) == 0
+    held = (np.concatenate([np.einsum("iijj->i", b) for b in blocks]) == 0
             if blocks else np.zeros(0, bool))
     bodies = rigid_step.SolverBodies(
         inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),

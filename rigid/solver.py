@@ -79,35 +79,32 @@ def _rel_velocity(a, b, ra, rb, v, w, k):
 def _group_diag(i, d0, d1, d2, group_of, group_start, W, w_off):
     """d . W_ii d for particle i: its inverse effective mass along d (Delassus diagonal)."""
     g = group_of[i]
-    k3 = 3 * (group_start[g + 1] - group_start[g])
+    k = group_start[g + 1] - group_start[g]
     li = i - group_start[g]
-    base = w_off[g]
+    base = w_off[g] + (li * k + li) * 9
     d = (d0, d1, d2)
     out = 0.0
     for a in range(3):
         for b in range(3):
-            out += d[a] * W[base + (3 * li + a) * k3 + 3 * li + b] * d[b]
+            out += d[a] * W[base + 3 * a + b] * d[b]
     return out
 
 
 @nb.njit(cache=True)
-def _push(i, imp0, imp1, imp2, r, resp, inv_m, v, w, group_of, group_start, W, w_off):
-    """Apply impulse (imp) to solver body i: a rigid body's velocity and angular velocity, or the
-    velocities of every particle of i's group through the group's Delassus block."""
+def _push_group(i, imp0, imp1, imp2, v, group_of, group_start, W, w_off):
+    """Apply impulse (imp) to particle i: every particle l of its group moves by W[l, i] imp.
+
+    Blocks are stored (k, k, 3, 3) row-major; W is symmetric, so W[l, i] imp = W[i, l]^T imp is
+    read from block row i, contiguous in memory."""
     g = group_of[i]
-    if g < 0:
-        for c in range(3):
-            v[i, c] += inv_m[i] * (imp0, imp1, imp2)[c]
-            w[i, c] += resp[c]
-        return
     lo, hi = group_start[g], group_start[g + 1]
-    k3 = 3 * (hi - lo)
-    li = i - lo
-    base = w_off[g]
-    for l in range(hi - lo):
-        for a in range(3):
-            row = base + (3 * l + a) * k3 + 3 * li
-            v[lo + l, a] += W[row] * imp0 + W[row + 1] * imp1 + W[row + 2] * imp2
+    k = hi - lo
+    row = w_off[g] + (i - lo) * k * 9
+    for l in range(k):
+        b = row + 9 * l
+        v[lo + l, 0] += W[b] * imp0 + W[b + 3] * imp1 + W[b + 6] * imp2
+        v[lo + l, 1] += W[b + 1] * imp0 + W[b + 4] * imp1 + W[b + 7] * imp2
+        v[lo + l, 2] += W[b + 2] * imp0 + W[b + 5] * imp1 + W[b + 8] * imp2
 
 
 @nb.njit(cache=True)
@@ -121,9 +118,10 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     (shock propagation). Only contacts with active[k] take part. Solver bodies with
     group_of[i] >= 0 are particles (FEM surface nodes) whose group (one deformable body) answers an
     impulse on any of them through its Delassus block: the particles of group g are the solver
-    bodies group_start[g]..group_start[g+1]-1 and their block W[w_off[g]:] is (3k, 3k) row-major
-    (velocity of particle l per unit impulse on particle i). Returns the world impulse on side a
-    of each contact, (c, 3) N s (NaN rows for inactive contacts).
+    bodies group_start[g]..group_start[g+1]-1 and their blocks W[w_off[g]:] are (k, k, 3, 3)
+    row-major (block [l, i]: velocity of particle l per unit impulse on particle i; symmetric).
+    Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
+    impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
     """
     idx = np.nonzero(active)[0]
     m = len(idx)
@@ -158,7 +156,9 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                 kb, y0, y1, y2 = _side(b, rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
                 resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
             invk[j, d] = 1.0 / (ka + kb) if ka + kb > 0.0 else 0.0
-    for _ in range(iterations):
+    for sweep in range(iterations):
+        largest_change = 0.0
+        largest = 0.0
         for j in range(m):
             if invk[j, 0] == 0.0:
                 continue
@@ -186,8 +186,10 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                     lam[k, d] = f
                 if delta == 0.0:
                     continue
+                largest_change = max(largest_change, abs(delta))
                 _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
                             group_of, group_start, W, w_off)
+            largest = max(largest, lam[k, 0])
             if mu[k] > 0.0:
                 # the disk clamp may have left the first tangent outside after the second moved
                 l1, l2 = lam[k, 1], lam[k, 2]
@@ -200,6 +202,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                         lam[k, d] += delta
                         _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b,
                                     inv_m, v, w, group_of, group_start, W, w_off)
+        if sweep > 0 and largest_change <= 1e-7 * largest:
+            break
     out = np.full((len(ia), 3), np.nan)
     for j in range(m):
         k = idx[j]
@@ -212,16 +216,31 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
 def _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
                 group_of, group_start, W, w_off):
     """Apply +delta along contact direction d to side a and -delta to side b."""
+    d0, d1, d2 = dirs[j, d, 0], dirs[j, d, 1], dirs[j, d, 2]
     if a >= 0 and scale_a[k] != 0.0:
         sa = scale_a[k] * delta
-        _push(a, sa * dirs[j, d, 0], sa * dirs[j, d, 1], sa * dirs[j, d, 2], ra[k],
-              (delta * resp[j, d, 0, 0], delta * resp[j, d, 0, 1], delta * resp[j, d, 0, 2]),
-              inv_m, v, w, group_of, group_start, W, w_off)
+        if group_of[a] >= 0:
+            _push_group(a, sa * d0, sa * d1, sa * d2, v, group_of, group_start, W, w_off)
+        else:
+            m = inv_m[a] * sa
+            v[a, 0] += m * d0
+            v[a, 1] += m * d1
+            v[a, 2] += m * d2
+            w[a, 0] += delta * resp[j, d, 0, 0]
+            w[a, 1] += delta * resp[j, d, 0, 1]
+            w[a, 2] += delta * resp[j, d, 0, 2]
     if b >= 0 and scale_b[k] != 0.0:
-        sb = -scale_b[k] * delta
-        _push(b, sb * dirs[j, d, 0], sb * dirs[j, d, 1], sb * dirs[j, d, 2], rb[k],
-              (-delta * resp[j, d, 1, 0], -delta * resp[j, d, 1, 1], -delta * resp[j, d, 1, 2]),
-              inv_m, v, w, group_of, group_start, W, w_off)
+        sb = scale_b[k] * delta
+        if group_of[b] >= 0:
+            _push_group(b, -sb * d0, -sb * d1, -sb * d2, v, group_of, group_start, W, w_off)
+        else:
+            m = inv_m[b] * sb
+            v[b, 0] -= m * d0
+            v[b, 1] -= m * d1
+            v[b, 2] -= m * d2
+            w[b, 0] -= delta * resp[j, d, 1, 0]
+            w[b, 1] -= delta * resp[j, d, 1, 1]
+            w[b, 2] -= delta * resp[j, d, 1, 2]
 
 
 @nb.njit(cache=True)

@@ -181,8 +181,10 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
     if gnorm > 0:
         level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static)
         c_level, sa, sb = shock_scales(ia, ib, level)
-        for lv in np.unique(c_level):
-            at_level = c_level == lv
+        # (contacts between particles and the static world gain nothing from it: left out)
+        rigid_side = ~particle[ia] | ((ib >= 0) & ~particle[ib0])
+        for lv in np.unique(c_level[rigid_side]):
+            at_level = (c_level == lv) & rigid_side
             level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
                             inv_m, invI, v, w, settings.shock_iterations, *groups)
             contact_imp[at_level] = level_imp[at_level]
