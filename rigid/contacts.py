@@ -78,6 +78,29 @@ def _point_world(R, x, local):
 
 
 @nb.njit(cache=True)
+def _to_shape(Rb, Sb, xb, offset, px, py, pz):
+    """World point -> body frame of b (R^T (p - x)) -> shape frame of b (S p_body + offset)."""
+    dx, dy, dz = px - xb[0], py - xb[1], pz - xb[2]
+    bx = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
+    by = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
+    bz = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
+    return (Sb[0, 0] * bx + Sb[0, 1] * by + Sb[0, 2] * bz + offset[0],
+            Sb[1, 0] * bx + Sb[1, 1] * by + Sb[1, 2] * bz + offset[1],
+            Sb[2, 0] * bx + Sb[2, 1] * by + Sb[2, 2] * bz + offset[2])
+
+
+@nb.njit(cache=True)
+def _normal_to_world(Rb, Sb, gx, gy, gz):
+    """Shape-frame normal -> body frame (S^T g) -> world (R n)."""
+    mx = Sb[0, 0] * gx + Sb[1, 0] * gy + Sb[2, 0] * gz
+    my = Sb[0, 1] * gx + Sb[1, 1] * gy + Sb[2, 1] * gz
+    mz = Sb[0, 2] * gx + Sb[1, 2] * gy + Sb[2, 2] * gz
+    return (Rb[0, 0] * mx + Rb[0, 1] * my + Rb[0, 2] * mz,
+            Rb[1, 0] * mx + Rb[1, 1] * my + Rb[1, 2] * mz,
+            Rb[2, 0] * mx + Rb[2, 1] * my + Rb[2, 2] * mz)
+
+
+@nb.njit(cache=True)
 def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_local, point_radius,
                   shape_kind, shape_params, shape_rotation, shape_offset, grid_index, grid_values,
                   grid_start, grid_shape, grid_origin, grid_cell, plane_point, plane_normal,
@@ -116,36 +139,18 @@ def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_lo
             Sb = shape_rotation[b]
             reach = margin + sweep[a] + sweep[b]
             # centre of a in the shape frame of b (tie-break at edges)
-            dx, dy, dz = position[a, 0] - position[b, 0], position[a, 1] - position[b, 1], position[a, 2] - position[b, 2]
-            bx = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
-            by = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
-            bz = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
-            cx = Sb[0, 0] * bx + Sb[0, 1] * by + Sb[0, 2] * bz + shape_offset[b, 0]
-            cy = Sb[1, 0] * bx + Sb[1, 1] * by + Sb[1, 2] * bz + shape_offset[b, 1]
-            cz = Sb[2, 0] * bx + Sb[2, 1] * by + Sb[2, 2] * bz + shape_offset[b, 2]
+            cx, cy, cz = _to_shape(Rb, Sb, position[b], shape_offset[b],
+                                   position[a, 0], position[a, 1], position[a, 2])
             for k in range(point_start[a], point_start[a + 1]):
                 px, py, pz = _point_world(rotation[a], position[a], point_local[k])
-                dx, dy, dz = px - position[b, 0], py - position[b, 1], pz - position[b, 2]
-                # world -> body frame of b -> shape frame of b
-                bx = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
-                by = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
-                bz = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
-                sx = Sb[0, 0] * bx + Sb[0, 1] * by + Sb[0, 2] * bz + shape_offset[b, 0]
-                sy = Sb[1, 0] * bx + Sb[1, 1] * by + Sb[1, 2] * bz + shape_offset[b, 1]
-                sz = Sb[2, 0] * bx + Sb[2, 1] * by + Sb[2, 2] * bz + shape_offset[b, 2]
+                sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
                 phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
                                             grid_values, grid_start, grid_shape, grid_origin,
                                             grid_cell, sx, sy, sz, cx, cy, cz)
                 gap = phi - point_radius[k]
                 if gap >= reach:
                     continue
-                # shape-frame normal -> body frame (S^T g) -> world (R n)
-                mx = Sb[0, 0] * gx + Sb[1, 0] * gy + Sb[2, 0] * gz
-                my = Sb[0, 1] * gx + Sb[1, 1] * gy + Sb[2, 1] * gz
-                mz = Sb[0, 2] * gx + Sb[1, 2] * gy + Sb[2, 2] * gz
-                nx = Rb[0, 0] * mx + Rb[0, 1] * my + Rb[0, 2] * mz
-                ny = Rb[1, 0] * mx + Rb[1, 1] * my + Rb[1, 2] * mz
-                nz = Rb[2, 0] * mx + Rb[2, 1] * my + Rb[2, 2] * mz
+                nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
                 if c < cap:
                     h = point_radius[k] + 0.5 * gap
                     out_a[c] = a
@@ -208,24 +213,14 @@ def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_k
             if dx * dx + dy * dy + dz * dz > reach * reach:
                 continue
             Rb, Sb = rotation[b], shape_rotation[b]
-            bx = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
-            by = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
-            bz = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
-            sx = Sb[0, 0] * bx + Sb[0, 1] * by + Sb[0, 2] * bz + shape_offset[b, 0]
-            sy = Sb[1, 0] * bx + Sb[1, 1] * by + Sb[1, 2] * bz + shape_offset[b, 1]
-            sz = Sb[2, 0] * bx + Sb[2, 1] * by + Sb[2, 2] * bz + shape_offset[b, 2]
+            sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
             # a lone point has no centre of its own: break edge ties towards the point itself
             phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b], grid_values,
                                         grid_start, grid_shape, grid_origin, grid_cell, sx, sy, sz,
                                         sx, sy, sz)
             if phi >= margin + sweep[k]:
                 continue
-            mx = Sb[0, 0] * gx + Sb[1, 0] * gy + Sb[2, 0] * gz
-            my = Sb[0, 1] * gx + Sb[1, 1] * gy + Sb[2, 1] * gz
-            mz = Sb[0, 2] * gx + Sb[1, 2] * gy + Sb[2, 2] * gz
-            nx = Rb[0, 0] * mx + Rb[0, 1] * my + Rb[0, 2] * mz
-            ny = Rb[1, 0] * mx + Rb[1, 1] * my + Rb[1, 2] * mz
-            nz = Rb[2, 0] * mx + Rb[2, 1] * my + Rb[2, 2] * mz
+            nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
             if c < cap:
                 out_a[c], out_b[c] = k, b
                 out_p[c, 0], out_p[c, 1], out_p[c, 2] = px - 0.5 * phi * nx, py - 0.5 * phi * ny, pz - 0.5 * phi * nz
