@@ -3,9 +3,10 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from hybrid.build import build
-from hybrid.events import apply_fracture, fragment_of
+from hybrid.events import apply_fracture, between_steps, fragment_of
 from hybrid.observe import totals
 from hybrid.scene import parse_scene
 from hybrid.step import step
@@ -206,3 +207,103 @@ def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
     assert np.all(state.rigid.position[fragments, 2] > -0.005)
     assert np.all(np.linalg.norm(state.rigid.velocity[fragments], axis=1) < 1.0)
     assert rigid.body_count == len(model.rigid_ids)
+
+
+# ductile tearing: a bar pulled slowly past yield flows at Y A, then tears in two
+TEAR_E, TEAR_Y, TEAR_L, TEAR_W = 1.0e8, 1.0e6, 0.2, 0.02
+TEAR_SPEED = 0.01   # m/s: a strain increment of 5e-5 (0.5 % of the yield strain) per 1 ms step
+TEAR_STRAIN = 0.05
+
+
+def tearing_bar(tearing_line):
+    return f"""
+[simulation]
+dt = 0.001
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = {{ type = "box", size = [{TEAR_L}, {TEAR_W}, {TEAR_W}], resolution = 0.01 }}
+young = {TEAR_E}
+poisson = 0.3
+density = 1000.0
+yield_stress = {TEAR_Y}
+{tearing_line}
+[[bodies.anchors]]
+box = [[-1, -1, -1], [{-TEAR_L / 2 + 1e-6}, 1, 1]]
+[[bodies.anchors]]
+box = [[{TEAR_L / 2 - 1e-6}, -1, -1], [1, 1, 1]]
+velocity = [{TEAR_SPEED}, 0.0, 0.0]
+"""
+
+
+def pull_until(sim, tearing_line, seconds):
+    """Pull the bar with events between steps; rows of (pulled-end displacement m, pull force N,
+    body count), the crack events, and the first split: its row and the (before, after) total
+    momentum and mass."""
+    s = sim(tearing_bar(tearing_line))
+    rows, events, split = [], [], {}
+
+    def each(s):
+        before_model, before_state = s.model, s.state
+        s.model, s.state, new = between_steps(s.model, s.state)
+        # the pull force: the reaction of the moving anchor, in whichever body now holds it
+        force = sum(st.node_reaction[m.anchor_nodes[a]].sum(axis=0)[0]
+                    for m, st in zip(s.model.fem, s.state.fem)
+                    for a in range(len(m.anchor_nodes)) if m.anchor_velocity[a][0] > 0)
+        rows.append((s.state.time * TEAR_SPEED, force, len(s.model.names)))
+        cracks = [e for e in new if hasattr(e, "new_bodies")]
+        events.extend(cracks)
+        if any(e.new_bodies for e in cracks) and not split:
+            split["momentum"] = totals(before_model, before_state)[1], totals(s.model, s.state)[1]
+            split["mass"] = (sum(m.node_mass.sum() for m in before_model.fem),
+                             sum(m.node_mass.sum() for m in s.model.fem))
+            split["row"] = len(rows) - 1
+
+    s.advance(seconds, each=each)
+    return s, np.array(rows), events, split
+
+
+def test_ductile_bar_yields_elongates_then_tears_in_two(sim):
+    YA = TEAR_Y * TEAR_W ** 2
+    elastic_elongation = TEAR_Y * TEAR_L / TEAR_E
+    s, rows, events, split = pull_until(sim, f"tearing_strain = {TEAR_STRAIN}", 1.0)
+    u, force, bodies = rows.T
+    assert split, "the bar never tore"
+    torn = split["row"]
+    print(f"tore at u = {u[torn] * 1e3:.2f} mm = {u[torn] / elastic_elongation:.2f} Y L / E; "
+          f"plateau F / YA in [{force[:torn][u[:torn] > 1.5 * elastic_elongation].min() / YA:.4f}, "
+          f"{force[:torn].max() / YA:.4f}]; after: {np.abs(force[torn + 10:]).mean() / YA:.4f} YA; "
+          f"bodies {s.model.names}")
+    # (a) perfect plasticity: past 1.5 x the yield strain the pull force stays on Y A (the clamped
+    # ends add ~1.5 %), and it never overshoots
+    plateau = (u > 1.5 * elastic_elongation) & (np.arange(len(u)) < torn)
+    assert plateau.sum() > 300
+    assert np.all(np.abs(force[plateau] / YA - 1.0) < 0.05)
+    assert force[:torn].max() < 1.05 * YA
+    # (b) it flowed plastically far past the elastic elongation Y L / E before tearing
+    assert u[torn] > 3.0 * elastic_elongation
+    # (c) one tear: the crack splits the bar in two, each piece holding one anchor
+    assert bodies[torn] == 2 and bodies[torn - 1] == 1
+    assert s.model.names == ["bar", "bar.1"] and fragment_of(s.model) == [0, 0]
+    assert sorted(m.anchor_velocity[0][0] for m in s.model.fem) == [0.0, TEAR_SPEED]
+    assert all(len(m.anchor_nodes) == 1 for m in s.model.fem)
+    assert sum(m.tet_count for m in s.model.fem) == 20 * 2 * 2 * 6
+    # ... across the axis: crack normals of every crack up to the split within 20 degrees of x
+    upto = events[: next(k for k, e in enumerate(events) if e.new_bodies) + 1]
+    normals = np.concatenate([e.normal for e in upto])
+    assert np.all(np.abs(normals[:, 0]) > np.cos(np.radians(20)))
+    # ... and the pull force is gone (a few % remain: contact between the jagged torn faces)
+    assert np.abs(force[torn + 10:]).mean() < 0.1 * YA
+    # (e) the split conserves mass and momentum
+    (p_before, p_after), (m_before, m_after) = split["momentum"], split["mass"]
+    assert m_after == pytest.approx(m_before, rel=1e-12)
+    assert np.abs(p_after - p_before).max() < 1e-9 * np.abs(p_before).max()
+
+    # (d) without a tearing strain the same pull keeps flowing on the plateau, in one piece
+    s, rows, events, split = pull_until(sim, "", u[torn] / TEAR_SPEED + 0.05)
+    u, force, bodies = rows.T
+    assert not split and not events and np.all(bodies == 1)
+    assert s.state.fem[0].tet_peeq.max() > TEAR_STRAIN
+    plateau = u > 1.5 * elastic_elongation
+    assert np.all(np.abs(force[plateau] / YA - 1.0) < 0.05)
