@@ -50,6 +50,8 @@ from hybrid.build import build
 from hybrid.scene import parse_scene
 from hybrid.step import step
 
+from _common import write_csv
+
 SLAB = (1.0, 1.0, 0.2)      # m
 BOX = 0.3                    # m, edge of the rigid cube
 YOUNG, POISSON, DENSITY = 1e6, 0.3, 1000.0
@@ -210,11 +212,7 @@ def main():
                   f"elastic-only {r['naive_over_elastic']:.1f}x "
                   f"({'met' if r['naive_over_elastic'] >= 20 else 'NOT met'})")
 
-    CSV_PATH.parent.mkdir(parents=True, exist_ok=True)
-    with CSV_PATH.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(CSV_PATH, rows)
     print(f"wrote {CSV_PATH}")
 
 

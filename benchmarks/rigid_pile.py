@@ -31,6 +31,8 @@ from hybrid.build import build
 from hybrid.scene import parse_scene
 from hybrid.step import step
 
+from _common import write_csv
+
 BOX = 0.1                  # m, edge
 SPACING = 0.15             # m, grid pitch of the initial drop
 DT = 1.0 / 240.0
@@ -175,11 +177,7 @@ def main():
         if results[0]["profile"]:
             print(f"where our time goes ({args.profile_steps} more steps, top 8 by tottime):")
             print(results[0]["profile"])
-    CSV_PATH.parent.mkdir(parents=True, exist_ok=True)
-    with open(CSV_PATH, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(CSV_PATH, rows)
     print(f"wrote {CSV_PATH}")
 
 

@@ -26,7 +26,6 @@ Default: P1 at 10, 20, 40, 80 cells along the beam and P2 at 5, 10, 20, 40 (up t
 (~61k DOFs; the corotated runs take several minutes each).
 """
 import argparse
-import csv
 import os
 import time
 from pathlib import Path
@@ -40,6 +39,8 @@ from fem.dynamics import step
 from fem.mesh import box_tet_mesh, quadratic_tets, select_nodes_in_box
 from fem.model import build_fem_model, rest_state
 from fem.static import static_displacement
+
+from _common import write_csv
 
 LENGTH, SIDE = 1.0, 0.1
 E, NU, RHO, LOAD = 2e11, 0.3, 7800.0, 1000.0
@@ -139,11 +140,7 @@ def main():
         print(f"{r['order']:>5} {r['frame']:>9} {r['cells']:>5} {r['tets']:>6} {r['dofs']:>6} "
               f"{r['tip_m']:>11.5e} {r['error']:>9.2e} {r['settled']:>8.4f} {r['step_ms']:>8.2f} "
               f"{r['wall_per_sim_s']:>10.3f} {r['build_s']:>8.2f}")
-    CSV_PATH.parent.mkdir(parents=True, exist_ok=True)
-    with CSV_PATH.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(CSV_PATH, rows)
     plot(rows, PNG_PATH)
     print(f"wrote {CSV_PATH} and {PNG_PATH}")
 

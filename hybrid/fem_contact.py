@@ -17,8 +17,7 @@ from rigid.sdf import SignedDistanceGrid
 def _grid(m):
     grid = getattr(m, "_surface_grid", None)
     if grid is None:
-        surface = m.surface if m.order == 1 else m.surface
-        grid = SignedDistanceGrid.build(m.rest_points, surface)
+        grid = SignedDistanceGrid.build(m.rest_points, m.surface)
         object.__setattr__(m, "_surface_grid", grid)
     return grid
 
