@@ -1,11 +1,14 @@
-"""FEM step cost: an elastic slab on the ground with a rigid box resting on it.
+"""FEM step cost: an elastic slab with a rigid box resting on it.
 
 Scene (built with hybrid.scene.parse_scene + hybrid.build.build, stepped with hybrid.step.step):
 a 1 m x 1 m x 0.2 m FEM slab (E = 1 MPa, nu = 0.3, 1000 kg/m^3, mass damping 1/s, P1 tets,
-lumped mass, backward Euler) lying on a ground plane, and a rigid 0.3 m cube (2000 kg/m^3) resting
-on its top face; gravity -9.81 m/s^2, dt = 1 ms. The slab resolution is chosen so the mesh has
-about the requested number of tets (box cells split into six tets each). For each size and frame
-(floating, corotated), measured in the same run, side by side:
+lumped mass, backward Euler) and a rigid 0.3 m cube (2000 kg/m^3) resting on its top face;
+gravity -9.81 m/s^2, dt = 1 ms. Two ways to hold the slab up (``--supports``):
+``ground``: it lies on a ground plane, so its whole bottom face (about 20 x 20 nodes at 10k tets)
+is in contact together with the nodes under the box; ``anchored``: its bottom face is an anchor
+region, so only the nodes under the box are in contact. The slab resolution is chosen so the mesh
+has about the requested number of tets (box cells split into six tets each). For each size,
+support and frame (floating, corotated), measured in the same run, side by side:
 
   step     the coupled step (contacts with the ground and the box, coupling rounds), after
            ``--warmup`` steps so the box has settled into contact; median of ``--steps`` steps
@@ -23,9 +26,10 @@ Goals reported against: floating step within 2x of the floor; coupled step at le
 than naive at 10k tets.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/fem_step.py [--sizes 1000 10000] [--big] [--steps 30]
+        [--supports ground anchored]
 
 Prints the table and writes outputs/bench/fem_step.csv. Default run: ~1k and ~10k tets
-(about 2 minutes on two shared cores). ``--big`` adds ~50k tets: at commit f14ddd6 its coupled
+(about 4 minutes on two shared cores). ``--big`` adds ~50k tets: at commit f14ddd6 its coupled
 step took ~21 s (floating), so use e.g. ``--sizes 50000 --steps 5 --warmup 3 --naive-steps 1``.
 """
 import argparse
@@ -57,6 +61,7 @@ BOX = 0.3                    # m, edge of the rigid cube
 YOUNG, POISSON, DENSITY = 1e6, 0.3, 1000.0
 DT = 1e-3
 FRAMES = ("floating", "corotated")
+SUPPORTS = ("ground", "anchored")   # slab lying on a ground plane, or its bottom face held
 CSV_PATH = Path("outputs/bench/fem_step.csv")
 
 
@@ -67,13 +72,17 @@ def slab_cells(target_tets):
     return min(range(2, 200), key=lambda k: abs(tets(k) - target_tets))
 
 
-def scene_text(cells, frame):
+def scene_text(cells, frame, support="ground"):
     # a hair above 1/k so the scene mesher's ceil(size / resolution) gives exactly k cells
     resolution = SLAB[0] / cells * (1 + 1e-6)
+    bottom = -SLAB[2] / 2
+    held = (f"""[[bodies.anchors]]
+box = [[-1.0, -1.0, {bottom - 1e-3}], [1.0, 1.0, {bottom + 1e-3}]]
+""" if support == "anchored" else "")
     return f"""
 [simulation]
 dt = {DT}
-[[planes]]
+{"[[planes]]" if support == "ground" else ""}
 [[bodies]]
 name = "slab"
 model = "fem"
@@ -84,7 +93,7 @@ poisson = {POISSON}
 density = {DENSITY}
 frame = "{frame}"
 damping = {{ mass = 1.0 }}
-[[bodies]]
+{held}[[bodies]]
 name = "box"
 shape = {{ type = "box", size = [{BOX}, {BOX}, {BOX}] }}
 position = [0.0, 0.0, {SLAB[2] + BOX / 2}]
@@ -133,8 +142,8 @@ def naive_step(points_rest, tets, x, v, gravity):
     return v_new[dofs].T
 
 
-def measure(cells, frame, steps, warmup):
-    scene = parse_scene(tomllib.loads(scene_text(cells, frame)), "fem_step", Path("."))
+def measure(cells, frame, support, steps, warmup):
+    scene = parse_scene(tomllib.loads(scene_text(cells, frame, support)), "fem_step", Path("."))
     model, state = build(scene)
     for _ in range(warmup):
         state = step(model, state)
@@ -164,50 +173,57 @@ def main():
     parser.add_argument("--steps", type=int, default=30, help="timed steps per configuration")
     parser.add_argument("--warmup", type=int, default=20, help="steps before timing (box settles)")
     parser.add_argument("--naive-steps", type=int, default=3, help="timed naive steps per size")
+    parser.add_argument("--supports", nargs="+", default=list(SUPPORTS), choices=SUPPORTS,
+                        help="how the slab is held up (default: both)")
     args = parser.parse_args()
     sizes = args.sizes + ([50000] if args.big and 50000 not in args.sizes else [])
 
     rows = []
     for target in sizes:
         cells = slab_cells(target)
-        naive = None
-        for frame in FRAMES:
-            model, state, r = measure(cells, frame, args.steps, args.warmup)
-            m = model.fem[0]
-            if naive is None:
-                s = state.fem[0]
-                naive, _ = median_ms(lambda: naive_step(m.rest_points, m.tets, s.x, s.v, model.gravity),
-                                     args.naive_steps)
-            row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, frame=frame, **r,
-                       naive_ms=naive)
-            row["step_over_floor"] = row["step_ms"] / row["floor_ms"]
-            row["elastic_over_floor"] = row["elastic_ms"] / row["floor_ms"]
-            row["naive_over_step"] = naive / row["step_ms"]
-            row["naive_over_elastic"] = naive / row["elastic_ms"]
-            rows.append(row)
-            print(f"  {row['tets']} tets {frame}: step {row['step_ms']:.1f} ms "
-                  f"(box z {row['box_z']:.4f} m, slab min z {row['slab_min_z']:.2e} m)", flush=True)
+        for support in args.supports:
+            for frame in FRAMES:
+                rows.append(measure_row(cells, frame, support, args))
+                print(f"  {rows[-1]['tets']} tets {support} {frame}: step {rows[-1]['step_ms']:.1f} ms "
+                      f"(box z {rows[-1]['box_z']:.4f} m, slab min z {rows[-1]['slab_min_z']:.2e} m)", flush=True)
+    report(rows, args)
 
-    header = (f"{'tets':>6} {'dofs':>6} {'frame':>9} {'step ms':>8} {'elastic ms':>10} {'floor ms':>8} "
+
+def measure_row(cells, frame, support, args):
+    model, state, r = measure(cells, frame, support, args.steps, args.warmup)
+    m = model.fem[0]
+    s = state.fem[0]
+    naive, _ = median_ms(lambda: naive_step(m.rest_points, m.tets, s.x, s.v, model.gravity), args.naive_steps)
+    row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, support=support, frame=frame,
+               **r, naive_ms=naive)
+    row["step_over_floor"] = row["step_ms"] / row["floor_ms"]
+    row["elastic_over_floor"] = row["elastic_ms"] / row["floor_ms"]
+    row["naive_over_step"] = naive / row["step_ms"]
+    row["naive_over_elastic"] = naive / row["elastic_ms"]
+    return row
+
+
+def report(rows, args):
+    header = (f"{'tets':>6} {'dofs':>6} {'support':>8} {'frame':>9} {'step ms':>8} {'elastic ms':>10} {'floor ms':>8} "
               f"{'naive ms':>9} {'step/floor':>10} {'elastic/floor':>13} {'naive/step':>10} "
               f"{'naive/elastic':>13}")
     print(f"\nmedians; coupled step over {args.steps} steps after {args.warmup} warm-up, floor over 20 "
           f"solves, naive over {args.naive_steps} steps; dt = {DT} s")
     print(header)
     for r in rows:
-        print(f"{r['tets']:>6} {r['dofs']:>6} {r['frame']:>9} {r['step_ms']:>8.2f} {r['elastic_ms']:>10.2f} "
+        print(f"{r['tets']:>6} {r['dofs']:>6} {r['support']:>8} {r['frame']:>9} {r['step_ms']:>8.2f} {r['elastic_ms']:>10.2f} "
               f"{r['floor_ms']:>8.2f} {r['naive_ms']:>9.1f} {r['step_over_floor']:>10.1f} "
               f"{r['elastic_over_floor']:>13.2f} {r['naive_over_step']:>10.1f} {r['naive_over_elastic']:>13.1f}")
 
     print("\ngoals")
     for r in rows:
         if r["frame"] == "floating":
-            print(f"  {r['tets']} tets floating within 2x of floor: coupled {r['step_over_floor']:.1f}x "
+            print(f"  {r['tets']} tets {r['support']} floating within 2x of floor: coupled {r['step_over_floor']:.1f}x "
                   f"({'met' if r['step_over_floor'] <= 2 else 'NOT met'}), elastic-only "
                   f"{r['elastic_over_floor']:.2f}x ({'met' if r['elastic_over_floor'] <= 2 else 'NOT met'})")
     for r in rows:
         if 5000 <= r["tets"] <= 20000:
-            print(f"  {r['tets']} tets {r['frame']} >= 20x faster than naive: coupled "
+            print(f"  {r['tets']} tets {r['support']} {r['frame']} >= 20x faster than naive: coupled "
                   f"{r['naive_over_step']:.1f}x ({'met' if r['naive_over_step'] >= 20 else 'NOT met'}), "
                   f"elastic-only {r['naive_over_elastic']:.1f}x "
                   f"({'met' if r['naive_over_elastic'] >= 20 else 'NOT met'})")

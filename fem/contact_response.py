@@ -17,6 +17,10 @@ from .dynamics import system_factorisation
 
 # memory the cached columns of one model may take (each touched node keeps 3 x 3n floats)
 MAX_CACHE_BYTES = 400e6
+# relative size below which a Delassus block between two nodes is left out (see sparse_rows): in a
+# soft or large body the response to an impulse decays fast with distance within one step, and
+# the solver's sweeps only visit the blocks kept
+DROP_TOL = 1e-7
 
 
 class _ColumnCache:
@@ -25,6 +29,7 @@ class _ColumnCache:
         self.columns = {}          # node -> (3n, 3) response to unit impulses at the node (body frame)
         self.last_nodes = None     # the last touched set and its body-frame block (resting contact
         self.last_block = None     # touches the same nodes step after step)
+        self.last_columns = None   # (3n, 3k) columns of the last set, when applying them is cheap
 
 
 def _cache(model, dt):
@@ -70,33 +75,61 @@ def contact_set(model, dt, nodes):
     return nodes
 
 
-def delassus_block(model, dt, nodes, R):
-    """World-frame blocks ``W`` (k, k, 3, 3): block [l, i] is the velocity of node l per unit
-    impulse on node i, for the k ``nodes``; ``R`` (3, 3) is the body's solve frame."""
+def delassus_block(model, dt, nodes):
+    """The Delassus matrix of the k ``nodes`` in the body's solve frame (world = R W R^T, R the
+    frame's rotation, e.g. the best-fit rotation of a floating body), block-sparse by rows
+    (:func:`sparse_rows`): block [l, i] is the velocity of node l per unit impulse on node i."""
     cache = _cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
     k = len(nodes)
     if cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes):
-        W_body = cache.last_block
-    else:
-        missing = [int(i) for i in nodes if int(i) not in cache.columns]
-        if missing:
-            per_node = 9 * model.node_count * 8
-            if (len(cache.columns) + len(missing)) * per_node > MAX_CACHE_BYTES:
-                cache.columns.clear()
-                missing = [int(i) for i in nodes]
-            cols = _solve_columns(model, dt, missing)
-            for j, node in enumerate(missing):
-                cache.columns[node] = cols[:, 3 * j:3 * j + 3]
-        rows = (3 * nodes[:, None] + np.arange(3)).ravel()
-        # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
-        W_body = np.stack([cache.columns[int(i)][rows] for i in nodes], axis=1)
-        W_body = np.ascontiguousarray(W_body.reshape(k, 3, k, 3).transpose(0, 2, 1, 3))
-        cache.last_nodes, cache.last_block = nodes.copy(), W_body
-    # A_world^-1 = R A_body^-1 R^T, node block by node block
-    if np.array_equal(R, np.eye(3)):
-        return W_body
-    # R B R^T for every 3x3 block B, as two large matrix products
-    WR = (W_body.reshape(-1, 3) @ R.T).reshape(k, k, 3, 3)                  # B R^T
-    return np.ascontiguousarray(                                             # R (B R^T)
-        (WR.transpose(0, 1, 3, 2).reshape(-1, 3) @ R.T).reshape(k, k, 3, 3).transpose(0, 1, 3, 2))
+        return cache.last_block
+    missing = [int(i) for i in nodes if int(i) not in cache.columns]
+    if missing:
+        per_node = 9 * model.node_count * 8
+        if (len(cache.columns) + len(missing)) * per_node > MAX_CACHE_BYTES:
+            cache.columns.clear()
+            missing = [int(i) for i in nodes]
+        cols = _solve_columns(model, dt, missing)
+        for j, node in enumerate(missing):
+            cache.columns[node] = cols[:, 3 * j:3 * j + 3]
+    rows = (3 * nodes[:, None] + np.arange(3)).ravel()
+    # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
+    W = np.stack([cache.columns[int(i)][rows] for i in nodes], axis=1)
+    W = sparse_rows(np.ascontiguousarray(W.reshape(k, 3, k, 3).transpose(0, 2, 1, 3)))
+    cache.last_nodes, cache.last_block, cache.last_columns = nodes.copy(), W, None
+    return W
+
+
+def sparse_rows(W, tol=None):
+    """Block rows of a symmetric (k, k, 3, 3) W without its negligible blocks:
+    ``(ptr (k + 1,), col (nnz,), blocks (nnz, 3, 3))``, row l holding blocks [l, col[p]] for p in
+    ptr[l]..ptr[l+1]-1, its diagonal block first. Block [l, i] is dropped when its norm is below
+    ``tol`` (default DROP_TOL) times the geometric mean of the diagonal blocks [l, l] and [i, i]
+    (Frobenius norms)."""
+    tol = DROP_TOL if tol is None else tol
+    k = len(W)
+    norm = np.sqrt(np.einsum("liab,liab->li", W, W))
+    d = np.sqrt(np.diagonal(norm))
+    keep = norm > tol * np.outer(d, d)
+    np.fill_diagonal(keep, True)
+    rows, cols = np.nonzero(keep)
+    order = np.lexsort((cols, cols != rows, rows))      # by row, the diagonal first
+    rows, cols = rows[order], cols[order]
+    return np.searchsorted(rows, np.arange(k + 1)), cols, W[rows, cols]
+
+
+def impulse_response(model, dt, nodes, impulse):
+    """Velocity change ``(n, 3)`` (body frame) for impulses ``(k, 3)`` N s (body frame) on the
+    ``nodes`` of the last :func:`delassus_block`, as one product with their cached columns; None
+    when that would read more numbers than one back-substitution (then solve instead). Exact for
+    the same system the blocks describe (floating and anchored bodies)."""
+    cache = _cache(model, dt)
+    nodes = np.asarray(nodes, dtype=np.int64)
+    if cache.last_nodes is None or not np.array_equal(cache.last_nodes, nodes):
+        return None
+    if cache.last_columns is None:
+        if 9 * model.node_count * len(nodes) > system_factorisation(model, dt).solve_cost:
+            return None
+        cache.last_columns = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)
+    return (cache.last_columns @ np.asarray(impulse, dtype=float).ravel()).reshape(-1, 3)

@@ -62,9 +62,12 @@ def _free_block(model, A):
 
 
 def system_matrix(model, dt, K=None):
-    """System matrix ``a_M M + a_K K`` ``(3n, 3n)`` (rest K unless a warped one is given)."""
+    """System matrix ``a_M M + a_K K`` ``(3n, 3n)`` (rest K, cached with the factorisation,
+    unless a warped one is given)."""
     a_M, a_K = system_coefficients(model, dt)
-    return (a_M * model.M + a_K * (model.K if K is None else K)).tocsr()
+    if K is None:
+        return model.factor_cache.system(dt, lambda h: (a_M * model.M + a_K * model.K).tocsr())
+    return (a_M * model.M + a_K * K).tocsr()
 
 
 def system_factorisation(model, dt):

@@ -15,6 +15,7 @@ class Factorisation:
     """LU factorisation of a sparse SPD matrix, reused for every solve until the matrix changes.
 
     matrix: the CSC matrix factorised ``(m, m)``. solve(rhs) accepts ``(m,)`` or ``(m, k)``.
+    solve_cost: entries of the factors one back-substitution reads (nnz of L and U).
     """
 
     def __init__(self, matrix):
@@ -22,6 +23,7 @@ class Factorisation:
         # symmetric positive definite: no pivoting needed, keep the fill-reducing ordering
         self._lu = spla.splu(self.matrix, permc_spec=PERMC_SPEC, diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
+        self.solve_cost = int(self._lu.L.nnz + self._lu.U.nnz)
 
     def solve(self, rhs):
         return self._lu.solve(np.asarray(rhs, dtype=float))
@@ -39,6 +41,8 @@ class FactorCache:
         self.dt = None
         self.factorisation = None
         self.factor_count = 0
+        self.matrix_dt = None
+        self.matrix = None       # the whole system matrix for matrix_dt (anchored bodies use it)
 
     def get(self, dt, build_matrix):
         """Factorisation for ``dt``; ``build_matrix(dt)`` returns the sparse matrix to factorise."""
@@ -48,9 +52,17 @@ class FactorCache:
             self.factor_count += 1
         return self.factorisation
 
+    def system(self, dt, build_matrix):
+        """The system matrix for ``dt`` (``build_matrix(dt)``), built once per ``dt``."""
+        if self.matrix is None or self.matrix_dt != dt:
+            self.matrix, self.matrix_dt = build_matrix(dt), dt
+        return self.matrix
+
     def invalidate(self):
         self.factorisation = None
         self.dt = None
+        self.matrix = None
+        self.matrix_dt = None
 
 
 def cg_solve(matrix, rhs, x0, preconditioner, rtol=1e-10, maxiter=500):

@@ -35,11 +35,14 @@ class HybridModel:
 
 @dataclass
 class HybridState:
-    """Everything that changes: rigid state, one FemState per deformable body, time (s), steps."""
+    """Everything that changes: rigid state, one FemState per deformable body, time (s), steps,
+    and the last step's node-contact impulses (hybrid.step.ContactMemory, a warm start; None
+    before the first step and after bodies change)."""
     rigid: object
     fem: list = field(default_factory=list)
     time: float = 0.0
     steps: int = 0
+    contact_memory: object = None
 
 
 def _shape_dict(shape):

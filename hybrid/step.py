@@ -6,12 +6,16 @@ FEM surface nodes in contact enter the contact solver as particles that answer i
 their body's exact implicit response (fem.contact_response), so rigid bodies, planes and
 deformable bodies exchange momentum through one impulse mechanism (rigid.step.resolve_contacts).
 The impulses a body's nodes receive are then fed through that body's own implicit system (one
-more back-substitution), which gives the velocities the solver expected.
+more back-substitution, or a product with the cached response columns when that is cheaper),
+which gives the velocities the solver expected. Node contacts keep their impulses from one step to
+the next (ContactMemory) to warm-start the solver: resting contact then converges in few sweeps.
 """
+from dataclasses import dataclass, replace
+
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.contact_response import contact_set, delassus_block
+from fem.contact_response import contact_set, delassus_block, impulse_response
 from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
@@ -87,12 +91,13 @@ def _coupled_step(model, state):
     bodies_touched = np.unique(group)
     group_id = -np.ones(len(model.fem), dtype=np.int64)
     group_id[bodies_touched] = np.arange(len(bodies_touched))
-    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]], state.fem[j].R)
-              for j in bodies_touched]
-    sizes = np.array([len(b) for b in blocks], dtype=np.int64)
+    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]]) for j in bodies_touched]
+    sizes = np.array([len(b[0]) - 1 for b in blocks], dtype=np.int64)
     p = len(touched)
+    first = nb + np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)   # each group's first particle
+    nnz = np.concatenate([[0], np.cumsum([len(b[1]) for b in blocks])]).astype(np.int64)
     # anchored nodes do not answer at all: static for the stacking order
-    held = (np.concatenate([np.einsum("iijj->i", b) for b in blocks]) == 0
+    held = (np.concatenate([np.einsum("iab,iab->i", b[2][b[0][:-1]], b[2][b[0][:-1]]) == 0 for b in blocks])
             if blocks else np.zeros(0, bool))
     bodies = rigid_step.SolverBodies(
         inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
@@ -104,17 +109,23 @@ def _coupled_step(model, state):
         accel=np.concatenate([rigid_bodies.accel, np.zeros((p, 3))]),
         static=np.concatenate([rigid_bodies.static, held]),
         group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[group]]),
-        group_start=np.concatenate([[nb], nb + np.cumsum(sizes)]).astype(np.int64),
-        W=np.concatenate([b.ravel() for b in blocks]) if blocks else np.zeros(1),
-        w_off=np.concatenate([[0], np.cumsum(sizes ** 2 * 9)[:-1]]).astype(np.int64) if blocks else np.zeros(1, np.int64))
+        group_R=np.array([state.fem[j].R for j in bodies_touched]) if blocks else np.eye(3)[None],
+        w_ptr=np.concatenate([np.zeros(nb, np.int64)] + [b[0][:-1] + o for b, o in zip(blocks, nnz)]
+                             + [nnz[-1:]]).astype(np.int64),
+        w_col=np.concatenate([b[1] + f for b, f in zip(blocks, first)]).astype(np.int64) if blocks else np.zeros(1, np.int64),
+        W=np.concatenate([b[2] for b in blocks]) if blocks else np.zeros((1, 3, 3)))
+    keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
+                           contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
+                           contact_keys(fa, fb, len(node_x), nb, True)])
     c_nodes.body_a = particle_of[c_nodes.body_a]
     c_pairs = Contacts(particle_of[fa], particle_of[fb], fp, fn, fg, fmu, fe)
     contacts = concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0)
 
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
-    #    its nodes through its own implicit system (one back-substitution). The blocks are exact for
+    #    its nodes through its own implicit system (_take_impulses). The blocks are exact for
     #    floating and anchored bodies; for corotated ones a second round corrects the difference.
     rounds = 2 if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
+    warm = state.contact_memory.recall(keys) if state.contact_memory is not None else None
     res, applied = None, np.zeros((contacts.count, 3))
     for _ in range(rounds):
         if res is not None:     # solve again from the velocities the bodies really took
@@ -122,7 +133,7 @@ def _coupled_step(model, state):
                 predicted[j].v[node_local[touched[group == j]]] for j in bodies_touched])
             bodies.velocity_at_t = bodies.velocity
             bodies.angular = res.angular
-        res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res)
+        res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res, warm=warm)
         total = res.collision_impulse + res.contact_impulse
         increment, applied = total - applied, total
         on_a, on_b = contacts.body_a >= nb, contacts.body_b >= nb
@@ -132,10 +143,8 @@ def _coupled_step(model, state):
         np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
         np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
         for j in bodies_touched:
-            sel = group == j
-            node_impulse = np.zeros((model.fem[j].node_count, 3))
-            node_impulse[node_local[touched[sel]]] = impulse[sel]
-            predicted[j] = fem_dyn.apply_impulse(model.fem[j], state.fem[j], predicted[j], node_impulse)
+            predicted[j] = _take_impulses(model.fem[j], state.fem[j], predicted[j], h,
+                                          node_local[touched[group == j]], impulse[group == j])
 
     # 6. rigid drift; deformable bodies finish their step; touched nodes take their share of
     #    penetration recovery (positions only)
@@ -153,7 +162,52 @@ def _coupled_step(model, state):
             R_fit, c_fit = fem_dyn.body_frame(m, x)
             s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
         new_fem.append(s_new)
-    return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1)
+    return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
+                       contact_memory=ContactMemory.of(keys, res.contact_impulse))
+
+
+def _take_impulses(m, s, predicted, h, nodes, impulse):
+    """A deformable body takes the contact impulses ``(k, 3)`` on its ``nodes``: through the cached
+    response columns when that is cheaper than a back-substitution, else by one solve."""
+    node_impulse = np.zeros((m.node_count, 3))
+    node_impulse[nodes] = impulse
+    dv = None if m.frame == "corotated" else impulse_response(m, h, nodes, impulse @ predicted.R)
+    if dv is None:
+        return fem_dyn.apply_impulse(m, s, predicted, node_impulse)
+    return replace(predicted, v=predicted.v + dv @ predicted.R.T, impulse=predicted.impulse + node_impulse)
+
+
+def contact_keys(a, b, node_count, rigid_count, node_pairs):
+    """Identity of node contacts across steps (int64): stacked surface node ``a`` against stacked
+    node ``b`` (``node_pairs``), or against rigid body ``b`` (-1: a plane). Ordered pairs of
+    distinct (a, b) give distinct keys."""
+    other = b if node_pairs else node_count + 1 + b
+    return (np.asarray(a, np.int64) * (node_count + rigid_count + 1) + other).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class ContactMemory:
+    """Last step's contact-pass impulses of node contacts (world, on side a, N s) by contact key:
+    resting contact persists, so they start the next contact pass close to its answer (warm
+    start); only a starting guess, the solver raises or lowers them as the new step needs."""
+    keys: np.ndarray
+    impulse: np.ndarray
+
+    @staticmethod
+    def of(keys, impulse):
+        keep = (keys >= 0) & np.isfinite(impulse).all(axis=1)
+        order = np.argsort(keys[keep], kind="stable")
+        return ContactMemory(keys[keep][order], impulse[keep][order])
+
+    def recall(self, keys):
+        """(c, 3) remembered impulses for ``keys`` (zero where a contact is new or not a node's)."""
+        out = np.zeros((len(keys), 3))
+        if len(self.keys) == 0:
+            return out
+        at = np.clip(np.searchsorted(self.keys, keys), 0, len(self.keys) - 1)
+        hit = (self.keys[at] == keys) & (keys >= 0)
+        out[hit] = self.impulse[at[hit]]
+        return out
 
 
 def _fem_bodies(model):

@@ -48,89 +48,11 @@ def normal_velocity(ia, ib, ra, rb, normal, v, w):
 
 
 @nb.njit(cache=True)
-def _side(i, r0, r1, r2, d0, d1, d2, inv_m, invI, scale):
-    """Inverse effective mass d . M^-1 (impulse d at arm r) of body i, and its angular response."""
-    if i < 0 or scale == 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    c0, c1, c2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0   # r x d
-    I = invI[i]
-    a0 = I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
-    a1 = I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
-    a2 = I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
-    k = inv_m[i] + (a1 * r2 - a2 * r1) * d0 + (a2 * r0 - a0 * r2) * d1 + (a0 * r1 - a1 * r0) * d2
-    return scale * k, scale * a0, scale * a1, scale * a2
-
-
-@nb.njit(cache=True)
-def _rel_velocity(a, b, ra, rb, v, w, k):
-    x = y = z = 0.0
-    if a >= 0:
-        x += v[a, 0] + w[a, 1] * ra[k, 2] - w[a, 2] * ra[k, 1]
-        y += v[a, 1] + w[a, 2] * ra[k, 0] - w[a, 0] * ra[k, 2]
-        z += v[a, 2] + w[a, 0] * ra[k, 1] - w[a, 1] * ra[k, 0]
-    if b >= 0:
-        x -= v[b, 0] + w[b, 1] * rb[k, 2] - w[b, 2] * rb[k, 1]
-        y -= v[b, 1] + w[b, 2] * rb[k, 0] - w[b, 0] * rb[k, 2]
-        z -= v[b, 2] + w[b, 0] * rb[k, 1] - w[b, 1] * rb[k, 0]
-    return x, y, z
-
-
-@nb.njit(cache=True)
-def _group_diag(i, d0, d1, d2, group_of, group_start, W, w_off):
-    """d . W_ii d for particle i: its inverse effective mass along d (Delassus diagonal)."""
-    g = group_of[i]
-    k = group_start[g + 1] - group_start[g]
-    li = i - group_start[g]
-    base = w_off[g] + (li * k + li) * 9
-    d = (d0, d1, d2)
-    out = 0.0
-    for a in range(3):
-        for b in range(3):
-            out += d[a] * W[base + 3 * a + b] * d[b]
-    return out
-
-
-@nb.njit(cache=True)
-def _push_group(i, imp0, imp1, imp2, v, group_of, group_start, W, w_off):
-    """Apply impulse (imp) to particle i: every particle l of its group moves by W[l, i] imp.
-
-    Blocks are stored (k, k, 3, 3) row-major; W is symmetric, so W[l, i] imp = W[i, l]^T imp is
-    read from block row i, contiguous in memory."""
-    g = group_of[i]
-    lo, hi = group_start[g], group_start[g + 1]
-    k = hi - lo
-    row = w_off[g] + (i - lo) * k * 9
-    for l in range(k):
-        b = row + 9 * l
-        v[lo + l, 0] += W[b] * imp0 + W[b + 3] * imp1 + W[b + 6] * imp2
-        v[lo + l, 1] += W[b + 1] * imp0 + W[b + 4] * imp1 + W[b + 7] * imp2
-        v[lo + l, 2] += W[b + 2] * imp0 + W[b + 5] * imp1 + W[b + 8] * imp2
-
-
-@nb.njit(cache=True)
-def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
-        iterations, group_of, group_start, W, w_off):
-    """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
-
-    lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
-    contact's tangent basis (warm start: the velocities already include what lam holds).
-    scale_a/scale_b (c,) multiply each side's response: 0 makes that side immovable for this call
-    (shock propagation). Only contacts with active[k] take part. Solver bodies with
-    group_of[i] >= 0 are particles (FEM surface nodes) whose group (one deformable body) answers an
-    impulse on any of them through its Delassus block: the particles of group g are the solver
-    bodies group_start[g]..group_start[g+1]-1 and their blocks W[w_off[g]:] are (k, k, 3, 3)
-    row-major (block [l, i]: velocity of particle l per unit impulse on particle i; symmetric).
-    Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
-    impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
-    """
-    idx = np.nonzero(active)[0]
-    m = len(idx)
-    # per active contact and direction (normal, t1, t2): direction, 1/k, angular responses
-    dirs = np.zeros((m, 3, 3))
-    invk = np.zeros((m, 3))
-    resp = np.zeros((m, 3, 2, 3))   # [contact, direction, side, xyz] = scale invI (r x d)
-    for j in range(m):
-        k = idx[j]
+def contact_basis(normal):
+    """(c, 3, 3) orthonormal contact bases: rows are the normal and two tangents (right-handed)."""
+    c = len(normal)
+    out = np.empty((c, 3, 3))
+    for k in range(c):
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
         if abs(n0) > 0.57735:
             t0, t1, t2 = n1, -n0, 0.0
@@ -138,109 +60,243 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
             t0, t1, t2 = 0.0, n2, -n1
         tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
         t0, t1, t2 = t0 / tl, t1 / tl, t2 / tl
-        s0, s1, s2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
-        dirs[j, 0, 0], dirs[j, 0, 1], dirs[j, 0, 2] = n0, n1, n2
-        dirs[j, 1, 0], dirs[j, 1, 1], dirs[j, 1, 2] = t0, t1, t2
-        dirs[j, 2, 0], dirs[j, 2, 1], dirs[j, 2, 2] = s0, s1, s2
-        a, b = ia[k], ib[k]
-        for d in range(3):
-            e0, e1, e2 = dirs[j, d, 0], dirs[j, d, 1], dirs[j, d, 2]
-            if a >= 0 and group_of[a] >= 0:
-                ka = scale_a[k] * _group_diag(a, e0, e1, e2, group_of, group_start, W, w_off)
-            else:
-                ka, x0, x1, x2 = _side(a, ra[k, 0], ra[k, 1], ra[k, 2], e0, e1, e2, inv_m, invI, scale_a[k])
-                resp[j, d, 0, 0], resp[j, d, 0, 1], resp[j, d, 0, 2] = x0, x1, x2
-            if b >= 0 and group_of[b] >= 0:
-                kb = scale_b[k] * _group_diag(b, e0, e1, e2, group_of, group_start, W, w_off)
-            else:
-                kb, y0, y1, y2 = _side(b, rb[k, 0], rb[k, 1], rb[k, 2], e0, e1, e2, inv_m, invI, scale_b[k])
-                resp[j, d, 1, 0], resp[j, d, 1, 1], resp[j, d, 1, 2] = y0, y1, y2
-            invk[j, d] = 1.0 / (ka + kb) if ka + kb > 0.0 else 0.0
-    for sweep in range(iterations):
-        largest_change = 0.0
-        largest = 0.0
-        for j in range(m):
-            if invk[j, 0] == 0.0:
-                continue
-            k = idx[j]
-            a, b = ia[k], ib[k]
-            for d in range(3):
-                x, y, z = _rel_velocity(a, b, ra, rb, v, w, k)
-                vd = x * dirs[j, d, 0] + y * dirs[j, d, 1] + z * dirs[j, d, 2]
-                if d == 0:
-                    # normal: reach the target normal velocity, accumulated impulse >= 0
-                    new = max(lam[k, 0] + (target[k] - vd) * invk[j, 0], 0.0)
-                    delta = new - lam[k, 0]
-                    lam[k, 0] = new
-                else:
-                    # friction: stop sliding, inside the Coulomb disk mu * lambda_n
-                    if mu[k] <= 0.0 or invk[j, d] == 0.0:
-                        break
-                    f = lam[k, d] - vd * invk[j, d]
-                    other = lam[k, 3 - d]
-                    limit = mu[k] * lam[k, 0]
-                    norm = math.sqrt(f * f + other * other)
-                    if norm > limit:
-                        f = f * limit / norm if norm > 0 else 0.0
-                    delta = f - lam[k, d]
-                    lam[k, d] = f
-                if delta == 0.0:
-                    continue
-                largest_change = max(largest_change, abs(delta))
-                _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
-                            group_of, group_start, W, w_off)
-            largest = max(largest, lam[k, 0])
-            if mu[k] > 0.0:
-                # the disk clamp may have left the first tangent outside after the second moved
-                l1, l2 = lam[k, 1], lam[k, 2]
-                limit = mu[k] * lam[k, 0]
-                norm = math.sqrt(l1 * l1 + l2 * l2)
-                if norm > limit * (1 + 1e-12) and norm > 0:
-                    s = limit / norm
-                    for d in (1, 2):
-                        delta = lam[k, d] * s - lam[k, d]
-                        lam[k, d] += delta
-                        _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b,
-                                    inv_m, v, w, group_of, group_start, W, w_off)
-        if sweep > 0 and largest_change <= 1e-7 * largest:
-            break
-    out = np.full((len(ia), 3), np.nan)
-    for j in range(m):
-        k = idx[j]
-        for c in range(3):
-            out[k, c] = lam[k, 0] * dirs[j, 0, c] + lam[k, 1] * dirs[j, 1, c] + lam[k, 2] * dirs[j, 2, c]
+        out[k, 0, 0], out[k, 0, 1], out[k, 0, 2] = n0, n1, n2
+        out[k, 1, 0], out[k, 1, 1], out[k, 1, 2] = t0, t1, t2
+        out[k, 2, 0], out[k, 2, 1], out[k, 2, 2] = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
     return out
 
 
 @nb.njit(cache=True)
-def _apply_both(j, k, d, delta, a, b, ra, rb, dirs, resp, scale_a, scale_b, inv_m, v, w,
-                group_of, group_start, W, w_off):
-    """Apply +delta along contact direction d to side a and -delta to side b."""
-    d0, d1, d2 = dirs[j, d, 0], dirs[j, d, 1], dirs[j, d, 2]
-    if a >= 0 and scale_a[k] != 0.0:
-        sa = scale_a[k] * delta
-        if group_of[a] >= 0:
-            _push_group(a, sa * d0, sa * d1, sa * d2, v, group_of, group_start, W, w_off)
-        else:
-            m = inv_m[a] * sa
-            v[a, 0] += m * d0
-            v[a, 1] += m * d1
-            v[a, 2] += m * d2
-            w[a, 0] += delta * resp[j, d, 0, 0]
-            w[a, 1] += delta * resp[j, d, 0, 1]
-            w[a, 2] += delta * resp[j, d, 0, 2]
-    if b >= 0 and scale_b[k] != 0.0:
-        sb = scale_b[k] * delta
-        if group_of[b] >= 0:
-            _push_group(b, -sb * d0, -sb * d1, -sb * d2, v, group_of, group_start, W, w_off)
-        else:
-            m = inv_m[b] * sb
-            v[b, 0] -= m * d0
-            v[b, 1] -= m * d1
-            v[b, 2] -= m * d2
-            w[b, 0] -= delta * resp[j, d, 1, 0]
-            w[b, 1] -= delta * resp[j, d, 1, 1]
-            w[b, 2] -= delta * resp[j, d, 1, 2]
+def _block(i, l, W, w_ptr, w_col):
+    """W[i, l] (3, 3), group frame: velocity of particle i per unit impulse on particle l (zero
+    when the block was dropped as negligible)."""
+    for p in range(w_ptr[i], w_ptr[i + 1]):
+        if w_col[p] == l:
+            return W[p]
+    return np.zeros((3, 3))
+
+
+@nb.njit(cache=True)
+def _push_group(i, J0, J1, J2, v, group_of, group_R, w_ptr, w_col, W):
+    """Impulse J (world) on particle i: every particle l of its group moves by W[l, i] R^T J
+    (group-frame velocities, see pgs). W is symmetric, so W[l, i] = W[i, l]^T is read from row i."""
+    R = group_R[group_of[i]]
+    j0 = R[0, 0] * J0 + R[1, 0] * J1 + R[2, 0] * J2
+    j1 = R[0, 1] * J0 + R[1, 1] * J1 + R[2, 1] * J2
+    j2 = R[0, 2] * J0 + R[1, 2] * J1 + R[2, 2] * J2
+    for p in range(w_ptr[i], w_ptr[i + 1]):
+        l = w_col[p]
+        B = W[p]
+        v[l, 0] += B[0, 0] * j0 + B[1, 0] * j1 + B[2, 0] * j2
+        v[l, 1] += B[0, 1] * j0 + B[1, 1] * j1 + B[2, 1] * j2
+        v[l, 2] += B[0, 2] * j0 + B[1, 2] * j1 + B[2, 2] * j2
+
+
+@nb.njit(cache=True)
+def _point_velocity(i, r, v, w, group_of, group_R):
+    """World velocity (x, y, z) of body i at arm r (particles: their group-frame velocity rotated
+    out)."""
+    if i < 0:
+        return 0.0, 0.0, 0.0
+    if group_of[i] >= 0:
+        R = group_R[group_of[i]]
+        return (R[0, 0] * v[i, 0] + R[0, 1] * v[i, 1] + R[0, 2] * v[i, 2],
+                R[1, 0] * v[i, 0] + R[1, 1] * v[i, 1] + R[1, 2] * v[i, 2],
+                R[2, 0] * v[i, 0] + R[2, 1] * v[i, 1] + R[2, 2] * v[i, 2])
+    return (v[i, 0] + w[i, 1] * r[2] - w[i, 2] * r[1],
+            v[i, 1] + w[i, 2] * r[0] - w[i, 0] * r[2],
+            v[i, 2] + w[i, 0] * r[1] - w[i, 1] * r[0])
+
+
+@nb.njit(cache=True)
+def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W):
+    """Impulse scale * (j0, j1, j2) (world) on body i at arm r."""
+    if i < 0 or scale == 0.0:
+        return
+    j0, j1, j2 = scale * j0, scale * j1, scale * j2
+    if group_of[i] >= 0:
+        _push_group(i, j0, j1, j2, v, group_of, group_R, w_ptr, w_col, W)
+        return
+    m = inv_m[i]
+    v[i, 0] += m * j0
+    v[i, 1] += m * j1
+    v[i, 2] += m * j2
+    c0, c1, c2 = r[1] * j2 - r[2] * j1, r[2] * j0 - r[0] * j2, r[0] * j1 - r[1] * j0   # r x J
+    I = invI[i]
+    w[i, 0] += I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
+    w[i, 1] += I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
+    w[i, 2] += I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
+
+
+@nb.njit(cache=True)
+def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w,
+                group_of, group_R, w_ptr, w_col, W):
+    """Impulse l0 n + l1 t1 + l2 t2 (contact j's basis) on side a of contact k, its opposite on b."""
+    J0 = l0 * basis[j, 0, 0] + l1 * basis[j, 1, 0] + l2 * basis[j, 2, 0]
+    J1 = l0 * basis[j, 0, 1] + l1 * basis[j, 1, 1] + l2 * basis[j, 2, 1]
+    J2 = l0 * basis[j, 0, 2] + l1 * basis[j, 1, 2] + l2 * basis[j, 2, 2]
+    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+    _apply(ib[k], rb[k], -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col,
+           W)
+
+
+@nb.njit(cache=True)
+def _add_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, out):
+    """Add scale * D R W[i, l] R^T D^T to out (3, 3): block W[i, l] (group frame) seen along the
+    rows of D (world directions)."""
+    R = group_R[group_of[i]]
+    Wb = _block(i, l, W, w_ptr, w_col)
+    Db = np.zeros((3, 3))                               # directions in the group frame
+    for e in range(3):
+        for a in range(3):
+            Db[e, a] = D[e, 0] * R[0, a] + D[e, 1] * R[1, a] + D[e, 2] * R[2, a]
+    for e in range(3):
+        for f in range(3):
+            acc = 0.0
+            for a in range(3):
+                for b in range(3):
+                    acc += Db[f, a] * Wb[a, b] * Db[e, b]
+            out[f, e] += scale * acc
+
+
+@nb.njit(cache=True)
+def _response(i, r, D, scale, inv_m, invI, group_of, group_R, w_ptr, w_col, W, out):
+    """Add to out (3, 3) the velocity of body i at arm r along the rows of D per unit impulse along
+    them, times scale."""
+    if i < 0 or scale == 0.0:
+        return
+    if group_of[i] >= 0:
+        _add_block(i, i, D, scale, group_of, group_R, w_ptr, w_col, W, out)
+        return
+    I = invI[i]
+    for e in range(3):
+        d0, d1, d2 = D[e, 0], D[e, 1], D[e, 2]
+        c0, c1, c2 = r[1] * d2 - r[2] * d1, r[2] * d0 - r[0] * d2, r[0] * d1 - r[1] * d0   # r x d
+        a0 = I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
+        a1 = I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
+        a2 = I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
+        m = inv_m[i]
+        dv0, dv1, dv2 = m * d0 + a1 * r[2] - a2 * r[1], m * d1 + a2 * r[0] - a0 * r[2], m * d2 + a0 * r[1] - a1 * r[0]
+        for f in range(3):
+            out[f, e] += scale * (D[f, 0] * dv0 + D[f, 1] * dv1 + D[f, 2] * dv2)
+
+
+@nb.njit(cache=True)
+def _rotate_particles(v, group_of, group_R, to_group):
+    """Particle velocities from world to their group frame (to_group) or back, in place."""
+    for i in range(len(group_of)):
+        g = group_of[i]
+        if g >= 0:
+            R = group_R[g]
+            x0, x1, x2 = v[i, 0], v[i, 1], v[i, 2]
+            for a in range(3):
+                v[i, a] = (R[0, a] * x0 + R[1, a] * x1 + R[2, a] * x2 if to_group
+                           else R[a, 0] * x0 + R[a, 1] * x1 + R[a, 2] * x2)
+
+
+@nb.njit(cache=True)
+def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
+        iterations, group_of, group_R, w_ptr, w_col, W, apply_lam):
+    """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
+
+    lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
+    contact's tangent basis (:func:`contact_basis`). Warm start: with ``apply_lam`` the impulses lam
+    holds are applied to the bodies first; without it the velocities already include them.
+    scale_a/scale_b (c,) multiply each side's response: 0 makes that side immovable for this call
+    (shock propagation). Only contacts with active[k] take part. Solver bodies with
+    group_of[i] >= 0 are particles (FEM surface nodes) of group group_of[i] (one deformable body),
+    which answer impulses through the group's Delassus matrix, block-sparse by rows: for particle
+    i, W[p] (3, 3) for p in w_ptr[i]..w_ptr[i+1]-1 is block [i, w_col[p]], the velocity of
+    particle i per unit impulse on particle w_col[p] (symmetric; the diagonal block comes first;
+    w_ptr has n + 1 entries, empty rows for rigid bodies). Blocks are in the group's frame, whose
+    rotation to world is group_R[g] (world blocks are R W R^T; during the sweeps particle velocities
+    are kept in their group frame, which spares rotating W).
+    Each contact is solved as a block: normal, then the two tangents, each with the exact 3x3
+    response of the contact, and the sum is applied to the bodies once.
+    Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
+    impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
+    """
+    idx = np.nonzero(active)[0]
+    m = len(idx)
+    basis = contact_basis(normal[idx])
+    K = np.zeros((m, 3, 3))        # contact-basis response of the relative velocity per impulse
+    for j in range(m):
+        k = idx[j]
+        a, b = ia[k], ib[k]
+        D = basis[j]
+        _response(a, ra[k], D, scale_a[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, K[j])
+        _response(b, rb[k], D, scale_b[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, K[j])
+        if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
+            # both sides in one deformable body: an impulse on one side moves the other too
+            _add_block(a, b, D, -scale_b[k], group_of, group_R, w_ptr, w_col, W, K[j])
+            _add_block(b, a, D, -scale_a[k], group_of, group_R, w_ptr, w_col, W, K[j])
+    _rotate_particles(v, group_of, group_R, True)
+    if apply_lam:
+        for j in range(m):
+            k = idx[j]
+            if K[j, 0, 0] > 0.0:
+                _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
+                            scale_b, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+    u = np.zeros(3)
+    delta = np.zeros(3)
+    for sweep in range(iterations):
+        largest_change = 0.0
+        largest = 0.0
+        for j in range(m):
+            if K[j, 0, 0] <= 0.0:
+                continue
+            k = idx[j]
+            a, b = ia[k], ib[k]
+            x0, x1, x2 = _point_velocity(a, ra[k], v, w, group_of, group_R)
+            y0, y1, y2 = _point_velocity(b, rb[k], v, w, group_of, group_R)
+            x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
+            for d in range(3):
+                u[d] = basis[j, d, 0] * x0 + basis[j, d, 1] * x1 + basis[j, d, 2] * x2
+            delta[:] = 0.0
+            # normal: reach the target normal velocity, accumulated impulse >= 0
+            new = max(lam[k, 0] + (target[k] - u[0]) / K[j, 0, 0], 0.0)
+            delta[0] = new - lam[k, 0]
+            lam[k, 0] = new
+            for e in range(3):
+                u[e] += K[j, e, 0] * delta[0]
+            if mu[k] > 0.0:
+                # friction: stop sliding, inside the Coulomb disk mu * lambda_n
+                limit = mu[k] * lam[k, 0]
+                for d in (1, 2):
+                    if K[j, d, d] <= 0.0:
+                        continue
+                    f = lam[k, d] - u[d] / K[j, d, d]
+                    other = lam[k, 3 - d]
+                    norm = math.sqrt(f * f + other * other)
+                    if norm > limit:
+                        f = f * limit / norm if norm > 0 else 0.0
+                    step = f - lam[k, d]
+                    lam[k, d] = f
+                    delta[d] += step
+                    for e in range(3):
+                        u[e] += K[j, e, d] * step
+                # the clamp may have left the first tangent outside after the second moved
+                norm = math.sqrt(lam[k, 1] ** 2 + lam[k, 2] ** 2)
+                if norm > limit * (1 + 1e-12) and norm > 0:
+                    s = limit / norm
+                    for d in (1, 2):
+                        delta[d] += lam[k, d] * s - lam[k, d]
+                        lam[k, d] *= s
+            largest = max(largest, lam[k, 0])
+            change = max(abs(delta[0]), abs(delta[1]), abs(delta[2]))
+            if change == 0.0:
+                continue
+            largest_change = max(largest_change, change)
+            _apply_pair(j, k, delta[0], delta[1], delta[2], basis, ia, ib, ra, rb, scale_a, scale_b,
+                        inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+        if sweep > 0 and largest_change <= 1e-7 * largest:
+            break
+    _rotate_particles(v, group_of, group_R, False)
+    out = np.full((len(ia), 3), np.nan)
+    for j in range(m):
+        k = idx[j]
+        out[k] = lam[k, 0] * basis[j, 0] + lam[k, 1] * basis[j, 1] + lam[k, 2] * basis[j, 2]
+    return out
 
 
 @nb.njit(cache=True)

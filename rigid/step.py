@@ -16,7 +16,7 @@ from . import quaternion as quat
 from .contacts import detect
 from .integrate import rotate_by, rotate_free
 from .model import world_inverse_inertia
-from .solver import arms, normal_velocity, pgs, shock_scales, stack_levels
+from .solver import arms, contact_basis, normal_velocity, pgs, shock_scales, stack_levels
 
 
 @dataclass
@@ -49,8 +49,9 @@ class SolverBodies:
     (n, 3) m/s, the velocity at the start of the step (for times of impact); angular (n, 3) rad/s;
     accel (n, 3) m/s^2, free acceleration during the step (gravity); static (n,) bool.
     Particles (FEM surface nodes in contact) have group_of >= 0: the particles of group g (one
-    deformable body) are bodies group_start[g]..group_start[g+1]-1 and answer impulses through the
-    group's Delassus block W[w_off[g]:] (see rigid.solver.pgs). No particles: group_of all -1.
+    deformable body) answer impulses through the group's Delassus matrix, block-sparse by rows
+    (w_ptr (n + 1,), w_col, W (nnz, 3, 3)), in the group's frame, whose rotation to world is
+    group_R[g] (see rigid.solver.pgs). No particles: group_of all -1.
     """
     inv_mass: np.ndarray
     inv_inertia: np.ndarray
@@ -61,16 +62,18 @@ class SolverBodies:
     accel: np.ndarray
     static: np.ndarray
     group_of: np.ndarray = None
-    group_start: np.ndarray = None
+    group_R: np.ndarray = None
+    w_ptr: np.ndarray = None
+    w_col: np.ndarray = None
     W: np.ndarray = None
-    w_off: np.ndarray = None
 
     def groups(self):
-        """(group_of, group_start, W, w_off) for the solver kernel (empty when no particles)."""
+        """(group_of, group_R, w_ptr, w_col, W) for the solver kernel (empty when no particles)."""
         if self.group_of is None:
             n = len(self.inv_mass)
-            return (np.full(n, -1, np.int64), np.zeros(1, np.int64), np.zeros(1), np.zeros(1, np.int64))
-        return self.group_of, self.group_start, self.W, self.w_off
+            return (np.full(n, -1, np.int64), np.eye(3)[None], np.zeros(n + 1, np.int64),
+                    np.zeros(1, np.int64), np.zeros((1, 3, 3)))
+        return self.group_of, self.group_R, self.w_ptr, self.w_col, self.W
 
 
 @dataclass
@@ -112,12 +115,15 @@ def _scatter(target, index, values):
     np.add.at(target, index[keep], values[keep])
 
 
-def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
+def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm=None):
     """Collisions, resting contact, shock propagation and penetration recovery for one step.
 
     ``previous``: the Resolution of an earlier solve of the same step; this one starts from its
     accumulated contact impulses (which it may lower as well as raise) and its position shifts,
     and does no new collisions or penetration recovery (coupling rounds).
+    ``warm``: (c, 3) world impulses on side a to start the contact pass from (a guess, e.g. last
+    step's impulses of persisting contacts; the sweeps lower or raise them as needed). Ignored
+    with ``previous``.
     """
     n = len(bodies.inv_mass)
     v, w = bodies.velocity.copy(), bodies.angular.copy()
@@ -151,7 +157,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
     elif impact.any():
         target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + contacts.restitution) * approach
         imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact,
-                  c3(), inv_m, invI, v, w, settings.iterations, *groups)
+                  c3(), inv_m, invI, v, w, settings.iterations, *groups, False)
         imp = np.nan_to_num(imp)
         out.collision_impulse = imp
         t_imp = np.where(impact, tau, 0.0)[:, None]
@@ -170,10 +176,15 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
     moved_b = np.where(has_b, out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
     shift_n = np.einsum("ck,ck->c", moved - moved_b, nrm)
     target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
-    lam = c3() if previous is None else previous.contact_lambda.copy()
     every = np.ones(contacts.count, dtype=bool)
+    if previous is not None:
+        lam, apply_lam = previous.contact_lambda.copy(), False
+    elif warm is not None:
+        lam, apply_lam = warm_lambda(nrm, contacts.friction, warm), True
+    else:
+        lam, apply_lam = c3(), False
     contact_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m,
-                      invI, v, w, settings.iterations, *groups)
+                      invI, v, w, settings.iterations, *groups, apply_lam)
 
     # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
     sa = sb = ones
@@ -186,7 +197,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
         for lv in np.unique(c_level[rigid_side]):
             at_level = (c_level == lv) & rigid_side
             level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
-                            inv_m, invI, v, w, settings.shock_iterations, *groups)
+                            inv_m, invI, v, w, settings.shock_iterations, *groups, False)
             contact_imp[at_level] = level_imp[at_level]
     out.contact_impulse = np.nan_to_num(contact_imp)
     out.contact_lambda = lam
@@ -197,8 +208,20 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None):
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
         pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
             np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
-            settings.iterations, *groups)
+            settings.iterations, *groups, False)
     return out
+
+
+def warm_lambda(normal, friction, impulse):
+    """World impulses (c, 3) as accumulated impulses in each contact's basis (normal, t1, t2), made
+    admissible: normal part >= 0, friction inside the Coulomb disk."""
+    lam = np.einsum("cdk,ck->cd", contact_basis(normal), impulse)
+    lam[:, 0] = np.maximum(lam[:, 0], 0.0)
+    tangential = np.linalg.norm(lam[:, 1:], axis=1)
+    limit = friction * lam[:, 0]
+    over = tangential > limit
+    lam[over, 1:] *= (limit[over] / tangential[over])[:, None]
+    return lam
 
 
 # ----------------------------------------------------------------------------- rigid-only step
