@@ -4,7 +4,9 @@ Prints a table and writes outputs/bench_plastic_step.csv. Run:
     OPENBLAS_NUM_THREADS=1 python benchmarks/plastic_step.py
 1. The same floating (and corotated) body stepped elastically and with a yield stress under a
    ramped end torque, so that a growing part of it is yielding during the timed steps (the return
-   map, the force update and the plastic RHS all run); medians of interleaved repeats.
+   map, the force update and the plastic RHS all run). The two bodies are stepped in lockstep (one
+   step of each in turn, alternating which goes first), so that the shared machine's changing load
+   hits both alike; medians over the timed steps of a few repeats.
 2. The dent scene of tests/test_plasticity_structures.py: reference updates (each one
    refactorisation of the plate only) for several ``plastic_update_strain``.
 """
@@ -33,20 +35,24 @@ def end_torsion(model, torque):
     return tangential * torque / np.cross(x, tangential)[x[:, 0] > 0, 0].sum()
 
 
-def step_time(model, dt, steps, torque):
-    """Median wall time (s) of one step over ``steps`` timed steps and the mean fraction of yielded
-    tets over them. The end torque ramps from 0 to ``torque`` over the untimed first ``steps``
-    steps and on to 2 ``torque`` over the timed ones, so the plastic zone keeps spreading."""
-    pattern = end_torsion(model, 1.0)
-    state, times, yielded = rest_state(model), [], []
+def step_times(models, dt, steps, torque):
+    """Wall times (s) of the ``steps`` timed steps of each model, ``(len(models), steps)``, and the
+    fraction of yielded tets after each, same shape. The models (same mesh) are stepped in lockstep,
+    the first to go alternating. The end torque ramps from 0 to ``torque`` over the untimed first
+    ``steps`` steps and on to 2 ``torque`` over the timed ones, so the plastic zone keeps
+    spreading."""
+    pattern = end_torsion(models[0], 1.0)
+    states = [rest_state(model) for model in models]
+    times, yielded = np.zeros((len(models), steps)), np.zeros((len(models), steps))
     for k in range(2 * steps):
-        loaded = replace(model, node_load=pattern * torque * (k + 1) / steps)
-        t0 = time.perf_counter()
-        state = dynamics.step(loaded, state, dt)
-        if k >= steps:
-            times.append(time.perf_counter() - t0)
-            yielded.append(0.0 if state.tet_yielded is None else state.tet_yielded.mean())
-    return float(np.median(times)), float(np.mean(yielded))
+        for i in (range(len(models)) if k % 2 else reversed(range(len(models)))):
+            loaded = replace(models[i], node_load=pattern * torque * (k + 1) / steps)
+            t0 = time.perf_counter()
+            states[i] = dynamics.step(loaded, states[i], dt)
+            if k >= steps:
+                times[i, k - steps] = time.perf_counter() - t0
+                yielded[i, k - steps] = 0.0 if states[i].tet_yielded is None else states[i].tet_yielded.mean()
+    return times, yielded
 
 
 def step_cost(rows, frame, steps):
@@ -57,13 +63,10 @@ def step_cost(rows, frame, steps):
     # the ramp to 30 kN m yields a growing fraction (about 0 to 80 %) of the tets
     elastic = build_fem_model(points, tets, **kw)
     plastic = build_fem_model(points, tets, yield_stress=1e6, **kw)
-    t_el, t_pl, yielded = [], [], []
-    for _ in range(3):   # interleaved repeats, medians: the machine is shared
-        t_el.append(step_time(elastic, dt, steps, 15e3)[0])
-        t, y = step_time(plastic, dt, steps, 15e3)
-        t_pl.append(t)
-        yielded.append(y)
-    t_el, t_pl = np.median(t_el), np.median(t_pl)
+    # repeats in lockstep, medians: the machine is shared
+    runs = [step_times([elastic, plastic], dt, steps, 15e3) for _ in range(3)]
+    t_el, t_pl = np.median(np.concatenate([times for times, _ in runs], axis=1), axis=1)
+    yielded = [fraction[1].mean() for _, fraction in runs]
     rows.append((f"{frame} step", f"{len(tets)} tets", f"{t_el * 1e3:.2f}", f"{t_pl * 1e3:.2f}",
                  f"{100 * (t_pl / t_el - 1):.1f}%", f"yielded {100 * np.mean(yielded):.0f}% of tets"))
 

@@ -135,6 +135,12 @@ def _plastic_force(model, state, tet_R=None):
     return plastic_force(model, state, tet_R)
 
 
+def _plastic_rotations(model, x):
+    """``tet_rotations`` of a plastic body: its last ``plastic_update`` found them for the same x."""
+    from fem.plastic_flow import element_rotations   # fem.plastic_flow imports this module
+    return element_rotations(model, x)
+
+
 def gravity_force(model, gravity):
     """Node weights ``(n, 3)`` (N) for gravity ``(3,)`` m/s^2 (M applied to a uniform field)."""
     g = np.broadcast_to(np.asarray(gravity, dtype=float), (model.node_count, 3))
@@ -162,7 +168,7 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     force = gravity_force(model, gravity) + model.node_load
     iterations = [0]
     if model.frame == "corotated":
-        tet_R = tet_rotations(model, state.x)
+        tet_R = _plastic_rotations(model, state.x) if model.plastic else tet_rotations(model, state.x)
         force += elastic_force(model, state, tet_R)
         if model.plastic:
             force += _plastic_force(model, state, tet_R)

@@ -13,19 +13,27 @@ Only bodies with a yield stress (``model.plastic``) ever reach this module:
 The plastic strain is therefore explicit by one step (a staggered scheme): the force of the strain
 found at the end of step n acts during step n + 1. The return map itself is exact, so the stress
 never leaves the yield surface by more than one step's elastic increment.
+
+Both passes are whole-array operations over the quadrature points (point ``k = q e + p`` is
+quadrature point p of element e) with the point index last, ``(3, 3, t q)`` ("component-major"):
+each tensor component is one contiguous row, so the displacement gradient of every point
+(:func:`node_field_gradient`, one gather and one einsum), the yield test and the plastic force
+(:func:`nodal_force`, one einsum and one ``bincount``) need no loop and no per-element 3 x 3
+products. The shape-function data in that layout (:class:`PointGradients`) is built once per
+``ElementData`` and kept in its ``cache``; corotated bodies also keep there the element rotations
+of the end-of-step positions (:func:`element_rotations`), which the next ``predict`` reuses.
 """
-import weakref
+from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
-from fem.dynamics import _scatter
-from fem.plasticity import (elastic_stress, equivalent_plastic_strain,
-                            plastic_dissipation_increment, quadrature_plastic_forces, return_map)
+from fem.dynamics import tet_rotations
+from fem.plasticity import (elastic_stress, equivalent_plastic_strain, isotropic_stress,
+                            plastic_dissipation_increment, return_map)
 from fem.stress import quadrature_strain
 
-# strain operators by id(ElementData); each entry is dropped when its ElementData is collected
-_STRAIN_OPERATORS = {}
+# pairs (ij, ji) of off-diagonal components in a flattened 3 x 3 tensor
+_OFF_DIAGONAL = ((1, 3), (2, 6), (5, 7))
 
 
 def initial_plastic_fields(model):
@@ -46,78 +54,148 @@ def _plastic_fields(model, state):
                 plastic_dissipation=state.plastic_dissipation)
 
 
-def element_plastic_forces(model, eps_p):
-    """Plastic force of each element ``(t, b, 3)`` (N) in its rest frame, eps_p ``(t, q, 3, 3)``."""
+# ---------------------------------------------------------------------------------------------
+# Shape-function data (built once per element data), gradients, forces and element rotations
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PointGradients:
+    """Shape-function data of every quadrature point of a body, point index last (rest frame).
+
+    Point ``k = q e + p`` is quadrature point p of element e; with the point index last, each
+    component is one contiguous ``(t q,)`` row, so gradients and forces of all points are a few
+    whole-array operations (:func:`node_field_gradient`, :func:`nodal_force`).
+
+    gradient: ``(3, b, t q)`` (1/m): ``dN_a/dX_j`` at ``[j, a, k]`` for element node ``a``.
+    nodes: ``(b, t q)`` int: the node of element node ``a`` of point ``k``.
+    weight: ``(t q,)`` (m^3): quadrature weight times |J| of point ``k``.
+    """
+    gradient: np.ndarray
+    nodes: np.ndarray
+    weight: np.ndarray
+
+
+def point_gradients(model):
+    """The model's :class:`PointGradients`, built on first use and kept in ``model.elements.cache``
+    (so every model sharing the element data shares them; a rebuilt model builds its own)."""
     e = model.elements
-    return quadrature_plastic_forces(e.tet_gradients, e.tet_weights, eps_p, model.mu, model.lam)
+    if "point_gradients" not in e.cache:
+        t, q, b, _ = e.tet_gradients.shape
+        e.cache["point_gradients"] = PointGradients(
+            gradient=np.ascontiguousarray(e.tet_gradients.reshape(t * q, b, 3).transpose(2, 1, 0)),
+            nodes=np.ascontiguousarray(np.repeat(e.tet_nodes, q, axis=0).T, dtype=np.intp),
+            weight=e.tet_weights.ravel())
+    return e.cache["point_gradients"]
+
+
+def node_field_gradient(model, v):
+    """Gradient ``(3, 3, t q)`` of a node field ``v`` ``(n, 3)`` at every quadrature point,
+    ``[i, j, k] = sum_a v[node_a, i] dN_a/dX_j`` (unit of v per m), component-major."""
+    p = point_gradients(model)
+    v_at_nodes = np.take(np.ascontiguousarray(v.T), p.nodes, axis=1)   # (3, b, t q)
+    return np.einsum("iak,jak->ijk", v_at_nodes, p.gradient)
+
+
+def nodal_force(model, tau, points=None):
+    """Node force ``sum_k int B^T tau_k`` ``(n, 3)`` (N) of per-point tensors ``tau`` (Pa) given
+    component-major, ``(3, 3, k)``, at the quadrature points ``points`` (flat indices ``(k,)``,
+    default all ``t q``): ``f[node_a, i] += w_k sum_j tau[i, j, k] dN_a/dX_j``. ``tau`` need not
+    be symmetric."""
+    p = point_gradients(model)
+    grad, nodes, weight = p.gradient, p.nodes, p.weight
+    if points is not None:
+        grad, nodes, weight = (np.take(a, points, axis=-1) for a in (grad, nodes, weight))
+    force = np.einsum("ijk,jak->iak", tau * weight, grad)                  # (i, a, k)
+    dofs = 3 * nodes + np.arange(3)[:, None, None]
+    return np.bincount(dofs.ravel(), weights=force.ravel(), minlength=3 * model.node_count).reshape(-1, 3)
+
+
+def element_rotations(model, x):
+    """Per-element rotations ``(t, 3, 3)`` of positions ``x`` (n, 3) m, ``fem.dynamics.tet_rotations``.
+
+    The result for the last positions asked for is kept in ``model.elements.cache``: ``finish``
+    (``plastic_update``) finds the rotations of the end-of-step positions and the next ``predict``
+    asks for the same positions again (any change of ``x`` in between computes them anew). The
+    returned array is read-only.
+    """
+    cache = model.elements.cache
+    last = cache.get("rotations")
+    if last is not None and np.array_equal(last[0], x):
+        return last[1]
+    tet_R = tet_rotations(model, x)
+    tet_R.flags.writeable = False
+    cache["rotations"] = (np.array(x, dtype=float), tet_R)
+    return tet_R
+
+
+def _point_rotations(model, tet_R):
+    """Element rotations ``(t, 3, 3)`` repeated for each quadrature point, ``(t q, 3, 3)``."""
+    q = model.quadrature_count
+    return tet_R if q == 1 else np.repeat(tet_R, q, axis=0)
+
+
+def _component_major(a):
+    """Per-point tensors ``(..., 3, 3)`` as a contiguous component-major array ``(3, 3, k)``
+    (a copy unless ``a`` is laid out so already, e.g. made by :func:`_tensors`)."""
+    return np.ascontiguousarray(a.reshape(-1, 9).T).reshape(3, 3, -1)
+
+
+def _tensors(a):
+    """A component-major array ``(9, k)`` seen as ``k`` tensors ``(k, 3, 3)`` (a view)."""
+    return a.T.reshape(-1, 3, 3)
+
+
+# ---------------------------------------------------------------------------------------------
+# Strain and force
+# ---------------------------------------------------------------------------------------------
+
+def displacement_gradient(model, state):
+    """Displacement gradient ``H`` ``(3, 3, t q)`` (-) at each quadrature point in the model's frame,
+    component-major; the small strain is its symmetric part (``fem.stress.quadrature_strain``).
+
+    Floating and anchored bodies: the gradient of the body-frame displacement
+    ``u = (x - c) R - (X - X_c)``. Corotated bodies: ``R_e^T F - I`` with ``F`` the world
+    deformation gradient (the gradient of ``x - c``; ``c`` drops out since the shape gradients of
+    an element sum to zero) and ``R_e`` from :func:`element_rotations`.
+    """
+    if model.frame == "corotated":
+        F = node_field_gradient(model, state.x - state.c)
+        # (R^T F)_ij = sum_m R_mi F_mj, both operands component-major (10x faster than point-major)
+        R = _component_major(_point_rotations(model, element_rotations(model, state.x)))
+        H = np.einsum("mik,mjk->ijk", R, F, order="C")
+        for i in range(3):
+            H[i, i] -= 1.0
+        return H
+    return node_field_gradient(model, (state.x - state.c) @ state.R - model.rest_offsets)
 
 
 def rest_frame_plastic_force(model, eps_p):
-    """Equivalent plastic node force ``f_p`` ``(n, 3)`` (N) in the rest (body) frame."""
-    return _scatter(model, element_plastic_forces(model, eps_p))
-
-
-def strain_operator(elements, node_count):
-    """Sparse map ``(9 t q, 3 n)`` from node displacements ``u.ravel()`` (m, node-major) to the
-    small strain at every quadrature point, ``(B @ u.ravel()).reshape(t, q, 3, 3)`` (-).
-
-    ``eps_ij = 1/2 sum_a (u_ai dN_a/dX_j + u_aj dN_a/dX_i)``: the same strain as
-    ``fem.stress.quadrature_strain`` for a body-frame displacement, as one sparse product instead of
-    a gather and a batched matmul (5x faster at 10k tets). Built once per ``ElementData`` and cached.
-    """
-    key = id(elements)
-    if key not in _STRAIN_OPERATORS:
-        G = elements.tet_gradients                                     # (t, q, b, 3)
-        t, q, b, _ = G.shape
-        row = 9 * np.arange(t * q).reshape(t, q, 1, 1, 1) + 3 * np.arange(3)[:, None, None] \
-            + np.arange(3)[None, :, None]                              # (t, q, i, j, 1)
-        node = 3 * elements.tet_nodes[:, None, None, None, :]           # (t, 1, 1, 1, b)
-        i = np.arange(3)[:, None, None]
-        j = np.arange(3)[None, :, None]
-        grad_j = 0.5 * np.moveaxis(G, 3, 2)[:, :, None, :, :]           # (t, q, 1, j, b)
-        grad_i = 0.5 * np.moveaxis(G, 3, 2)[:, :, :, None, :]           # (t, q, i, 1, b)
-        shape = (t, q, 3, 3, b)
-        rows = np.broadcast_to(row, shape).ravel()
-        operator = sp.csr_matrix(
-            (np.concatenate([np.broadcast_to(grad_j, shape).ravel(), np.broadcast_to(grad_i, shape).ravel()]),
-             (np.concatenate([rows, rows]),
-              np.concatenate([np.broadcast_to(node + i, shape).ravel(),
-                              np.broadcast_to(node + j, shape).ravel()]))),
-            shape=(9 * t * q, 3 * node_count))                         # duplicates (i = j) summed
-        _STRAIN_OPERATORS[key] = operator
-        weakref.finalize(elements, _STRAIN_OPERATORS.pop, key, None)
-    return _STRAIN_OPERATORS[key]
-
-
-def body_strain(model, state):
-    """Small strain at each quadrature point ``(t, q, 3, 3)`` (-) in the model's frame.
-
-    Floating and anchored bodies: one sparse product with ``strain_operator``; corotated bodies:
-    ``fem.stress.quadrature_strain`` (per-element rotations).
-    """
-    if model.frame == "corotated":
-        return quadrature_strain(model, state)
-    t, q = model.elements.tet_weights.shape
-    u = (state.x - state.c) @ state.R - model.rest_offsets
-    return (strain_operator(model.elements, model.node_count) @ u.ravel()).reshape(t, q, 3, 3)
+    """Equivalent plastic node force ``f_p = sum_e int B^T (C : eps_p)`` ``(n, 3)`` (N) in the rest
+    (body) frame, for plastic strains ``eps_p`` ``(t, q, 3, 3)``."""
+    return nodal_force(model, _component_major(isotropic_stress(eps_p, model.mu, model.lam)))
 
 
 def plastic_force(model, state, tet_R=None):
     """Plastic node force ``(n, 3)`` (N) in world coordinates for the right-hand side of a step.
 
     Floating and anchored bodies rotate the cached body-frame force by ``R``; corotated bodies
-    rotate each element's force by its own rotation ``tet_R`` ``(t, 3, 3)``.
+    rotate each point's stress by its element's rotation ``tet_R`` ``(t, 3, 3)`` (default: those of
+    ``state.x``), ``sum_e int B^T (R_e C : eps_p)``.
     """
     if state.tet_plastic_strain is None:
         return np.zeros_like(state.x)
     if model.frame == "corotated":
-        if tet_R is None:
-            from fem.dynamics import tet_rotations
-            tet_R = tet_rotations(model, state.x)
-        forces = element_plastic_forces(model, state.tet_plastic_strain)
-        return _scatter(model, np.einsum("tij,taj->tai", tet_R, forces))
+        tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
+        # R_e (C : eps_p), both operands component-major (10x faster than point-major)
+        sigma = _component_major(isotropic_stress(state.tet_plastic_strain, model.mu, model.lam))
+        R = _component_major(_point_rotations(model, tet_R))
+        return nodal_force(model, np.einsum("imk,mjk->ijk", R, sigma))
     return state.node_plastic_force @ state.R.T
 
+
+# ---------------------------------------------------------------------------------------------
+# The return map after a step
+# ---------------------------------------------------------------------------------------------
 
 def plastic_update(model, state):
     """Return-map the end-of-step state onto the yield surface; returns the new state.
@@ -128,47 +206,46 @@ def plastic_update(model, state):
     fields = _plastic_fields(model, state)
     eps_p = fields["tet_plastic_strain"]
     t, q = eps_p.shape[:2]
-    # elastic strain eps - eps_p as (t q, 9) rows, turned into its deviator in place
-    dev = body_strain(model, state).reshape(t * q, 9)
-    dev -= eps_p.reshape(t * q, 9)
-    trace = dev[:, 0] + dev[:, 4] + dev[:, 8]
-    dev[:, ::4] -= trace[:, None] / 3.0
+    # deviator of the elastic strain eps - eps_p, component-major (9, t q), built in place on the
+    # displacement gradient H: eps_p is symmetric, so sym(H) - eps_p = sym(H - eps_p)
+    dev = displacement_gradient(model, state).reshape(9, t * q)
+    dev -= eps_p.reshape(t * q, 9).T
+    for ij, ji in _OFF_DIAGONAL:
+        dev[ij] += dev[ji]
+        dev[ij] *= 0.5
+        dev[ji] = dev[ij]
+    trace = dev[0] + dev[4] + dev[8]
+    dev[::4] -= trace / 3.0
     # yield test on the deviator alone: von_mises(C : eps_e) = sqrt(3/2) 2 mu |dev eps_e|
-    dev_norm2 = np.einsum("ki,ki->k", dev, dev).reshape(t, q)
-    yielded = dev_norm2 > (2.0 / 3.0) * (model.yield_stress / (2.0 * model.mu)) ** 2
+    dev_norm2 = np.einsum("ck,ck->k", dev, dev)
+    yielded = (dev_norm2 > (2.0 / 3.0) * (model.yield_stress / (2.0 * model.mu)) ** 2).reshape(t, q)
     fields["tet_yielded"] = yielded.any(axis=1)
     if not fields["tet_yielded"].any():
         return state.replace(**fields)
     # return map at the yielded points only (Bridson's radial return, fem.plasticity.return_map);
-    # point k = q tet + local point, gathered with np.take on flat (t q, ...) views
+    # their tensors are gathered component-major, (9, k), and passed on as (k, 3, 3) views
+    # (_tensors), so that its whole-array operations run along the contiguous point axis too
     flowed = np.flatnonzero(yielded)
-    old = np.take(eps_p.reshape(t * q, 3, 3), flowed, axis=0)
+    old = _tensors(np.take(eps_p.reshape(t * q, 9), flowed, axis=0).T.copy())
     # trial stress C : eps_e = 2 mu dev + (lam + 2 mu / 3) tr I
-    sigma_trial = 2.0 * model.mu * np.take(dev, flowed, axis=0).reshape(-1, 3, 3)
-    sigma_trial += ((model.lam + 2.0 * model.mu / 3.0) * np.take(trace, flowed))[:, None, None] * np.eye(3)
-    new, sigma_new, _, _ = return_map(sigma_trial, old, model.mu, model.yield_stress,
+    sigma_trial = np.take(dev, flowed, axis=1)
+    sigma_trial *= 2.0 * model.mu
+    sigma_trial[::4] += (model.lam + 2.0 * model.mu / 3.0) * np.take(trace, flowed)
+    new, sigma_new, _, _ = return_map(_tensors(sigma_trial), old, model.mu, model.yield_stress,
                                       model.max_plastic_strain)
     d_eps_p = new - old
-    e = model.elements
-    tet, point = np.divmod(flowed, q)
-    weights = e.tet_weights[tet, point]
     eps_p = eps_p.copy()
     eps_p.reshape(t * q, 3, 3)[flowed] = new
     peeq = fields["tet_peeq"].copy()
     peeq.reshape(t * q)[flowed] += equivalent_plastic_strain(d_eps_p)
+    weights = np.take(point_gradients(model).weight, flowed)
     fields.update(tet_plastic_strain=eps_p, tet_peeq=peeq,
                   plastic_dissipation=fields["plastic_dissipation"]
                   + plastic_dissipation_increment(sigma_new, d_eps_p, weights))
     if fields["node_plastic_force"] is not None:
         # the force is linear in eps_p: add the increments of the points that flowed
-        gradients = e.tet_gradients[tet, point]                                 # (k, b, 3)
-        d_force = quadrature_plastic_forces(gradients[:, None], weights[:, None], d_eps_p[:, None],
-                                            model.mu, model.lam)               # (k, b, 3)
-        nodes = np.take(e.tet_nodes, tet, axis=0).ravel()
-        d_force = d_force.reshape(-1, 3)
-        fields["node_plastic_force"] = fields["node_plastic_force"] + np.stack(
-            [np.bincount(nodes, weights=d_force[:, k], minlength=model.node_count) for k in range(3)],
-            axis=1)
+        fields["node_plastic_force"] = fields["node_plastic_force"] + nodal_force(
+            model, _component_major(isotropic_stress(d_eps_p, model.mu, model.lam)), flowed)
     return state.replace(**fields)
 
 

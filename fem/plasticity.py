@@ -29,12 +29,24 @@ _SQRT_2_3 = np.sqrt(2.0 / 3.0)
 # Invariants and the yield criterion
 # ---------------------------------------------------------------------------------------------
 
+def _trace(a):
+    """Trace of tensors ``(..., 3, 3)``, shape ``(...)``: a sum of three strided views (np.trace
+    over the last axes is 10x slower here)."""
+    return a[..., 0, 0] + a[..., 1, 1] + a[..., 2, 2]
+
+
+def _add_to_diagonal(a, value):
+    """``a += value I`` in place for tensors ``a`` ``(..., 3, 3)`` and ``value`` ``(...)``: three
+    strided updates, no ``(..., 3, 3)`` temporary. Returns ``a``."""
+    for i in range(3):
+        a[..., i, i] += value
+    return a
+
+
 def deviatoric(sigma):
     """Deviatoric part ``sigma - tr(sigma)/3 I`` of tensors ``(..., 3, 3)``; same shape and unit."""
     sigma = np.asarray(sigma, dtype=float)
-    # the trace as a sum of three strided views: np.trace over the last axes is 10x slower here
-    trace = sigma[..., 0, 0] + sigma[..., 1, 1] + sigma[..., 2, 2]
-    return sigma - (trace / 3.0)[..., None, None] * np.eye(3)
+    return _add_to_diagonal(np.copy(sigma), -_trace(sigma) / 3.0)   # np.copy keeps the layout
 
 
 def frobenius_norm(a):
@@ -71,10 +83,12 @@ def isotropic_stress(eps, mu, lam):
     ``mu`` and ``lam`` (Pa) are scalars or broadcastable to ``(...)``.
     """
     eps = np.asarray(eps, dtype=float)
-    mu = np.asarray(mu, dtype=float)[..., None, None]
-    lam = np.asarray(lam, dtype=float)[..., None, None]
-    trace = (eps[..., 0, 0] + eps[..., 1, 1] + eps[..., 2, 2])[..., None, None]
-    return 2.0 * mu * eps + lam * trace * np.eye(3)
+    pressure = np.asarray(lam, dtype=float) * _trace(eps)
+    sigma = 2.0 * np.asarray(mu, dtype=float)[..., None, None] * eps   # keeps the layout of eps
+    lead = np.broadcast_shapes(sigma.shape[:-2], pressure.shape)
+    if sigma.shape[:-2] != lead:   # lam has more entries than eps and mu
+        sigma = np.broadcast_to(sigma, lead + (3, 3)).copy()
+    return _add_to_diagonal(sigma, pressure)
 
 
 def elastic_stress(eps, eps_p, mu, lam):
@@ -111,6 +125,9 @@ def clamp_plastic_strain(eps_p, max_plastic_strain):
 def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
     """Perfect-plastic radial return of trial stresses onto the von Mises surface.
 
+    The flow is computed at the yielded elements only (without a gather when all of them yield, as
+    for the points ``fem.plastic_flow.plastic_update`` passes); inputs of any memory layout work.
+
     Parameters
     ----------
     sigma_trial : (..., 3, 3) Pa
@@ -140,32 +157,46 @@ def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
         ``yield_function(sigma_trial, Y) > 0``. Elements not yielded are returned bitwise unchanged.
     """
     sigma_trial = np.asarray(sigma_trial, dtype=float)
-    eps_p = np.asarray(eps_p, dtype=float)
     lead = sigma_trial.shape[:-2]
-    mu = np.broadcast_to(np.asarray(mu, dtype=float), lead)
-    Y = np.broadcast_to(np.asarray(Y, dtype=float), lead)
+    eps_p = np.asarray(eps_p, dtype=float)
+    if eps_p.shape != sigma_trial.shape:
+        eps_p = np.broadcast_to(eps_p, sigma_trial.shape)
 
     s = deviatoric(sigma_trial)
     s_norm = frobenius_norm(s)
-    yielded = _SQRT_3_2 * s_norm - Y > 0.0
+    yielded = _SQRT_3_2 * s_norm - np.asarray(Y, dtype=float) > 0.0
+    if not yielded.any():
+        # elements inside the surface are left untouched, bit for bit
+        return eps_p.copy(), sigma_trial.copy(), np.zeros(lead), yielded
+    # flow computed at the yielded elements only: all of them (no gather) or an index subset
+    at = Ellipsis if yielded.all() else np.nonzero(yielded)
+
+    def selected(value):
+        """A scalar, or a per-element value broadcastable to ``lead`` at the yielded elements."""
+        value = np.asarray(value, dtype=float)
+        return value if value.ndim == 0 else np.broadcast_to(value, lead)[at]
+
+    def per_tensor(value):
+        """A scalar or per-element value ``(k,)`` broadcastable against tensors ``(k, 3, 3)``."""
+        return value if value.ndim == 0 else value[..., None, None]
+
+    s, s_norm, Y, mu = s[at], s_norm[at], selected(Y), selected(mu)
     # Bridson's notes: gamma chosen so that f(sigma_new) = 0 (radial return for linear isotropy)
-    gamma = np.where(yielded, (s_norm - _SQRT_2_3 * Y) / (2.0 * mu), 0.0)
-    # associative flow direction n = df/dsigma, normalised; guarded where |dev| = 0 (never yields)
-    n = s / np.where(yielded, s_norm, 1.0)[..., None, None]
-    d_eps_p = gamma[..., None, None] * n
-    eps_p_new = eps_p + d_eps_p
-
+    gamma = (s_norm - _SQRT_2_3 * Y) / (2.0 * mu)
+    # increment gamma n along the associative flow direction n = df/dsigma = s / |s| (|s| > 0
+    # wherever f > 0)
+    old = eps_p[at]
+    d_eps_p = (gamma / s_norm)[..., None, None] * s
+    new = old + d_eps_p
     if max_plastic_strain is not None:
-        cap = np.broadcast_to(np.asarray(max_plastic_strain, dtype=float), lead)
-        eps_p_new = clamp_plastic_strain(eps_p_new, cap)
-        d_eps_p = eps_p_new - eps_p
-
-    sigma_new = sigma_trial - 2.0 * mu[..., None, None] * d_eps_p
-    # elements inside the surface are left untouched, bit for bit
-    inside = ~yielded[..., None, None]
-    eps_p_new = np.where(inside, eps_p, eps_p_new)
-    sigma_new = np.where(inside, sigma_trial, sigma_new)
-    return eps_p_new, sigma_new, gamma, yielded
+        new = clamp_plastic_strain(new, selected(max_plastic_strain))
+        d_eps_p = new - old
+    sigma = sigma_trial[at] - 2.0 * per_tensor(mu) * d_eps_p
+    if at is Ellipsis:
+        return new, sigma, gamma, yielded
+    eps_p_new, sigma_new, gamma_all = eps_p.copy(), sigma_trial.copy(), np.zeros(lead)
+    eps_p_new[at], sigma_new[at], gamma_all[at] = new, sigma, gamma
+    return eps_p_new, sigma_new, gamma_all, yielded
 
 
 def plastic_dissipation_increment(sigma_new, d_eps_p, volume):
@@ -261,16 +292,3 @@ def plastic_nodal_forces(grad_n, eps_p, mu, lam, volume, tets, node_count):
                                           minlength=node_count)
     return nodal
 
-
-def quadrature_plastic_forces(tet_gradients, tet_weights, eps_p, mu, lam):
-    """Element plastic forces ``int_e B^T (C : eps_p)`` with one plastic strain per quadrature point.
-
-    ``tet_gradients`` (t, q, b, 3) 1/m and ``tet_weights`` (t, q) m^3 (quadrature weight times
-    |J|, as in ``fem.assembly.ElementData``); ``eps_p`` (t, q, 3, 3). Returns ``(t, b, 3)`` N in the
-    elements' rest frame; with q = 1 (P1) this is ``plastic_element_forces``. Scatter to nodes with
-    the element node indices (see ``plastic_nodal_forces`` for the sign convention).
-    """
-    sigma_p = isotropic_stress(eps_p, mu, lam)                                 # (t, q, 3, 3)
-    sigma_p *= np.asarray(tet_weights, dtype=float)[..., None, None]
-    # (G sigma^T)[a, i] = sum_j sigma_ij dN_a/dX_j; a batched matmul is 3x faster than einsum here
-    return (np.asarray(tet_gradients) @ np.swapaxes(sigma_p, -1, -2)).sum(axis=1)
