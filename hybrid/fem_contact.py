@@ -37,8 +37,10 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
     friction and restitution). Returns (node_a, node_b, point, normal, gap, friction, restitution)
     with node_a / node_b stacked node indices; normal points from b's body towards a.
     """
-    spheres = [_reach(m, s) for m, s in zip(models, states)]
     out = [[] for _ in range(7)]
+    if len(models) < 2:
+        return _stacked(out)
+    spheres = [_reach(m, s) for m, s in zip(models, states)]
     for a, (ma, sa) in enumerate(zip(models, states)):
         ca, ra = spheres[a]
         for b, (mb, sb) in enumerate(zip(models, states)):
@@ -70,6 +72,10 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
             k = hit.sum()
             out[5].append(np.full(k, combine_friction(bodies[a].friction, bodies[b].friction)))
             out[6].append(np.full(k, combine_restitution(bodies[a].restitution, bodies[b].restitution)))
+    return _stacked(out)
+
+
+def _stacked(out):
     if not out[0]:
         return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
                 np.zeros(0), np.zeros(0), np.zeros(0))

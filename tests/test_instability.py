@@ -1,0 +1,53 @@
+"""A state that diverged stops the run with a message naming the body, the time and the quantity."""
+import numpy as np
+import pytest
+
+from hybrid.step import InstabilityError, MAX_SPEED, check_finite
+
+SCENE = """
+[simulation]
+dt = 0.001
+[[planes]]
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.2, 0.2], resolution = 0.1 }
+position = [0.0, 0.0, 0.5]
+density = 1000.0
+young = 1e6
+poisson = 0.3
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.1 }
+position = [1.0, 0.0, 0.5]
+density = 1000.0
+"""
+
+
+def test_healthy_state_passes(sim):
+    s = sim(SCENE).advance(0.01)
+    check_finite(s.model, s.state)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 2 * MAX_SPEED])
+def test_fem_node_speed_that_diverged_names_the_body(sim, bad):
+    s = sim(SCENE).advance(0.01)
+    v = s.state.fem[0].v.copy()
+    v[3, 1] = bad
+    s.state.fem[0] = s.state.fem[0].replace(v=v)
+    with pytest.raises(InstabilityError) as err:
+        check_finite(s.model, s.state)
+    assert err.value.body == "block" and err.value.quantity == "node speed (m/s)"
+    assert err.value.time == pytest.approx(0.01)
+    assert "block" in str(err.value) and "t = 0.01" in str(err.value)
+    if np.isfinite(bad):
+        assert err.value.value == pytest.approx(bad)
+
+
+def test_rigid_body_far_away_names_the_body(sim):
+    s = sim(SCENE).advance(0.01)
+    s.state.rigid.position[0] = [0.0, 0.0, 2e6]
+    with pytest.raises(InstabilityError) as err:
+        check_finite(s.model, s.state)
+    assert err.value.body == "ball" and err.value.quantity == "distance from origin (m)"
+    assert err.value.value == pytest.approx(2e6)
