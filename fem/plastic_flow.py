@@ -14,17 +14,19 @@ The plastic strain is therefore explicit by one step (a staggered scheme): the f
 found at the end of step n acts during step n + 1. The return map itself is exact, so the stress
 never leaves the yield surface by more than one step's elastic increment.
 
-Both passes are whole-array operations over the quadrature points (point ``k = q e + p`` is
-quadrature point p of element e) with the point index last, ``(3, 3, t q)`` ("component-major"):
-each tensor component is one contiguous row, so the displacement gradient of every point
-(:func:`node_field_gradient`, one gather and one einsum), the yield test and the plastic force
-(:func:`nodal_force`, one einsum and one ``bincount``) need no loop and no per-element 3 x 3
-products. The shape-function data in that layout (:class:`PointGradients`) is built once per
-``ElementData`` and kept in its ``cache``; corotated bodies also keep there the element rotations
-of the end-of-step positions (:func:`element_rotations`), which the next ``predict`` reuses.
+Both passes work on per-point tensors (point ``k = q e + p`` is quadrature point p of element e)
+with the point index last, ``(3, 3, t q)`` ("component-major"): each tensor component is one
+contiguous row, so the yield test and the return map are whole-array operations with no per-point
+3 x 3 products. The two passes that touch the mesh, the gradient of a node field at every point
+(:func:`node_field_gradient`, a gather) and the node force of per-point tensors
+(:func:`nodal_force`, a scatter), are compiled loops over the points. Their shape-function data
+(:class:`PointGradients`) is built once per ``ElementData`` and kept in its ``cache``; corotated
+bodies also keep there the element rotations of the end-of-step positions
+(:func:`element_rotations`), which the next ``predict`` reuses.
 """
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from fem.dynamics import tet_rotations
@@ -60,14 +62,13 @@ def _plastic_fields(model, state):
 
 @dataclass(frozen=True)
 class PointGradients:
-    """Shape-function data of every quadrature point of a body, point index last (rest frame).
+    """Shape-function data of every quadrature point of a body (rest frame), contiguous arrays
+    for the compiled loops over the points of :func:`node_field_gradient` and :func:`nodal_force`.
 
-    Point ``k = q e + p`` is quadrature point p of element e; with the point index last, each
-    component is one contiguous ``(t q,)`` row, so gradients and forces of all points are a few
-    whole-array operations (:func:`node_field_gradient`, :func:`nodal_force`).
+    Point ``k = q e + p`` is quadrature point p of element e (``q = t q // t``).
 
-    gradient: ``(3, b, t q)`` (1/m): ``dN_a/dX_j`` at ``[j, a, k]`` for element node ``a``.
-    nodes: ``(b, t q)`` int: the node of element node ``a`` of point ``k``.
+    gradient: ``(t q, b, 3)`` (1/m): ``dN_a/dX_j`` at ``[k, a, j]`` for element node ``a``.
+    nodes: ``(t, b)`` int: the node of element node ``a`` of element ``e``.
     weight: ``(t q,)`` (m^3): quadrature weight times |J| of point ``k``.
     """
     gradient: np.ndarray
@@ -82,18 +83,68 @@ def point_gradients(model):
     if "point_gradients" not in e.cache:
         t, q, b, _ = e.tet_gradients.shape
         e.cache["point_gradients"] = PointGradients(
-            gradient=np.ascontiguousarray(e.tet_gradients.reshape(t * q, b, 3).transpose(2, 1, 0)),
-            nodes=np.ascontiguousarray(np.repeat(e.tet_nodes, q, axis=0).T, dtype=np.intp),
-            weight=e.tet_weights.ravel())
+            gradient=np.ascontiguousarray(e.tet_gradients.reshape(t * q, b, 3), dtype=float),
+            nodes=np.ascontiguousarray(e.tet_nodes, dtype=np.intp),
+            weight=np.ascontiguousarray(e.tet_weights.ravel(), dtype=float))
     return e.cache["point_gradients"]
+
+
+@nb.njit(cache=True)
+def _gather_gradient(v, gradient, nodes):
+    """``H[i, j, k] = sum_a v[nodes[e, a], i] gradient[k, a, j]``, ``e = k // q``; (3, 3, t q)."""
+    points, b, _ = gradient.shape
+    q = points // nodes.shape[0]
+    H = np.empty((3, 3, points))
+    for k in range(points):
+        e = k // q
+        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+        for a in range(b):
+            n = nodes[e, a]
+            v0, v1, v2 = v[n, 0], v[n, 1], v[n, 2]
+            g0, g1, g2 = gradient[k, a, 0], gradient[k, a, 1], gradient[k, a, 2]
+            h00 += v0 * g0
+            h01 += v0 * g1
+            h02 += v0 * g2
+            h10 += v1 * g0
+            h11 += v1 * g1
+            h12 += v1 * g2
+            h20 += v2 * g0
+            h21 += v2 * g1
+            h22 += v2 * g2
+        H[0, 0, k], H[0, 1, k], H[0, 2, k] = h00, h01, h02
+        H[1, 0, k], H[1, 1, k], H[1, 2, k] = h10, h11, h12
+        H[2, 0, k], H[2, 1, k], H[2, 2, k] = h20, h21, h22
+    return H
+
+
+@nb.njit(cache=True)
+def _scatter_force(tau, points, gradient, nodes, weight, node_count):
+    """``f[nodes[e, a], i] += weight[k] sum_j tau[i, j, c] gradient[k, a, j]`` for ``k = points[c]``,
+    ``e = k // q``; (node_count, 3), summed point after point."""
+    b = gradient.shape[1]
+    q = gradient.shape[0] // nodes.shape[0]
+    f = np.zeros((node_count, 3))
+    for c in range(points.shape[0]):
+        k = points[c]
+        e = k // q
+        w = weight[k]
+        t00, t01, t02 = w * tau[0, 0, c], w * tau[0, 1, c], w * tau[0, 2, c]
+        t10, t11, t12 = w * tau[1, 0, c], w * tau[1, 1, c], w * tau[1, 2, c]
+        t20, t21, t22 = w * tau[2, 0, c], w * tau[2, 1, c], w * tau[2, 2, c]
+        for a in range(b):
+            n = nodes[e, a]
+            g0, g1, g2 = gradient[k, a, 0], gradient[k, a, 1], gradient[k, a, 2]
+            f[n, 0] += t00 * g0 + t01 * g1 + t02 * g2
+            f[n, 1] += t10 * g0 + t11 * g1 + t12 * g2
+            f[n, 2] += t20 * g0 + t21 * g1 + t22 * g2
+    return f
 
 
 def node_field_gradient(model, v):
     """Gradient ``(3, 3, t q)`` of a node field ``v`` ``(n, 3)`` at every quadrature point,
     ``[i, j, k] = sum_a v[node_a, i] dN_a/dX_j`` (unit of v per m), component-major."""
     p = point_gradients(model)
-    v_at_nodes = np.take(np.ascontiguousarray(v.T), p.nodes, axis=1)   # (3, b, t q)
-    return np.einsum("iak,jak->ijk", v_at_nodes, p.gradient)
+    return _gather_gradient(np.ascontiguousarray(v, dtype=float), p.gradient, p.nodes)
 
 
 def nodal_force(model, tau, points=None):
@@ -102,12 +153,9 @@ def nodal_force(model, tau, points=None):
     default all ``t q``): ``f[node_a, i] += w_k sum_j tau[i, j, k] dN_a/dX_j``. ``tau`` need not
     be symmetric."""
     p = point_gradients(model)
-    grad, nodes, weight = p.gradient, p.nodes, p.weight
-    if points is not None:
-        grad, nodes, weight = (np.take(a, points, axis=-1) for a in (grad, nodes, weight))
-    force = np.einsum("ijk,jak->iak", tau * weight, grad)                  # (i, a, k)
-    dofs = 3 * nodes + np.arange(3)[:, None, None]
-    return np.bincount(dofs.ravel(), weights=force.ravel(), minlength=3 * model.node_count).reshape(-1, 3)
+    points = np.arange(p.weight.size) if points is None else np.asarray(points, dtype=np.intp)
+    return _scatter_force(np.asarray(tau, dtype=float), points, p.gradient, p.nodes, p.weight,
+                          model.node_count)
 
 
 def element_rotations(model, x):
