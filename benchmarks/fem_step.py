@@ -28,9 +28,14 @@ than naive at 10k tets.
     OPENBLAS_NUM_THREADS=1 python benchmarks/fem_step.py [--sizes 1000 10000] [--big] [--steps 30]
         [--supports ground anchored]
 
-Prints the table and writes outputs/bench/fem_step.csv. Default run: ~1k and ~10k tets
-(about 4 minutes on two shared cores). ``--big`` adds ~50k tets: at commit f14ddd6 its coupled
-step took ~21 s (floating), so use e.g. ``--sizes 50000 --steps 5 --warmup 3 --naive-steps 1``.
+Then, unless ``--no-plastic``, the plastic pass of benchmarks/plastic_step.py: its cost per step
+at ~10k tets over the elastic step (goal: under 30% extra) and the reference updates
+(refactorisations) of the dent scene.
+
+Prints the tables and writes outputs/bench/fem_step.csv (and plastic_step's CSV). Default run:
+~1k and ~10k tets, about 6 minutes on two shared cores. ``--big`` adds ~50k tets; its first
+coupled step on the ground solves the response columns of ~1,700 touched nodes (166 s measured),
+so use e.g. ``--sizes 50000 --supports anchored --steps 10 --warmup 5 --naive-steps 1``.
 """
 import argparse
 import csv
@@ -175,6 +180,8 @@ def main():
     parser.add_argument("--naive-steps", type=int, default=3, help="timed naive steps per size")
     parser.add_argument("--supports", nargs="+", default=list(SUPPORTS), choices=SUPPORTS,
                         help="how the slab is held up (default: both)")
+    parser.add_argument("--no-plastic", action="store_true",
+                        help="skip the plastic-pass cost and dent reference updates (plastic_step.py)")
     args = parser.parse_args()
     sizes = args.sizes + ([50000] if args.big and 50000 not in args.sizes else [])
 
@@ -187,6 +194,10 @@ def main():
                 print(f"  {rows[-1]['tets']} tets {support} {frame}: step {rows[-1]['step_ms']:.1f} ms "
                       f"(box z {rows[-1]['box_z']:.4f} m, slab min z {rows[-1]['slab_min_z']:.2e} m)", flush=True)
     report(rows, args)
+    if not args.no_plastic:
+        print("\nplastic pass (benchmarks/plastic_step.py): goal under 30% extra over the elastic step")
+        import plastic_step
+        plastic_step.main()
 
 
 def measure_row(cells, frame, support, args):
