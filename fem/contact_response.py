@@ -11,9 +11,11 @@ constant, so the columns ``A^-1 e`` of each node are solved once (one batched ba
 with the prefactored matrix) and cached until the model changes; a corotated body uses its rest
 system in its best-fit frame, an approximation the coupling rounds correct.
 """
+from dataclasses import replace
+
 import numpy as np
 
-from .dynamics import system_factorisation
+from .dynamics import apply_impulse, system_factorisation
 
 # memory the cached columns of one model may take (each touched node keeps 3 x 3n floats)
 MAX_CACHE_BYTES = 400e6
@@ -117,6 +119,18 @@ def sparse_rows(W, tol=None):
     order = np.lexsort((cols, cols != rows, rows))      # by row, the diagonal first
     rows, cols = rows[order], cols[order]
     return np.searchsorted(rows, np.arange(k + 1)), cols, W[rows, cols]
+
+
+def apply_contact_impulses(model, state, step, dt, nodes, impulse):
+    """The body takes contact impulses ``(k, 3)`` N s (world) on its ``nodes`` during ``step``
+    (:func:`fem.dynamics.apply_impulse`): through the cached response columns when that is cheaper
+    than a back-substitution (floating and anchored bodies), else by one solve."""
+    node_impulse = np.zeros((model.node_count, 3))
+    node_impulse[nodes] = impulse
+    dv = None if model.frame == "corotated" else impulse_response(model, dt, nodes, impulse @ step.R)
+    if dv is None:
+        return apply_impulse(model, state, step, node_impulse)
+    return replace(step, v=step.v + dv @ step.R.T, impulse=step.impulse + node_impulse)
 
 
 def impulse_response(model, dt, nodes, impulse):

@@ -10,12 +10,12 @@ more back-substitution, or a product with the cached response columns when that 
 which gives the velocities the solver expected. Node contacts keep their impulses from one step to
 the next (ContactMemory) to warm-start the solver: resting contact then converges in few sweeps.
 """
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.contact_response import contact_set, delassus_block, impulse_response
+from fem.contact_response import apply_contact_impulses, contact_set, delassus_block
 from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
@@ -92,13 +92,8 @@ def _coupled_step(model, state):
     group_id = -np.ones(len(model.fem), dtype=np.int64)
     group_id[bodies_touched] = np.arange(len(bodies_touched))
     blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]]) for j in bodies_touched]
-    sizes = np.array([len(b[0]) - 1 for b in blocks], dtype=np.int64)
     p = len(touched)
-    first = nb + np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)   # each group's first particle
-    nnz = np.concatenate([[0], np.cumsum([len(b[1]) for b in blocks])]).astype(np.int64)
-    # anchored nodes do not answer at all: static for the stacking order
-    held = (np.concatenate([np.einsum("iab,iab->i", b[2][b[0][:-1]], b[2][b[0][:-1]]) == 0 for b in blocks])
-            if blocks else np.zeros(0, bool))
+    w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
     bodies = rigid_step.SolverBodies(
         inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
         inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.zeros((p, 3, 3))]),
@@ -110,10 +105,7 @@ def _coupled_step(model, state):
         static=np.concatenate([rigid_bodies.static, held]),
         group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[group]]),
         group_R=np.array([state.fem[j].R for j in bodies_touched]) if blocks else np.eye(3)[None],
-        w_ptr=np.concatenate([np.zeros(nb, np.int64)] + [b[0][:-1] + o for b, o in zip(blocks, nnz)]
-                             + [nnz[-1:]]).astype(np.int64),
-        w_col=np.concatenate([b[1] + f for b, f in zip(blocks, first)]).astype(np.int64) if blocks else np.zeros(1, np.int64),
-        W=np.concatenate([b[2] for b in blocks]) if blocks else np.zeros((1, 3, 3)))
+        w_ptr=w_ptr, w_col=w_col, W=W)
     keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
                            contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
                            contact_keys(fa, fb, len(node_x), nb, True)])
@@ -122,7 +114,7 @@ def _coupled_step(model, state):
     contacts = concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0)
 
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
-    #    its nodes through its own implicit system (_take_impulses). The blocks are exact for
+    #    its nodes through its own implicit system (apply_contact_impulses). The blocks are exact for
     #    floating and anchored bodies; for corotated ones a second round corrects the difference.
     rounds = 2 if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
     warm = state.contact_memory.recall(keys) if state.contact_memory is not None else None
@@ -143,8 +135,8 @@ def _coupled_step(model, state):
         np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
         np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
         for j in bodies_touched:
-            predicted[j] = _take_impulses(model.fem[j], state.fem[j], predicted[j], h,
-                                          node_local[touched[group == j]], impulse[group == j])
+            predicted[j] = apply_contact_impulses(model.fem[j], state.fem[j], predicted[j], h,
+                                                  node_local[touched[group == j]], impulse[group == j])
 
     # 6. rigid drift; deformable bodies finish their step; touched nodes take their share of
     #    penetration recovery (positions only)
@@ -166,15 +158,20 @@ def _coupled_step(model, state):
                        contact_memory=ContactMemory.of(keys, res.contact_impulse))
 
 
-def _take_impulses(m, s, predicted, h, nodes, impulse):
-    """A deformable body takes the contact impulses ``(k, 3)`` on its ``nodes``: through the cached
-    response columns when that is cheaper than a back-substitution, else by one solve."""
-    node_impulse = np.zeros((m.node_count, 3))
-    node_impulse[nodes] = impulse
-    dv = None if m.frame == "corotated" else impulse_response(m, h, nodes, impulse @ predicted.R)
-    if dv is None:
-        return fem_dyn.apply_impulse(m, s, predicted, node_impulse)
-    return replace(predicted, v=predicted.v + dv @ predicted.R.T, impulse=predicted.impulse + node_impulse)
+def _stacked_rows(blocks, nb):
+    """The groups' block rows (fem.contact_response.sparse_rows, one per touched body, particles
+    numbered from ``nb`` on in group order) as the solver's (w_ptr (n + 1,), w_col, W), with empty
+    rows for the nb rigid bodies; and which particles are held (anchored nodes answer nothing)."""
+    if not blocks:
+        return np.zeros(nb + 1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(0, bool)
+    first = nb + np.cumsum([0] + [len(ptr) - 1 for ptr, _, _ in blocks])      # each group's first particle
+    start = np.cumsum([0] + [len(col) for _, col, _ in blocks])               # its first block
+    w_ptr = np.concatenate([np.zeros(nb, np.int64)] + [ptr[:-1] + o for (ptr, _, _), o in zip(blocks, start)]
+                           + [start[-1:]]).astype(np.int64)
+    w_col = np.concatenate([col + f for (_, col, _), f in zip(blocks, first)]).astype(np.int64)
+    W = np.concatenate([w for _, _, w in blocks])
+    diagonal = W[w_ptr[nb:-1]]                                                 # first in each row
+    return w_ptr, w_col, W, ~diagonal.reshape(len(diagonal), -1).any(axis=1)
 
 
 def contact_keys(a, b, node_count, rigid_count, node_pairs):
