@@ -10,10 +10,13 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from fem import dynamics
+from fem import dynamics, solver
 from fem.dynamics import predict, step, system_matrix, tet_rotations, warped_stiffness
 from fem.mesh import box_tet_mesh
 from fem.model import build_fem_model, rest_state
+
+
+COLUMNS = 300
 
 
 def timed(fn, repeat=1):
@@ -37,16 +40,19 @@ def main():
                                           options={"SymmetricMode": True}))
         t_s, _ = timed(lambda: lu.solve(rhs), 20)
         rows += [(f"splu {spec}", "factor", t_f), (f"splu {spec}", "solve", t_s)]
-    try:
-        from cholespy import CholeskySolverD, MatrixType
-        coo = A.tocoo()
-        t_f, chol = timed(lambda: CholeskySolverD(A.shape[0], coo.row.astype(np.int32),
-                                                  coo.col.astype(np.int32), coo.data, MatrixType.COO))
-        x = np.zeros_like(rhs)
-        t_s, _ = timed(lambda: chol.solve(rhs, x), 20)
-        rows += [("cholespy", "factor", t_f), ("cholespy", "solve", t_s)]
-    except ImportError:
-        rows.append(("cholespy", "not installed", float("nan")))
+    # the project's backends (fem.solver.Factorisation): factor, one solve, and the per-column cost
+    # of COLUMNS right-hand sides at once (the contact response columns of fem/contact_response.py)
+    many = np.zeros((A.shape[0], COLUMNS))
+    many[3 * np.arange(COLUMNS), np.arange(COLUMNS)] = 1.0
+    for backend in ["superlu", "cholmod"]:
+        if backend == "cholmod" and solver.CholeskySolverD is None:
+            rows.append(("cholmod", "cholespy not installed", float("nan")))
+            continue
+        t_f, fact = timed(lambda: solver.Factorisation(A, backend=backend))
+        t_s, _ = timed(lambda: fact.solve(rhs), 20)
+        t_m, _ = timed(lambda: fact.solve(many), 2)
+        rows += [(backend, "factor", t_f), (backend, "solve", t_s),
+                 (backend, f"solve {COLUMNS} columns, per column", t_m / COLUMNS)]
     # corotated step: warped assembly, then LU refactor vs CG preconditioned by the rest factorisation
     state = rest_state(model, v=np.cross([0.0, 0.0, 5.0], points))
     for _ in range(3):
@@ -54,10 +60,10 @@ def main():
     t_R, tet_R = timed(lambda: tet_rotations(model, state.x), 5)
     t_K, K = timed(lambda: warped_stiffness(model, tet_R), 5)
     rows += [("corotated", "tet rotations (batched SVD)", t_R), ("corotated", "warped assembly", t_K)]
-    for solver in ["lu", "cg"]:
-        dynamics.COROTATED_SOLVER = solver
+    for method in ["lu", "cg"]:
+        dynamics.COROTATED_SOLVER = method
         t_p, s = timed(lambda: predict(model, state, dt), 3)
-        rows.append((f"corotated predict {solver}", f"iterations {s.iterations[0]}", t_p))
+        rows.append((f"corotated predict {method}", f"iterations {s.iterations[0]}", t_p))
     floating = build_fem_model(points, tets, density=1000.0, young=1e6, poisson=0.3, dt=dt)
     fstate = rest_state(floating, v=state.v)
     t_p, _ = timed(lambda: predict(floating, fstate, dt), 5)

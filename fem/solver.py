@@ -1,32 +1,77 @@
 """Sparse SPD solves: a cached factorisation of the system matrix, and warm-started CG.
 
-The backend is scipy's SuperLU (``splu``), which needs nothing beyond scipy. Measurements behind the
-choice of ordering and backend are in ``benchmarks/fem_solver.py``.
+Two backends, measured in ``benchmarks/fem_solver.py``:
+- ``"cholmod"``: supernodal Cholesky (SuiteSparse's CHOLMOD, through the self-contained
+  ``cholespy`` wheel); on the 10k-tet slab it factors about 2x and solves about 3x faster than
+  SuperLU, also for many right-hand sides at once (the contact response columns);
+- ``"superlu"``: scipy's SuperLU (``splu``), which needs nothing beyond scipy; used when cholespy is
+  not installed, when the matrix is not positive definite for CHOLMOD, or when chosen
+  (``BACKEND = "superlu"``).
 """
+import warnings
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+try:
+    from cholespy import CholeskySolverD, MatrixType
+except ImportError:            # pure-scipy fallback
+    CholeskySolverD = None
+
+# the backend new factorisations use: "cholmod" (when cholespy is importable) or "superlu"
+BACKEND = "cholmod" if CholeskySolverD is not None else "superlu"
 # SuperLU column ordering; MMD on A^T+A suits symmetric matrices (measured in benchmarks/fem_solver.py)
 PERMC_SPEC = "MMD_AT_PLUS_A"
+# one CHOLMOD back-substitution takes as long as a dense product reading about this many entries
+# per nonzero of the matrix (measured 20-49 on P1 slabs and cubes of 1k-48k tets)
+CHOLMOD_SOLVE_COST_PER_NNZ = 30
 
 
 class Factorisation:
-    """LU factorisation of a sparse SPD matrix, reused for every solve until the matrix changes.
+    """Factorisation of a sparse SPD matrix, reused for every solve until the matrix changes.
 
     matrix: the CSC matrix factorised ``(m, m)``. solve(rhs) accepts ``(m,)`` or ``(m, k)``.
-    solve_cost: entries of the factors one back-substitution reads (nnz of L and U).
+    backend: ``"cholmod"`` or ``"superlu"`` (default :data:`BACKEND`).
+    solve_cost: the time of one back-substitution, in entries of a dense matrix-vector product
+    (SuperLU: the nonzeros of L and U it reads); callers compare it with products they could use
+    instead.
     """
 
-    def __init__(self, matrix):
+    def __init__(self, matrix, backend=None):
         self.matrix = sp.csc_matrix(matrix)
+        self.backend = BACKEND if backend is None else backend
+        if self.backend not in ("cholmod", "superlu"):
+            raise ValueError(f"unknown sparse solver backend {self.backend!r}: 'cholmod' or 'superlu'")
+        if self.backend == "cholmod":
+            if CholeskySolverD is None:
+                raise ImportError("the 'cholmod' backend needs the cholespy package (pip install cholespy)")
+            try:
+                self._factor_cholmod()
+                return
+            except ValueError as error:     # not positive definite to CHOLMOD: pivoting LU instead
+                warnings.warn(f"CHOLMOD: {error}; using SuperLU for this matrix", RuntimeWarning)
+                self.backend = "superlu"
         # symmetric positive definite: no pivoting needed, keep the fill-reducing ordering
         self._lu = spla.splu(self.matrix, permc_spec=PERMC_SPEC, diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
         self.solve_cost = int(self._lu.L.nnz + self._lu.U.nnz)
 
+    def _factor_cholmod(self):
+        A = self.matrix
+        A.sort_indices()
+        self._chol = CholeskySolverD(A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32),
+                                     np.ascontiguousarray(A.data, dtype=float), MatrixType.CSC)
+        self.solve_cost = int(CHOLMOD_SOLVE_COST_PER_NNZ * A.nnz)
+
     def solve(self, rhs):
-        return self._lu.solve(np.asarray(rhs, dtype=float))
+        rhs = np.asarray(rhs, dtype=float)
+        if self.backend == "superlu":
+            return self._lu.solve(rhs)
+        rhs = np.ascontiguousarray(rhs)
+        out = np.empty_like(rhs)
+        self._chol.solve(rhs, out)
+        return out
 
 
 class FactorCache:
