@@ -11,33 +11,87 @@ constant, so the columns ``A^-1 e`` of each node are solved once (one batched ba
 with the prefactored matrix) and cached until the model changes; a corotated body uses its rest
 system in its best-fit frame, an approximation the coupling rounds correct.
 """
+import time
 from dataclasses import replace
 
 import numpy as np
 
 from .dynamics import apply_impulse, system_factorisation
 
-# memory the cached columns of one model may take (each touched node keeps 3 x 3n floats)
-MAX_CACHE_BYTES = 400e6
+# memory the response columns of one model may keep for applying impulses as a product (each node
+# keeps 3 x 3n floats); nodes beyond it apply their impulses by back-substitution instead
+MAX_COLUMN_BYTES = 400e6
+# memory the Delassus blocks between all nodes a model has met may take (9 k^2 floats for k nodes);
+# beyond it only the blocks of the current contact set are kept
+MAX_BLOCK_BYTES = 400e6
+# memory one batch of response columns may take while it is solved (right-hand sides and answers)
+BATCH_BYTES = 64e6
+# a long column solve reports its progress every this many seconds
+REPORT_EVERY = 5.0
 # relative size below which a Delassus block between two nodes is left out (see sparse_rows): in a
 # soft or large body the response to an impulse decays fast with distance within one step, and
 # the solver's sweeps only visit the blocks kept
 DROP_TOL = 1e-7
 
 
-class _ColumnCache:
-    def __init__(self, dt):
+class _ResponseCache:
+    """What one model keeps of its contact response for a time step ``dt``.
+
+    ``known`` are the nodes it has met (in order) and ``W`` their dense Delassus matrix
+    ``(3 len(known), 3 len(known))``, block [l, i] the velocity of known node l per unit impulse
+    on known node i (body frame); it grows by the columns of new nodes only, so a contact patch
+    that creeps by a few nodes costs a few solves. ``columns`` keeps full response columns
+    ``(3n, 3)`` per node while they fit in MAX_COLUMN_BYTES.
+    """
+
+    def __init__(self, dt, node_count):
         self.dt = dt
-        self.columns = {}          # node -> (3n, 3) response to unit impulses at the node (body frame)
+        self.known = np.zeros(0, dtype=np.int64)
+        self.slot = -np.ones(node_count, dtype=np.int64)   # node -> index in known, -1 if unknown
+        self._W = np.zeros((0, 0))     # room for more nodes than known (grows by a quarter)
+        self.columns = {}
         self.last_nodes = None     # the last touched set and its body-frame block (resting contact
         self.last_block = None     # touches the same nodes step after step)
         self.last_columns = None   # (3n, 3k) columns of the last set, when applying them is cheap
+
+    @property
+    def W(self):
+        m3 = 3 * len(self.known)
+        return self._W[:m3, :m3]
+
+    def keep_only(self, nodes):
+        """Forget every known node outside ``nodes`` (the dense block would outgrow its memory)."""
+        keep = np.nonzero(np.isin(self.known, nodes))[0]
+        dofs = (3 * keep[:, None] + np.arange(3)).ravel()
+        self._W = np.ascontiguousarray(self.W[np.ix_(dofs, dofs)])
+        self.slot[self.known] = -1
+        self.known = self.known[keep]
+        self.slot[self.known] = np.arange(len(self.known))
+
+    def reserve(self, count):
+        """Make room for ``count`` known nodes (a quarter more, so a creeping patch rarely copies)."""
+        if 3 * count > len(self._W):
+            room = np.empty((3 * (count + count // 4),) * 2)
+            m3 = 3 * len(self.known)
+            room[:m3, :m3] = self.W
+            self._W = room
+
+    def add(self, nodes, columns):
+        """Append ``nodes`` with their response columns ``(3n, 3 len(nodes))`` to the dense block."""
+        m, c = len(self.known), len(nodes)
+        self.reserve(m + c)
+        self.known = np.concatenate([self.known, nodes])
+        self.slot[nodes] = np.arange(m, m + c)
+        rows = (3 * self.known[:, None] + np.arange(3)).ravel()
+        W = self.W
+        W[:, 3 * m:] = columns[rows]
+        W[3 * m:, :3 * m] = W[:3 * m, 3 * m:].T      # A^-1 is symmetric
 
 
 def _cache(model, dt):
     cache = getattr(model, "_contact_columns", None)
     if cache is None or cache.dt != dt:
-        cache = _ColumnCache(dt)
+        cache = _ResponseCache(dt, model.node_count)
         object.__setattr__(model, "_contact_columns", cache)
     return cache
 
@@ -77,28 +131,54 @@ def contact_set(model, dt, nodes):
     return nodes
 
 
-def delassus_block(model, dt, nodes):
+def _learn(model, dt, cache, new, nodes, report):
+    """Solve the response columns of the ``new`` nodes of the contact set ``nodes`` in batches and
+    add them to the cache."""
+    per_node = 3 * 3 * model.node_count * 8
+    if (len(cache.columns) + len(new)) * per_node > MAX_COLUMN_BYTES:
+        current = set(nodes.tolist())
+        cache.columns = {i: c for i, c in cache.columns.items() if i in current}
+    batch = max(1, int(BATCH_BYTES // (2 * per_node)))
+    start = last_report = time.perf_counter()
+    for b in range(0, len(new), batch):
+        part = new[b:b + batch]
+        cols = _solve_columns(model, dt, part)
+        cache.add(part, cols)
+        if (len(cache.columns) + len(part)) * per_node <= MAX_COLUMN_BYTES:
+            for j, node in enumerate(part):
+                cache.columns[int(node)] = cols[:, 3 * j:3 * j + 3].copy()
+        done, now = b + len(part), time.perf_counter()
+        left = (now - start) * (len(new) - done) / done
+        if report is not None and done < len(new) and (b == 0 and left > REPORT_EVERY
+                                                         or now - last_report >= REPORT_EVERY):
+            report(f"contact response of {len(new)} new contact nodes: {done} solved in "
+                   f"{now - start:.0f} s, about {left:.0f} s left")
+            last_report = now
+
+
+def delassus_block(model, dt, nodes, report=None):
     """The Delassus matrix of the k ``nodes`` in the body's solve frame (world = R W R^T, R the
     frame's rotation, e.g. the best-fit rotation of a floating body), block-sparse by rows
-    (:func:`sparse_rows`): block [l, i] is the velocity of node l per unit impulse on node i."""
+    (:func:`sparse_rows`): block [l, i] is the velocity of node l per unit impulse on node i.
+
+    Nodes met for the first time cost three back-substitutions each (solved in batches);
+    ``report(message)``, when given, hears about the progress of a solve that takes long.
+    """
     cache = _cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
     k = len(nodes)
     if cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes):
         return cache.last_block
-    missing = [int(i) for i in nodes if int(i) not in cache.columns]
-    if missing:
-        per_node = 9 * model.node_count * 8
-        if (len(cache.columns) + len(missing)) * per_node > MAX_CACHE_BYTES:
-            cache.columns.clear()
-            missing = [int(i) for i in nodes]
-        cols = _solve_columns(model, dt, missing)
-        for j, node in enumerate(missing):
-            cache.columns[node] = cols[:, 3 * j:3 * j + 3]
-    rows = (3 * nodes[:, None] + np.arange(3)).ravel()
+    new = nodes[cache.slot[nodes] < 0]
+    if len(new):
+        if 72.0 * (len(cache.known) + len(new)) ** 2 > MAX_BLOCK_BYTES:
+            cache.keep_only(nodes)
+        cache.reserve(len(cache.known) + len(new))
+        _learn(model, dt, cache, new, nodes, report)
+    dofs = (3 * cache.slot[nodes][:, None] + np.arange(3)).ravel()
     # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
-    W = np.stack([cache.columns[int(i)][rows] for i in nodes], axis=1)
-    W = sparse_rows(np.ascontiguousarray(W.reshape(k, 3, k, 3).transpose(0, 2, 1, 3)))
+    W = cache.W[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+    W = sparse_rows(np.ascontiguousarray(W))
     cache.last_nodes, cache.last_block, cache.last_columns = nodes.copy(), W, None
     return W
 
@@ -144,6 +224,8 @@ def impulse_response(model, dt, nodes, impulse):
         return None
     if cache.last_columns is None:
         if 9 * model.node_count * len(nodes) > system_factorisation(model, dt).solve_cost:
+            return None
+        if any(int(i) not in cache.columns for i in nodes):
             return None
         cache.last_columns = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)
     return (cache.last_columns @ np.asarray(impulse, dtype=float).ravel()).reshape(-1, 3)

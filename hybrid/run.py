@@ -1,6 +1,8 @@
 """Run a scene: step it, write frames at the output rate, report progress and a summary."""
+import logging
 import sys
 import time as clock
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ from .build import build
 from .output import RunWriter
 from .events import between_steps
 from .step import InstabilityError, step
+from .step import log as step_log
 
 
 class Progress:
@@ -70,6 +73,33 @@ def run_scene(scene, out_dir, progress=True, log=print):
     On instability the frames written so far are kept, the summary records the failure, and the
     InstabilityError is raised again for the caller to report.
     """
+    with _forwarded(step_log, log):
+        return _run(scene, out_dir, progress, log)
+
+
+class _Forward(logging.Handler):
+    def __init__(self, log):
+        super().__init__(logging.INFO)
+        self.log = log
+
+    def emit(self, record):
+        self.log(record.getMessage())
+
+
+@contextmanager
+def _forwarded(logger, log):
+    """Messages of ``logger`` (long work inside a step) go to the run's ``log`` while it runs."""
+    handler, level = _Forward(log), logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
+def _run(scene, out_dir, progress, log):
     sim = scene.simulation
     model, state = build(scene)
     for a, b in overlapping_bodies(model, state):

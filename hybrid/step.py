@@ -10,6 +10,7 @@ more back-substitution, or a product with the cached response columns when that 
 which gives the velocities the solver expected. Node contacts keep their impulses from one step to
 the next (ContactMemory) to warm-start the solver: resting contact then converges in few sweeps.
 """
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,15 @@ class InstabilityError(RuntimeError):
     def __init__(self, body, time, quantity, value):
         self.body, self.time, self.quantity, self.value = body, time, quantity, value
         super().__init__(f"unstable: body '{body}' at t = {time:.6g} s: {quantity} = {value:.3g}")
+
+
+# long computations inside a step (a large contact patch's first response columns) report here;
+# hybrid.run forwards these messages to the run log
+log = logging.getLogger("hybrid.step")
+
+
+def _reporter(name):
+    return lambda message: log.info("%s: %s", name, message)
 
 
 # above these the run is declared unstable (no scene of everyday objects gets near them)
@@ -91,7 +101,8 @@ def _coupled_step(model, state):
     bodies_touched = np.unique(group)
     group_id = -np.ones(len(model.fem), dtype=np.int64)
     group_id[bodies_touched] = np.arange(len(bodies_touched))
-    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]]) for j in bodies_touched]
+    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]],
+                             report=_reporter(model.names[model.fem_ids[j]])) for j in bodies_touched]
     p = len(touched)
     w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
     bodies = rigid_step.SolverBodies(

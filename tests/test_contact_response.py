@@ -1,0 +1,88 @@
+"""The Delassus blocks of a deformable body equal the blocks of its inverse system matrix, however
+the contact set grows and whatever the caches had to forget."""
+import numpy as np
+import pytest
+
+from fem import contact_response as cr
+from fem.dynamics import system_matrix
+from fem.mesh import box_tet_mesh
+from fem.model import build_fem_model
+
+DT = 1e-3
+
+
+def _model():
+    points, tets = box_tet_mesh((0.3, 0.2, 0.1), (6, 4, 2))
+    return build_fem_model(points, tets, density=1000.0, young=1e6, poisson=0.3)
+
+
+def _dense(rows):
+    """(k, k, 3, 3) from the solver's block rows (dropped blocks are zero)."""
+    ptr, col, blocks = rows
+    k = len(ptr) - 1
+    W = np.zeros((k, k, 3, 3))
+    for l in range(k):
+        W[l, col[ptr[l]:ptr[l + 1]]] = blocks[ptr[l]:ptr[l + 1]]
+    return W
+
+
+def _exact(model, nodes):
+    inverse = np.linalg.inv(system_matrix(model, DT).toarray())
+    dofs = (3 * np.asarray(nodes)[:, None] + np.arange(3)).ravel()
+    k = len(nodes)
+    return inverse[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+
+
+def _check(model, nodes):
+    W, exact = _dense(cr.delassus_block(model, DT, np.asarray(nodes))), _exact(model, nodes)
+    kept = np.abs(W).sum(axis=(2, 3)) > 0
+    scale = np.abs(exact).max()
+    np.testing.assert_allclose(W[kept], exact[kept], rtol=0, atol=1e-10 * scale)
+    # a dropped block is negligible against its nodes' own response (DROP_TOL)
+    assert np.abs(exact[~kept]).max(initial=0.0) <= 10 * cr.DROP_TOL * scale
+
+
+@pytest.mark.parametrize("tight", [False, True])
+def test_growing_and_moving_contact_sets_give_the_inverse_system_blocks(monkeypatch, tight):
+    if tight:   # caches too small to keep anything beyond the current set
+        monkeypatch.setattr(cr, "MAX_BLOCK_BYTES", 1.0)
+        monkeypatch.setattr(cr, "MAX_COLUMN_BYTES", 1.0)
+        monkeypatch.setattr(cr, "BATCH_BYTES", 1.0)     # one node per batch
+    model = _model()
+    rng = np.random.default_rng(3)
+    nodes = np.sort(rng.choice(model.node_count, 12, replace=False))
+    _check(model, nodes)
+    grown = np.union1d(nodes, rng.choice(model.node_count, 5, replace=False))
+    _check(model, grown)                                     # a patch that creeps
+    moved = np.sort(rng.choice(model.node_count, 9, replace=False))
+    _check(model, moved)                                     # a patch elsewhere
+    cache = cr._cache(model, DT)
+    if tight:
+        assert set(cache.known.tolist()) == set(moved.tolist())
+        assert not cache.columns
+    else:
+        assert set(cache.known.tolist()) == set(np.union1d(grown, moved).tolist())
+
+
+def test_impulses_apply_the_same_through_columns_or_a_solve(monkeypatch):
+    model = _model()
+    nodes = np.array([3, 17, 40, 41])
+    cr.delassus_block(model, DT, nodes)
+    impulse = np.random.default_rng(0).standard_normal((4, 3))
+    by_product = cr.impulse_response(model, DT, nodes, impulse)
+    assert by_product is not None
+    A = system_matrix(model, DT).toarray()
+    j = np.zeros((model.node_count, 3))
+    j[nodes] = impulse
+    np.testing.assert_allclose(by_product.ravel(), np.linalg.solve(A, j.ravel()), rtol=0,
+                               atol=1e-10 * np.abs(by_product).max())
+
+
+def test_a_long_column_solve_reports_its_progress(monkeypatch):
+    monkeypatch.setattr(cr, "BATCH_BYTES", 1.0)
+    monkeypatch.setattr(cr, "REPORT_EVERY", 0.0)
+    model = _model()
+    heard = []
+    cr.delassus_block(model, DT, np.arange(6), report=heard.append)
+    assert len(heard) == 5              # after every batch but the last
+    assert "6 new contact nodes: 1 solved" in heard[0]
