@@ -143,8 +143,13 @@ def _plastic_rotations(model, x):
 
 def gravity_force(model, gravity):
     """Node weights ``(n, 3)`` (N) for gravity ``(3,)`` m/s^2 (M applied to a uniform field)."""
-    g = np.broadcast_to(np.asarray(gravity, dtype=float), (model.node_count, 3))
-    return (model.M @ g.ravel()).reshape(-1, 3)
+    key = tuple(np.asarray(gravity, dtype=float).ravel())
+    last = getattr(model, "_gravity_force", None)      # the same gravity every step: kept
+    if last is None or last[0] != key:
+        g = np.broadcast_to(np.asarray(key), (model.node_count, 3))
+        last = (key, (model.M @ g.ravel()).reshape(-1, 3))
+        object.__setattr__(model, "_gravity_force", last)
+    return last[1].copy()
 
 
 def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
@@ -153,9 +158,20 @@ def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
         return step_solve(rhs_b)
     v = np.zeros_like(rhs_b)
     v[model.fixed_dofs] = v_fixed_b
-    r = rhs_b - A @ v
-    v[model.free_dofs] = step_solve(r[model.free_dofs])
+    if A is model.factor_cache.matrix:      # the rest system: its free-fixed block is kept
+        pull = model.factor_cache.derived("free_fixed", lambda: sp.csr_matrix(A)[model.free_dofs][
+            :, model.fixed_dofs].tocsr()) @ v_fixed_b
+    else:
+        pull = (A @ v)[model.free_dofs]
+    v[model.free_dofs] = step_solve(rhs_b[model.free_dofs] - pull)
     return v
+
+
+def _fixed_rows(model, A, v):
+    """``(A v)[fixed]`` (the anchors' rows), with the rest system's rows kept."""
+    if A is model.factor_cache.matrix:
+        return model.factor_cache.derived("fixed_rows", lambda: sp.csr_matrix(A)[model.fixed_dofs]) @ v
+    return (A @ v)[model.fixed_dofs]
 
 
 def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
@@ -264,9 +280,11 @@ def finish(model, state, step, dt):
     reaction = np.zeros_like(x)
     if model.anchored:
         # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied
-        residual = step.matrix @ (step.v @ step.R).ravel() - step.rhs - (step.impulse @ step.R).ravel()
+        fixed = model.fixed_dofs
+        residual = (_fixed_rows(model, step.matrix, (step.v @ step.R).ravel())
+                    - step.rhs[fixed] - (step.impulse @ step.R).ravel()[fixed])
         r = np.zeros(3 * model.node_count)
-        r[model.fixed_dofs] = residual[model.fixed_dofs] / dt
+        r[fixed] = residual / dt
         reaction = r.reshape(-1, 3) @ step.R.T
     R, c = body_frame(model, x)
     new = state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)

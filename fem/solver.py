@@ -88,6 +88,7 @@ class FactorCache:
         self.factor_count = 0
         self.matrix_dt = None
         self.matrix = None       # the whole system matrix for matrix_dt (anchored bodies use it)
+        self._derived = {}       # parts of that matrix, see derived()
 
     def get(self, dt, build_matrix):
         """Factorisation for ``dt``; ``build_matrix(dt)`` returns the sparse matrix to factorise."""
@@ -101,13 +102,22 @@ class FactorCache:
         """The system matrix for ``dt`` (``build_matrix(dt)``), built once per ``dt``."""
         if self.matrix is None or self.matrix_dt != dt:
             self.matrix, self.matrix_dt = build_matrix(dt), dt
+            self._derived = {}
         return self.matrix
+
+    def derived(self, key, build):
+        """``build()``, a part of the current system matrix (e.g. its anchored columns), kept until
+        the matrix changes."""
+        if key not in self._derived:
+            self._derived[key] = build()
+        return self._derived[key]
 
     def invalidate(self):
         self.factorisation = None
         self.dt = None
         self.matrix = None
         self.matrix_dt = None
+        self._derived = {}
 
 
 def cg_solve(matrix, rhs, x0, preconditioner, rtol=1e-10, maxiter=500):

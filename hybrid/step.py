@@ -169,10 +169,24 @@ def _coupled_step(model, state):
                        contact_memory=ContactMemory.of(keys, res.contact_impulse))
 
 
+_last_stack = [None, None]    # the last call's (blocks, nb) and answer: resting contact repeats it
+
+
 def _stacked_rows(blocks, nb):
     """The groups' block rows (fem.contact_response.sparse_rows, one per touched body, particles
     numbered from ``nb`` on in group order) as the solver's (w_ptr (n + 1,), w_col, W), with empty
-    rows for the nb rigid bodies; and which particles are held (anchored nodes answer nothing)."""
+    rows for the nb rigid bodies; and which particles are held (anchored nodes answer nothing).
+    Unchanged blocks (the same objects, reused by fem.contact_response) give the last answer."""
+    key, answer = _last_stack
+    if key is not None and key[1] == nb and len(key[0]) == len(blocks) \
+            and all(a is b for a, b in zip(key[0], blocks)):
+        return answer
+    answer = _stack(blocks, nb)
+    _last_stack[:] = [(list(blocks), nb), answer]
+    return answer
+
+
+def _stack(blocks, nb):
     if not blocks:
         return np.zeros(nb + 1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(0, bool)
     first = nb + np.cumsum([0] + [len(ptr) - 1 for ptr, _, _ in blocks])      # each group's first particle
