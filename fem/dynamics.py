@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from fem.assembly import assemble_from_blocks
+from fem.assembly import warped_assembly, warped_forces
 from fem.solver import Factorisation, cg_solve
 from rigid.shape_matching import best_fit_frame, rotation_of
 
@@ -93,14 +93,6 @@ def tet_rotations(model, x):
     return rotation_of(Ds @ model.elements.tet_rest_inverse)
 
 
-def _scatter(model, element_vectors):
-    """Sum per-element node vectors ``(t, b, 3)`` into nodes ``(n, 3)``."""
-    idx = model.elements.tet_nodes.ravel()
-    ev = element_vectors.reshape(-1, 3)
-    return np.stack([np.bincount(idx, weights=ev[:, k], minlength=model.node_count)
-                     for k in range(3)], axis=1)
-
-
 def _corotated_displacement(model, x, tet_R):
     """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m)."""
     nodes = model.elements.tet_nodes
@@ -110,22 +102,15 @@ def _corotated_displacement(model, x, tet_R):
 
 
 def warped_stiffness(model, tet_R):
-    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m), assembled vectorised."""
-    Ke = model.elements.tet_stiffness
-    t, m, _ = Ke.shape
-    Ke = Ke.reshape(t, m // 3, 3, m // 3, 3)
-    Kw = np.einsum("tik,takbl,tjl->taibj", tet_R, Ke, tet_R, optimize=True)
-    return assemble_from_blocks(model.elements, Kw.reshape(t, m, m), 3 * model.node_count)
+    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) (:func:`fem.assembly.warped_assembly`)."""
+    return warped_assembly(model.elements, tet_R, 3 * model.node_count)
 
 
 def elastic_force(model, state, tet_R=None):
     """Elastic node forces ``(n, 3)`` (N), world frame, linear elasticity in the model's frame."""
     if model.frame == "corotated":
         tet_R = tet_rotations(model, state.x) if tet_R is None else tet_R
-        u = _corotated_displacement(model, state.x, tet_R)
-        t, b, _ = u.shape
-        g = np.einsum("tij,tj->ti", model.elements.tet_stiffness, u.reshape(t, 3 * b)).reshape(t, b, 3)
-        return -_scatter(model, np.einsum("tij,taj->tai", tet_R, g))
+        return warped_forces(model.elements, tet_R, state.x, model.rest_points, model.node_count)
     u = (state.x - state.c) @ state.R - model.rest_offsets
     return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
 

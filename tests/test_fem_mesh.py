@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from fem.assembly import assemble, assemble_from_blocks
+from fem.assembly import assemble, assemble_from_blocks, warped_assembly
 from fem.mesh import (box_tet_mesh, check_tets, cylinder_tet_mesh, quadratic_tets,
                       sphere_tet_mesh, surface_triangles, tet_signed_volumes)
 from fem.model import build_fem_model
@@ -66,3 +66,40 @@ def test_assembled_matrices_match_element_blocks_and_rigid_modes(order):
     np.testing.assert_allclose(model.node_mass.sum(), 1200.0 * volume, rtol=1e-12)
     assert is_closed(model.surface)
     np.testing.assert_allclose(signed_volume(model.rest_points, model.surface), volume, rtol=1e-12)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_warped_stiffness_of_a_rigidly_rotated_body_is_the_rotated_stiffness(order):
+    """Every element turned by the same Q: sum_e Q K_e Q^T = (I_n kron Q) K (I_n kron Q)^T; and for
+    element rotations of their own, each rotated block sums as the element loop would."""
+    points, tets = cylinder_tet_mesh(0.1, 0.3, 4)
+    if order == 2:
+        points, tets = quadratic_tets(points, tets)
+    K, _, data = assemble(points, tets, 1e9, 0.3, 1200.0)
+    c, s = np.cos(0.7), np.sin(0.7)
+    Q = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    big = np.kron(np.eye(len(points)), Q)
+    warped = warped_assembly(data, np.broadcast_to(Q, (len(tets), 3, 3)), K.shape[0])
+    np.testing.assert_allclose(warped.toarray(), big @ K.toarray() @ big.T, rtol=0, atol=1e-12 * abs(K).max())
+    rng = np.random.default_rng(2)
+    R = np.linalg.qr(rng.standard_normal((len(tets), 3, 3)))[0]
+    t, m, _ = data.tet_stiffness.shape
+    blocks = np.einsum("tik,takbl,tjl->taibj", R, data.tet_stiffness.reshape(t, m // 3, 3, m // 3, 3), R)
+    reference = assemble_from_blocks(data, blocks.reshape(t, m, m), K.shape[0])
+    np.testing.assert_allclose(warped_assembly(data, R, K.shape[0]).toarray(), reference.toarray(),
+                               rtol=0, atol=1e-12 * abs(K).max())
+
+
+def test_warped_forces_vanish_under_rigid_motion_and_equal_linear_forces_unrotated():
+    from fem.assembly import warped_forces
+    points, tets = cylinder_tet_mesh(0.1, 0.3, 4)
+    K, _, data = assemble(points, tets, 1e9, 0.3, 1200.0)
+    n = len(points)
+    c, s = np.cos(1.1), np.sin(1.1)
+    Q = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    moved = points @ Q.T + [3.0, -2.0, 5.0]
+    f = warped_forces(data, np.broadcast_to(Q, (len(tets), 3, 3)), moved, points, n)
+    assert np.abs(f).max() <= 1e-12 * abs(K).max() * np.abs(points).max()
+    u = 1e-4 * np.random.default_rng(0).standard_normal((n, 3))
+    f = warped_forces(data, np.broadcast_to(np.eye(3), (len(tets), 3, 3)), points + u, points, n)
+    np.testing.assert_allclose(f.ravel(), -(K @ u.ravel()), rtol=0, atol=1e-10 * np.abs(K @ u.ravel()).max())
