@@ -14,7 +14,8 @@ support and frame (floating, corotated), measured in the same run, side by side:
            ``--warmup`` steps so the box has settled into contact; median of ``--steps`` steps
   elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
            loaded state; median of ``--steps`` repetitions
-  floor    one back-substitution of the same prefactored system,
+  floor    one back-substitution of the same prefactored system (the row's sparse backend,
+           ``--backends``: CHOLMOD, the project's default, and SuperLU),
            ``fem.dynamics.system_factorisation(model, dt).solve`` on a random right-hand side;
            median of 20 repetitions
   naive    per step: a scikit-fem basis on the current node positions, K (linear elasticity) and
@@ -26,16 +27,16 @@ Goals reported against: floating step within 2x of the floor; coupled step at le
 than naive at 10k tets.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/fem_step.py [--sizes 1000 10000] [--big] [--steps 30]
-        [--supports ground anchored]
+        [--supports ground anchored] [--backends cholmod superlu]
 
 Then, unless ``--no-plastic``, the plastic pass of benchmarks/plastic_step.py: its cost per step
 at ~10k tets over the elastic step (goal: under 30% extra) and the reference updates
 (refactorisations) of the dent scene.
 
 Prints the tables and writes outputs/bench/fem_step.csv (and plastic_step's CSV). Default run:
-~1k and ~10k tets, about 6 minutes on two shared cores. ``--big`` adds ~50k tets; its first
-coupled step on the ground solves the response columns of ~1,700 touched nodes (166 s measured),
-so use e.g. ``--sizes 50000 --supports anchored --steps 10 --warmup 5 --naive-steps 1``.
+~1k and ~10k tets, both backends, about 10 minutes on two shared cores. ``--big`` adds ~50k tets;
+its first coupled step on the ground solves the response columns of 1,346 touched nodes (41 s with
+CHOLMOD), so e.g. ``--sizes 50000 --steps 10 --warmup 5 --naive-steps 1 --backends cholmod``.
 """
 import argparse
 import csv
@@ -55,6 +56,7 @@ from skfem.helpers import dot
 from skfem.models.elasticity import lame_parameters, linear_elasticity
 
 from fem import dynamics as fem_dyn
+from fem import solver as fem_solver
 from hybrid.build import build
 from hybrid.scene import parse_scene
 from hybrid.step import step
@@ -67,6 +69,8 @@ YOUNG, POISSON, DENSITY = 1e6, 0.3, 1000.0
 DT = 1e-3
 FRAMES = ("floating", "corotated")
 SUPPORTS = ("ground", "anchored")   # slab lying on a ground plane, or its bottom face held
+BACKENDS = ("cholmod", "superlu")   # fem.solver backends (the floor is that of the row's backend)
+default_backend = fem_solver.BACKEND
 CSV_PATH = Path("outputs/bench/fem_step.csv")
 
 
@@ -180,19 +184,27 @@ def main():
     parser.add_argument("--naive-steps", type=int, default=3, help="timed naive steps per size")
     parser.add_argument("--supports", nargs="+", default=list(SUPPORTS), choices=SUPPORTS,
                         help="how the slab is held up (default: both)")
+    parser.add_argument("--backends", nargs="+", default=[b for b in BACKENDS if b != "cholmod"
+                                                           or fem_solver.CholeskySolverD is not None],
+                        choices=BACKENDS, help="sparse solver backends to run (default: both; the "
+                        "project uses cholmod when cholespy is installed)")
     parser.add_argument("--no-plastic", action="store_true",
                         help="skip the plastic-pass cost and dent reference updates (plastic_step.py)")
     args = parser.parse_args()
     sizes = args.sizes + ([50000] if args.big and 50000 not in args.sizes else [])
 
-    rows = []
+    rows, naive = [], {}
     for target in sizes:
         cells = slab_cells(target)
         for support in args.supports:
-            for frame in FRAMES:
-                rows.append(measure_row(cells, frame, support, args))
-                print(f"  {rows[-1]['tets']} tets {support} {frame}: step {rows[-1]['step_ms']:.1f} ms "
-                      f"(box z {rows[-1]['box_z']:.4f} m, slab min z {rows[-1]['slab_min_z']:.2e} m)", flush=True)
+            for backend in args.backends:
+                fem_solver.BACKEND = backend
+                for frame in FRAMES:
+                    rows.append(measure_row(cells, frame, support, backend, naive, args))
+                    print(f"  {rows[-1]['tets']} tets {support} {backend} {frame}: step "
+                          f"{rows[-1]['step_ms']:.1f} ms (box z {rows[-1]['box_z']:.4f} m, slab min z "
+                          f"{rows[-1]['slab_min_z']:.2e} m)", flush=True)
+    fem_solver.BACKEND = default_backend
     report(rows, args)
     if not args.no_plastic:
         print("\nplastic pass (benchmarks/plastic_step.py): goal under 30% extra over the elastic step")
@@ -200,13 +212,16 @@ def main():
         plastic_step.main()
 
 
-def measure_row(cells, frame, support, args):
+def measure_row(cells, frame, support, backend, naive_by_size, args):
     model, state, r = measure(cells, frame, support, args.steps, args.warmup)
     m = model.fem[0]
     s = state.fem[0]
-    naive, _ = median_ms(lambda: naive_step(m.rest_points, m.tets, s.x, s.v, model.gravity), args.naive_steps)
-    row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, support=support, frame=frame,
-               **r, naive_ms=naive)
+    if (cells, support) not in naive_by_size:     # the naive step does not depend on the backend
+        naive_by_size[cells, support] = median_ms(
+            lambda: naive_step(m.rest_points, m.tets, s.x, s.v, model.gravity), args.naive_steps)[0]
+    naive = naive_by_size[cells, support]
+    row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, support=support,
+               backend=backend, frame=frame, **r, naive_ms=naive)
     row["step_over_floor"] = row["step_ms"] / row["floor_ms"]
     row["elastic_over_floor"] = row["elastic_ms"] / row["floor_ms"]
     row["naive_over_step"] = naive / row["step_ms"]
@@ -215,26 +230,26 @@ def measure_row(cells, frame, support, args):
 
 
 def report(rows, args):
-    header = (f"{'tets':>6} {'dofs':>6} {'support':>8} {'frame':>9} {'step ms':>8} {'elastic ms':>10} {'floor ms':>8} "
+    header = (f"{'tets':>6} {'dofs':>6} {'support':>8} {'backend':>8} {'frame':>9} {'step ms':>8} {'elastic ms':>10} {'floor ms':>8} "
               f"{'naive ms':>9} {'step/floor':>10} {'elastic/floor':>13} {'naive/step':>10} "
               f"{'naive/elastic':>13}")
     print(f"\nmedians; coupled step over {args.steps} steps after {args.warmup} warm-up, floor over 20 "
           f"solves, naive over {args.naive_steps} steps; dt = {DT} s")
     print(header)
     for r in rows:
-        print(f"{r['tets']:>6} {r['dofs']:>6} {r['support']:>8} {r['frame']:>9} {r['step_ms']:>8.2f} {r['elastic_ms']:>10.2f} "
+        print(f"{r['tets']:>6} {r['dofs']:>6} {r['support']:>8} {r['backend']:>8} {r['frame']:>9} {r['step_ms']:>8.2f} {r['elastic_ms']:>10.2f} "
               f"{r['floor_ms']:>8.2f} {r['naive_ms']:>9.1f} {r['step_over_floor']:>10.1f} "
               f"{r['elastic_over_floor']:>13.2f} {r['naive_over_step']:>10.1f} {r['naive_over_elastic']:>13.1f}")
 
     print("\ngoals")
     for r in rows:
         if r["frame"] == "floating":
-            print(f"  {r['tets']} tets {r['support']} floating within 2x of floor: coupled {r['step_over_floor']:.1f}x "
+            print(f"  {r['tets']} tets {r['support']} {r['backend']} floating within 2x of floor: coupled {r['step_over_floor']:.1f}x "
                   f"({'met' if r['step_over_floor'] <= 2 else 'NOT met'}), elastic-only "
                   f"{r['elastic_over_floor']:.2f}x ({'met' if r['elastic_over_floor'] <= 2 else 'NOT met'})")
     for r in rows:
         if 5000 <= r["tets"] <= 20000:
-            print(f"  {r['tets']} tets {r['support']} {r['frame']} >= 20x faster than naive: coupled "
+            print(f"  {r['tets']} tets {r['support']} {r['backend']} {r['frame']} >= 20x faster than naive: coupled "
                   f"{r['naive_over_step']:.1f}x ({'met' if r['naive_over_step'] >= 20 else 'NOT met'}), "
                   f"elastic-only {r['naive_over_elastic']:.1f}x "
                   f"({'met' if r['naive_over_elastic'] >= 20 else 'NOT met'})")
