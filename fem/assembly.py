@@ -154,6 +154,8 @@ def warped_forces(data, rotations, x, rest_points, node_count):
 
 @nb.njit(cache=True)
 def _warped_forces_into(Ke, R, tet_nodes, x, X, out):
+    """out[node] -= (R_e K_e u_e)[node] for every element e, u_e = R_e^T x_e - X_e less its mean;
+    Ke (t, 3b, 3b), R (t, 3, 3), tet_nodes (t, b), x and X (n, 3)."""
     t, m, _ = Ke.shape
     b = m // 3
     u = np.empty(m)

@@ -94,7 +94,8 @@ def tet_rotations(model, x):
 
 
 def _corotated_displacement(model, x, tet_R):
-    """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m)."""
+    """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m), as
+    :func:`fem.assembly.warped_forces` forms them per element (here for the energy diagnostic)."""
     nodes = model.elements.tet_nodes
     u = np.einsum("taj,tji->tai", x[nodes], tet_R) - model.rest_points[nodes]
     # drop each element's mean translation (K_e ignores it) so far-away bodies keep their digits
