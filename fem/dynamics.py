@@ -8,6 +8,9 @@ Equations (h = dt, C = alpha M + beta K_R, f(x) the elastic force, f_ext loads a
   backward Euler  (M + h C + h^2 K_R) v+ = M v + h (f(x) + f_ext),              x+ = x + h v+
   Newmark (gamma = 1/2, beta = 1/4, i.e. the trapezoidal rule on x and v)
     (M + h/2 C + h^2/4 K_R) v+ = M v + h (f(x) + f_ext) - (h/2 C + h^2/4 K_R) v, x+ = x + h (v + v+)/2
+A free body under Newmark is stepped in the frame that moves with its centre of mass and spins
+at its angular velocity over the step (``_predict_spin_frame``): the trapezoidal rule on world
+coordinates moves a spinning body's nodes along chords and diverges without numerical damping.
 K_R is the stiffness seen in the current frame: ``R K R^T`` (floating frame; since M is isotropic
 per node, the matrix is ``R A R^T`` and one factorisation of A serves all steps) or the warped
 stiffness ``sum_e R_e K_e R_e^T`` (corotated, Mueller and Gross 2004), rebuilt every step.
@@ -31,6 +34,8 @@ class StepData:
     """One step in progress (between ``predict`` and ``finish``).
 
     v: ``(n, 3)`` end-of-step node velocities (m/s), world frame.
+    x_base, x_rate: end-of-step positions are ``x_base + x_rate * v`` (``(n, 3)`` m, s), so contact
+        impulses move the nodes they speed up.
     rhs: ``(3n,)`` right-hand side of the system in the solve frame (N s).
     impulse: ``(n, 3)`` node impulses applied so far (N s), world frame.
     R: ``(3, 3)`` rotation of the solve frame (body frame for a floating body, else identity).
@@ -39,6 +44,8 @@ class StepData:
     iterations: one-element list, CG iterations spent by this step's corotated solves.
     """
     v: np.ndarray
+    x_base: np.ndarray
+    x_rate: float
     rhs: np.ndarray
     impulse: np.ndarray
     R: np.ndarray
@@ -166,25 +173,11 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     dt s; gravity ``(3,)`` m/s^2. The floating frame reuses the factorisation cached in the model;
     the corotated frame assembles the warped stiffness and solves (see ``COROTATED_SOLVER``).
     """
+    if model.integrator == "newmark" and not model.anchored:
+        return _predict_spin_frame(model, state, dt, gravity)
     a_M, a_K = system_coefficients(model, dt)
-    force = gravity_force(model, gravity) + model.node_load
-    iterations = [0]
-    if model.frame == "corotated":
-        tet_R = _plastic_rotations(model, state.x) if model.plastic else tet_rotations(model, state.x)
-        force += elastic_force(model, state, tet_R)
-        if model.plastic:
-            force += _plastic_force(model, state, tet_R)
-        K = warped_stiffness(model, tet_R)
-        A = (a_M * model.M + a_K * K).tocsr()
-        R = np.eye(3)
-        solve, iterations = _corotated_solver(model, dt, A, state)
-    else:
-        force += elastic_force(model, state)
-        if model.plastic:
-            force += _plastic_force(model, state)
-        K, R = model.K, state.R
-        A = None
-        solve = system_factorisation(model, dt).solve
+    force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
+    force += gravity_force(model, gravity) + model.node_load
     # solve frame: node vectors are rotated by R^T (M is isotropic per node, so M commutes)
     v_b = (state.v @ R).ravel()
     Mv = model.M @ v_b
@@ -197,8 +190,92 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     v_new = _solve_in_frame(model, solve, A, rhs, (v_fixed @ R).ravel())
     if A is None:
         A = _LazyMatrix(model, dt)
-    return StepData(v=v_new.reshape(-1, 3) @ R.T, rhs=rhs, impulse=np.zeros_like(state.v), R=R,
+    v_new = v_new.reshape(-1, 3) @ R.T
+    if model.integrator == "newmark":
+        x_base, x_rate = state.x + 0.5 * dt * state.v, 0.5 * dt
+    else:
+        x_base, x_rate = state.x, dt
+    return StepData(v=v_new, x_base=x_base, x_rate=x_rate, rhs=rhs, impulse=np.zeros_like(state.v), R=R,
                     matrix=A, solve=solve, iterations=iterations)
+
+
+def _internal_forces_and_solver(model, dt, state):
+    """This step's internal forces ``(n, 3)`` N (elastic and plastic, world), the stiffness K_R of
+    the system, the solve frame R, the system matrix (None: the cached rest one), the solver of
+    the free DOFs and its CG iteration count (a one-element list)."""
+    a_M, a_K = system_coefficients(model, dt)
+    if model.frame == "corotated":
+        tet_R = _plastic_rotations(model, state.x) if model.plastic else tet_rotations(model, state.x)
+        force = elastic_force(model, state, tet_R)
+        if model.plastic:
+            force += _plastic_force(model, state, tet_R)
+        K = warped_stiffness(model, tet_R)
+        A = (a_M * model.M + a_K * K).tocsr()
+        solve, iterations = _corotated_solver(model, dt, A, state)
+        return force, K, np.eye(3), A, solve, iterations
+    force = elastic_force(model, state)
+    if model.plastic:
+        force += _plastic_force(model, state)
+    return force, model.K, state.R, None, system_factorisation(model, dt).solve, [0]
+
+
+def _rotation(phi):
+    """Rotation matrix ``(3, 3)`` of a rotation vector ``(3,)`` (rad)."""
+    from rigid.quaternion import from_rotation_vector, to_matrix
+    return to_matrix(from_rotation_vector(phi))
+
+
+def _inertia(m, y):
+    """Inertia tensor ``(3, 3)`` (kg m^2) of point masses ``m`` ``(n,)`` at ``y`` ``(n, 3)``."""
+    return np.eye(3) * np.einsum("i,ij,ij->", m, y, y) - np.einsum("i,ij,ik->jk", m, y, y)
+
+
+def _predict_spin_frame(model, state, dt, gravity):
+    """Newmark step of a free body in the frame that spins with it.
+
+    The trapezoidal rule moves nodes along chords: a spinning body is stretched by ``(w h)^2 / 2``
+    per step and, without numerical damping, the stretch feeds back into the spin until the run
+    diverges. So the step is taken in the frame that translates with the centre of mass and turns
+    at the body's angular velocity ``w = I^-1 L`` over the step: there the rigid motion is at rest,
+    the trapezoidal rule acts on the deformation only, and the frame's motion is exact. The frame
+    adds its inertial forces: centrifugal ``-m w x (w x y)`` (explicit: it is what stretches a
+    spinning body) and Coriolis ``-2 m w x u`` (as the rotation of the relative velocities by
+    ``-2 w h``, which does no work). The centre of mass takes the net force exactly; mass damping
+    slows translation and spin as it slows the deformation.
+    """
+    h = dt
+    a_M, a_K = system_coefficients(model, dt)
+    m = model.node_mass
+    total = m.sum()
+    force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
+    y = state.x - state.c                                   # about the centre of mass
+    V = m @ state.v / total
+    L = m @ np.cross(y, state.v - V)
+    w = np.linalg.solve(_inertia(m, y), L)
+    u = state.v - V - np.cross(w, y)                        # velocities relative to the spinning frame
+    u = u @ _rotation(-2.0 * h * w).T                       # Coriolis over the step
+    turn = _rotation(h * w)                                 # the frame's turn over the step
+    load = gravity_force(model, gravity) + model.node_load
+    net = load.sum(axis=0)
+    torque = np.cross(y, load).sum(axis=0)
+    load = load - np.outer(m / total, net)                  # the net force moves the centre
+    force = force + 0.5 * (load + load @ turn) - m[:, None] * np.cross(w, np.cross(w, y))
+    u_b = (u @ R).ravel()
+    Mu = model.M @ u_b
+    rhs = Mu + h * (force @ R).ravel() - (a_M - 1.0) * Mu - a_K * (K @ u_b)
+    u_new = solve(rhs).reshape(-1, 3) @ R.T
+    y_new = y + 0.5 * h * (u + u_new)
+    slow = (1.0 - 0.5 * h * model.damping_mass) / a_M      # mass damping of the rigid motion
+    V_new = slow * V + h * net / (total * a_M)
+    x_new = state.c + 0.5 * h * (V + V_new) + y_new @ turn.T
+    # the end spin from the angular momentum balance (in the frame's end axes): the body's spin
+    # slows as it stretches, and wobble (spin off a principal axis) keeps L exactly
+    L_new = (slow * L + h * torque) @ turn - m @ np.cross(y_new, u_new)
+    w_new = np.linalg.solve(_inertia(m, y_new), L_new)
+    v_new = V_new + (u_new + np.cross(w_new, y_new)) @ turn.T
+    return StepData(v=v_new, x_base=x_new - 0.5 * h * v_new, x_rate=0.5 * h, rhs=rhs,
+                    impulse=np.zeros_like(state.v), R=R, matrix=_LazyMatrix(model, dt) if A is None else A,
+                    solve=solve, iterations=iterations)
 
 
 class _LazyMatrix:
@@ -259,10 +336,7 @@ def finish(model, state, step, dt):
     and (plastic bodies only) return-map the new strain onto the yield surface
     (``fem.plastic_flow.plastic_update``). Returns the new :class:`fem.model.FemState`.
     """
-    if model.integrator == "newmark":
-        x = state.x + 0.5 * dt * (state.v + step.v)
-    else:
-        x = state.x + dt * step.v
+    x = step.x_base + step.x_rate * step.v
     reaction = np.zeros_like(x)
     if model.anchored:
         # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied

@@ -187,7 +187,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           fem=True),
     Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
     Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
-          "`newmark` (less damping).", choices=("backward_euler", "newmark"), fem=True),
+          "`newmark` (no numerical damping; a free body is stepped in the frame spinning with it).",
+          choices=("backward_euler", "newmark"), fem=True),
     Field("anchors", "tables", (), "", "Held regions, see `[[bodies.anchors]]`.", table="bodies.anchors",
           fem=True, default_text="none"),
     Field("loads", "tables", (), "", "Applied forces, see `[[bodies.loads]]`.", table="bodies.loads",

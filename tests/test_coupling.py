@@ -1,5 +1,6 @@
 """Two-way coupling of rigid and FEM bodies through the shared contact solver (issue: FEM)."""
 import numpy as np
+import pytest
 
 from hybrid.observe import totals
 
@@ -9,7 +10,8 @@ def fem_com_velocity(model, state, j=0):
     return m.node_mass @ state.fem[j].v / m.node_mass.sum()
 
 
-def test_rigid_ball_hitting_free_fem_block_conserves_linear_momentum(sim):
+@pytest.mark.parametrize("integrator", ["backward_euler", "newmark"])
+def test_rigid_ball_hitting_free_fem_block_conserves_linear_momentum(sim, integrator):
     s = sim("""
 [simulation]
 dt = 0.001
@@ -28,7 +30,8 @@ shape = { type = "box", size = [0.2, 0.2, 0.2], resolution = 0.05 }
 density = 1000.0
 young = 1e6
 poisson = 0.3
-""")
+integrator = "INTEGRATOR"
+""".replace("INTEGRATOR", integrator))
     _, P0, _ = totals(s.model, s.state)
     s.advance(0.08)
     _, P1, _ = totals(s.model, s.state)
