@@ -22,6 +22,7 @@ import scipy.sparse as sp
 
 from fem.assembly import warped_assembly, warped_forces
 from fem.solver import Factorisation, cg_solve
+from rigid import quaternion as quat
 from rigid.shape_matching import best_fit_frame, rotation_of
 
 # corotated solves: "cg" (warm-started CG preconditioned by the rest factorisation rotated into the
@@ -221,8 +222,7 @@ def _internal_forces_and_solver(model, dt, state):
 
 def _rotation(phi):
     """Rotation matrix ``(3, 3)`` of a rotation vector ``(3,)`` (rad)."""
-    from rigid.quaternion import from_rotation_vector, to_matrix
-    return to_matrix(from_rotation_vector(phi))
+    return quat.to_matrix(quat.from_rotation_vector(phi))
 
 
 def _inertia(m, y):
