@@ -176,15 +176,9 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     """
     if model.integrator == "newmark" and not model.anchored:
         return _predict_spin_frame(model, state, dt, gravity)
-    a_M, a_K = system_coefficients(model, dt)
     force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
     force += gravity_force(model, gravity) + model.node_load
-    # solve frame: node vectors are rotated by R^T (M is isotropic per node, so M commutes)
-    v_b = (state.v @ R).ravel()
-    Mv = model.M @ v_b
-    rhs = Mv + dt * (force @ R).ravel()
-    if model.integrator == "newmark":
-        rhs -= (a_M - 1.0) * Mv + a_K * (K @ v_b)
+    rhs = _right_hand_side(model, dt, state.v, force, K, R)
     if A is None and model.anchored:
         A = system_matrix(model, dt)
     v_fixed = model.anchor_velocity[model.node_anchor[model.node_anchor >= 0]]
@@ -198,6 +192,19 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
         x_base, x_rate = state.x, dt
     return StepData(v=v_new, x_base=x_base, x_rate=x_rate, rhs=rhs, impulse=np.zeros_like(state.v), R=R,
                     matrix=A, solve=solve, iterations=iterations)
+
+
+def _right_hand_side(model, dt, v, force, K, R):
+    """``(3n,)`` right-hand side (N s) of the step's system for start velocities ``v`` and forces
+    ``force`` ``(n, 3)`` (world), in the solve frame: node vectors rotated by ``R^T`` (M is
+    isotropic per node, so it commutes). See the module's equations."""
+    v_b = (v @ R).ravel()
+    Mv = model.M @ v_b
+    rhs = Mv + dt * (force @ R).ravel()
+    if model.integrator == "newmark":
+        a_M, a_K = system_coefficients(model, dt)
+        rhs -= (a_M - 1.0) * Mv + a_K * (K @ v_b)
+    return rhs
 
 
 def _internal_forces_and_solver(model, dt, state):
@@ -244,7 +251,7 @@ def _predict_spin_frame(model, state, dt, gravity):
     slows translation and spin as it slows the deformation.
     """
     h = dt
-    a_M, a_K = system_coefficients(model, dt)
+    a_M = system_coefficients(model, dt)[0]
     m = model.node_mass
     total = m.sum()
     force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
@@ -260,9 +267,7 @@ def _predict_spin_frame(model, state, dt, gravity):
     torque = np.cross(y, load).sum(axis=0)
     load = load - np.outer(m / total, net)                  # the net force moves the centre
     force = force + 0.5 * (load + load @ turn) - m[:, None] * np.cross(w, np.cross(w, y))
-    u_b = (u @ R).ravel()
-    Mu = model.M @ u_b
-    rhs = Mu + h * (force @ R).ravel() - (a_M - 1.0) * Mu - a_K * (K @ u_b)
+    rhs = _right_hand_side(model, dt, u, force, K, R)
     u_new = solve(rhs).reshape(-1, 3) @ R.T
     y_new = y + 0.5 * h * (u + u_new)
     slow = (1.0 - 0.5 * h * model.damping_mass) / a_M      # mass damping of the rigid motion
