@@ -32,11 +32,11 @@ def test_spinning_cube_keeps_volume_and_angular_momentum(frame, integrator):
           f"energy {min(energies):.5f}..{max(energies):.5f} of the start")
     assert worst_volume < 0.01
     assert worst_momentum < 0.01
-    if integrator == "newmark":
-        # stepped in the frame spinning with the body: no energy from the chords the nodes would
-        # otherwise move along (the trapezoidal rule alone diverges here), and none lost either
-        assert 0.99 < min(energies) and max(energies) < 1.001
-        assert worst_momentum < 1e-9
+    # stepped in the frame spinning with the body: no energy from the chords the nodes would
+    # otherwise move along (the trapezoidal rule alone diverges here, backward Euler lost 2.7%),
+    # and L kept to round-off by the frame's angular momentum balance
+    assert 0.999 < min(energies) and max(energies) < 1.0001
+    assert worst_momentum < 1e-9
     # the vector L is conserved too (the lumped cube is not exactly isotropic, so it may wobble)
     np.testing.assert_allclose(angular_momentum(model, state), L0, atol=0.01 * np.linalg.norm(L0))
     if frame == "floating":
@@ -104,6 +104,8 @@ def test_stiff_steel_beam_at_large_step_is_stable_and_never_gains_energy(integra
 
 @pytest.mark.parametrize("frame,integrator,spin", [("floating", "backward_euler", 5.0),
                                                    ("corotated", "backward_euler", 5.0),
+                                                   ("floating", "backward_euler", 30.0),
+                                                   ("corotated", "backward_euler", 30.0),
                                                    ("floating", "newmark", 0.0),
                                                    ("floating", "newmark", 5.0),
                                                    ("floating", "newmark", 20.0)])
@@ -114,9 +116,12 @@ def test_rubber_block_at_large_step_is_stable_and_never_gains_energy(frame, inte
     rng = np.random.default_rng(1)
     x = points * [1.05, 0.97, 1.0] + 0.002 * rng.standard_normal(points.shape)
     state = rest_state(model, x=x, v=np.cross([0, spin, 0], points))
+    L0 = angular_momentum(model, state)
     E0, history, state = run_energy(model, state, 0.01, 100)
-    print(f"rubber {frame} {integrator}: max E/E0 {history.max() / E0:.6f}")
+    print(f"rubber {frame} {integrator} spin {spin}: max E/E0 {history.max() / E0:.6f}")
     assert history.max() <= 1.01 * E0
+    # the spin is kept while the vibration dies out (w h = 0.3 at 30 rad/s)
+    np.testing.assert_allclose(angular_momentum(model, state), L0, atol=1e-9 * (np.linalg.norm(L0) + 1e-3))
 
 
 def test_newmark_tumbling_body_under_gravity_gains_exactly_its_weight_in_momentum():
@@ -156,8 +161,8 @@ def test_newmark_spinning_bar_stretches_by_its_centrifugal_load():
     assert abs((half_length - a) / theory - 1) < 0.03
 
 
-@pytest.mark.parametrize("integrator,limit_degrees", [("newmark", 0.1), ("backward_euler", 1.0)])
-def test_stiff_deformable_box_tumbles_like_a_rigid_body(integrator, limit_degrees):
+@pytest.mark.parametrize("integrator", ["newmark", "backward_euler"])
+def test_stiff_deformable_box_tumbles_like_a_rigid_body(integrator):
     """Spun about an axis near its intermediate principal axis, where spin is unstable (the tennis
     racket), a steel box wobbles away from it; its best-fit rotation follows Euler's equations for
     its inertia tensor (integrated by scipy to 1e-10)."""
@@ -184,4 +189,55 @@ def test_stiff_deformable_box_tumbles_like_a_rigid_body(integrator, limit_degree
     print(f"{integrator}: best-fit rotation at most {worst:.3f} deg from the rigid body's, "
           f"which turned {flipped:.0f} deg")
     assert flipped > 90
-    assert worst < limit_degrees
+    assert worst < 0.1
+
+
+@pytest.fixture(scope="module")
+def spinning_vibrating_block():
+    """A soft block released from a 5% stretch while it spins at 10 rad/s (about a third of its
+    lowest vibration frequency, so Coriolis and centrifugal forces shape the vibration), and its
+    motion over 0.2 s from the equations of motion of the semi-discrete model in the inertial frame,
+    ``m_i a_i = f_i(x) - m_i (I^-1 tau) x y_i`` (f the elastic force in the best-fit frame, whose
+    small torque tau about the centre, second order in the strain, the step's angular momentum
+    balance takes out), integrated by scipy (DOP853, rtol 1e-11)."""
+    points, tets = box_tet_mesh((0.2, 0.1, 0.1), (2, 1, 1))
+    model = build_fem_model(points, tets, density=1000.0, young=1e4, poisson=0.3)
+    m, n = model.node_mass, model.node_count
+    x0 = model.rest_points * [1.05, 1.0, 1.0]
+    v0 = np.cross([0.0, 0.0, 10.0], x0)
+
+    def motion(_, s):
+        x = s[:3 * n].reshape(-1, 3)
+        state = rest_state(model, x=x)
+        f = elastic_force(model, state)
+        y = x - state.c
+        inertia = np.eye(3) * np.einsum("i,ij,ij->", m, y, y) - np.einsum("i,ij,ik->jk", m, y, y)
+        alpha = np.linalg.solve(inertia, np.cross(y, f).sum(axis=0))
+        return np.concatenate([s[3 * n:], (f / m[:, None] - np.cross(alpha, y)).ravel()])
+
+    T = 0.2
+    ref = solve_ivp(motion, (0, T), np.concatenate([x0.ravel(), v0.ravel()]), method="DOP853",
+                    rtol=1e-11, atol=1e-13)
+    return points, tets, x0, v0, T, ref.y[:3 * n, -1].reshape(-1, 3)
+
+
+@pytest.mark.parametrize("integrator,order", [("newmark", 2), ("backward_euler", 1)])
+def test_spinning_vibrating_body_converges_at_the_integrators_order(spinning_vibrating_block, integrator, order):
+    """The step in the spinning frame (centrifugal at mid-step, Coriolis split around the solve,
+    the end spin from L) converges to the inertial-frame motion at the integrator's order; an
+    inconsistent inertial force (e.g. no Coriolis) leaves an error of half the vibration."""
+    points, tets, x0, v0, T, x_ref = spinning_vibrating_block
+    model = build_fem_model(points, tets, density=1000.0, young=1e4, poisson=0.3, integrator=integrator)
+    amplitude = np.abs(x0 - model.rest_points).max()
+    errors = []
+    for dt in (2e-3, 1e-3, 5e-4, 2.5e-4):
+        state = rest_state(model, x=x0, v=v0)
+        for _ in range(round(T / dt)):
+            state = step(model, state, dt)
+        errors.append(np.abs(state.x - x_ref).max() / amplitude)
+    rates = np.log2(np.array(errors[:-1]) / errors[1:])
+    print(f"{integrator}: errors {np.array(errors)} of the amplitude, rates {rates}")
+    # (second order needs each piece: without the mid-step centrifugal force, or with the torque
+    # of the frame's force taken out of the velocities only, the last rate drops to 1.1-1.5)
+    assert np.all(rates[1:] > 0.85 * order)      # (the coarsest step is not yet asymptotic)
+    assert errors[-1] < (5e-4 if order == 2 else 0.03)

@@ -194,12 +194,14 @@ def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
     model, state, events = run(model, state, 150, watch)
     assert len(model.names) >= 4 + 3, "expected several fragments"
     assert max(checks["momentum"]) < 1e-9        # splitting never changes momentum
-    model, state, more = run(model, state, 550)
+    # the fragments fall 0.3 m (about 20 J) and bounce and tumble for a while (still a few J at
+    # 0.7 s, at rest by 1.2 s)
+    model, state, more = run(model, state, 1150)
     energy, _, _ = totals(model, state)
     assert energy <= energy0
-    # everything has landed and is nearly at rest, nothing flew off
+    # everything has landed and is at rest, nothing flew off
     kinetic = sum(0.5 * float(m.node_mass @ (s.v ** 2).sum(axis=1)) for m, s in zip(model.fem, state.fem))
-    assert kinetic < 0.5
+    assert kinetic < 0.01
     for s in state.fem:
         assert s.x[:, 2].min() > -0.005 and np.abs(s.x[:, :2]).max() < 1.5
     rigid = model.rigid
