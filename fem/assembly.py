@@ -145,21 +145,33 @@ def warped_forces(data, rotations, x, rest_points, node_count):
     """Elastic node forces ``(n, 3)`` (N) of stiffness warping: per element,
     ``-R_e K_e (R_e^T x_e - X_e)`` with each element's mean translation removed (K_e ignores it;
     removing it keeps the digits of far-away bodies), summed over elements in one compiled pass."""
+    return _warped(data, rotations, x, rest_points, node_count)[0]
+
+
+def warped_energy(data, rotations, x, rest_points):
+    """Strain energy ``sum_e 1/2 u_e^T K_e u_e`` (J) of stiffness warping, ``u_e`` as in
+    :func:`warped_forces` (whose force is its gradient when ``R_e`` are the polar rotations)."""
+    return _warped(data, rotations, x, rest_points, len(x))[1]
+
+
+def _warped(data, rotations, x, rest_points, node_count):
     out = np.zeros((node_count, 3))
-    _warped_forces_into(data.tet_stiffness, np.ascontiguousarray(rotations, dtype=float),
-                        data.tet_nodes, np.ascontiguousarray(x, dtype=float),
-                        np.ascontiguousarray(rest_points, dtype=float), out)
-    return out
+    energy = _warped_forces_into(data.tet_stiffness, np.ascontiguousarray(rotations, dtype=float),
+                                 data.tet_nodes, np.ascontiguousarray(x, dtype=float),
+                                 np.ascontiguousarray(rest_points, dtype=float), out)
+    return out, energy
 
 
 @nb.njit(cache=True)
 def _warped_forces_into(Ke, R, tet_nodes, x, X, out):
     """out[node] -= (R_e K_e u_e)[node] for every element e, u_e = R_e^T x_e - X_e less its mean;
-    Ke (t, 3b, 3b), R (t, 3, 3), tet_nodes (t, b), x and X (n, 3)."""
+    Ke (t, 3b, 3b), R (t, 3, 3), tet_nodes (t, b), x and X (n, 3). Returns the strain energy
+    ``sum_e 1/2 u_e . K_e u_e``."""
     t, m, _ = Ke.shape
     b = m // 3
     u = np.empty(m)
     g = np.empty(m)
+    energy = 0.0
     for e in range(t):
         Re = R[e]
         mean = np.zeros(3)
@@ -177,10 +189,12 @@ def _warped_forces_into(Ke, R, tet_nodes, x, X, out):
             for c in range(m):
                 acc += Ke[e, r, c] * u[c]
             g[r] = acc
+            energy += 0.5 * u[r] * acc
         for a in range(b):
             node = tet_nodes[e, a]
             for i in range(3):
                 out[node, i] -= Re[i, 0] * g[3 * a] + Re[i, 1] * g[3 * a + 1] + Re[i, 2] * g[3 * a + 2]
+    return energy
 
 
 def assemble(points, tets, young, poisson, density):

@@ -145,6 +145,10 @@ class FemState:
     node_plastic_force: ``(n, 3)`` equivalent plastic force ``f_p = sum_e int B^T C eps_p`` (N),
         body (rest) frame; None for corotated bodies (rotated per element in ``predict``).
     plastic_dissipation: plastic work dissipated since the start (J).
+    energy_slack: Newmark bodies only, how far (J) the body's energy (kinetic and elastic) is
+        below what it may hold: its energy when created plus the work done on it by its steps
+        (``fem.dynamics.finish`` takes any excess out). Its energy may rise by this much more than
+        the work done on it.
     """
     x: np.ndarray
     v: np.ndarray
@@ -157,6 +161,7 @@ class FemState:
     tet_yielded: np.ndarray | None = None
     node_plastic_force: np.ndarray | None = None
     plastic_dissipation: float = 0.0
+    energy_slack: float = 0.0
 
     def replace(self, **changes):
         return replace(self, **changes)

@@ -22,14 +22,14 @@ contiguous row, so the yield test and the return map are whole-array operations 
 (:func:`nodal_force`, a scatter), are compiled loops over the points. Their shape-function data
 (:class:`PointGradients`) is built once per ``ElementData`` and kept in its ``cache``; corotated
 bodies also keep there the element rotations of the end-of-step positions
-(:func:`element_rotations`), which the next ``predict`` reuses.
+(:func:`fem.dynamics.element_rotations`), which the next ``predict`` reuses.
 """
 from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-from fem.dynamics import tet_rotations
+from fem.dynamics import element_rotations
 from fem.plasticity import (elastic_stress, equivalent_plastic_strain, isotropic_stress,
                             plastic_dissipation_increment, return_map)
 from fem.stress import quadrature_strain
@@ -158,24 +158,6 @@ def nodal_force(model, tau, points=None):
                           model.node_count)
 
 
-def element_rotations(model, x):
-    """Per-element rotations ``(t, 3, 3)`` of positions ``x`` (n, 3) m, ``fem.dynamics.tet_rotations``.
-
-    The result for the last positions asked for is kept in ``model.elements.cache``: ``finish``
-    (``plastic_update``) finds the rotations of the end-of-step positions and the next ``predict``
-    asks for the same positions again (any change of ``x`` in between computes them anew). The
-    returned array is read-only.
-    """
-    cache = model.elements.cache
-    last = cache.get("rotations")
-    if last is not None and np.array_equal(last[0], x):
-        return last[1]
-    tet_R = tet_rotations(model, x)
-    tet_R.flags.writeable = False
-    cache["rotations"] = (np.array(x, dtype=float), tet_R)
-    return tet_R
-
-
 def _point_rotations(model, tet_R):
     """Element rotations ``(t, 3, 3)`` repeated for each quadrature point, ``(t q, 3, 3)``."""
     q = model.quadrature_count
@@ -204,7 +186,7 @@ def displacement_gradient(model, state):
     Floating and anchored bodies: the gradient of the body-frame displacement
     ``u = (x - c) R - (X - X_c)``. Corotated bodies: ``R_e^T F - I`` with ``F`` the world
     deformation gradient (the gradient of ``x - c``; ``c`` drops out since the shape gradients of
-    an element sum to zero) and ``R_e`` from :func:`element_rotations`.
+    an element sum to zero) and ``R_e`` from :func:`fem.dynamics.element_rotations`.
     """
     if model.frame == "corotated":
         F = node_field_gradient(model, state.x - state.c)

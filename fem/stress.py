@@ -7,18 +7,27 @@ world coordinates; the invariants (von Mises, principal values) do not depend on
 """
 import numpy as np
 
-from fem.dynamics import _corotated_displacement, tet_rotations
+from fem.dynamics import element_rotations
 from fem.plasticity import elastic_stress, von_mises  # the project's one von Mises
 
 __all__ = ["quadrature_stress", "element_stress", "von_mises", "principal_stress_max",
            "region_table"]
 
 
+def _corotated_displacement(model, x, tet_R):
+    """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m), as
+    :func:`fem.assembly.warped_forces` forms them per element (here for the strains)."""
+    nodes = model.elements.tet_nodes
+    u = np.einsum("taj,tji->tai", x[nodes], tet_R) - model.rest_points[nodes]
+    # drop each element's mean translation (K_e ignores it) so far-away bodies keep their digits
+    return u - u.mean(axis=1, keepdims=True)
+
+
 def quadrature_strain(model, state):
     """Small strain at each element quadrature point ``(t, q, 3, 3)`` (dimensionless)."""
     data = model.elements
     if model.frame == "corotated":
-        u = _corotated_displacement(model, state.x, tet_rotations(model, state.x))
+        u = _corotated_displacement(model, state.x, element_rotations(model, state.x))
     else:
         u = ((state.x - state.c) @ state.R - model.rest_offsets)[data.tet_nodes]
     # grad_u[t, q] = u_t^T G_tq, as one batched matmul (several times faster than einsum here)

@@ -50,12 +50,6 @@ class Progress:
             self.stream.write("\n")
 
 
-def undamped_corotated_bodies(model):
-    """Names of FEM bodies stepped by Newmark in the corotated frame (see the README's known limits)."""
-    return [model.names[i] for i, m in zip(model.fem_ids, model.fem)
-            if m.frame == "corotated" and m.integrator == "newmark"]
-
-
 def overlapping_bodies(model, state, tolerance=1e-4):
     """Pairs of rigid bodies (names) that start interpenetrating by more than ``tolerance`` m."""
     rm, rs = model.rigid, state.rigid
@@ -110,11 +104,6 @@ def _run(scene, out_dir, progress, log):
     model, state = build(scene)
     for a, b in overlapping_bodies(model, state):
         log(f"warning: bodies '{a}' and '{b}' overlap at the start")
-    for name in undamped_corotated_bodies(model):
-        log(f"warning: body '{name}': integrator = \"newmark\" with frame = \"corotated\" has no numerical "
-            f"damping for the warped force, which is not exactly conservative: a soft body at a large "
-            f"step can gain energy until it diverges; use integrator = \"backward_euler\" or "
-            f"frame = \"floating\" (see the README's known limits)")
     steps_total = int(round(sim.duration / sim.dt))
     frame_every = 1.0 / sim.output_fps
     bar = Progress(sim.duration, enabled=progress)

@@ -187,8 +187,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           fem=True),
     Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
     Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
-          "`newmark` (no numerical damping; not stable with `frame = \"corotated\"` on soft bodies at "
-          "large steps, the run warns). A free body is stepped in the frame spinning with it.",
+          "`newmark` (no numerical damping; a body's energy never exceeds its start energy plus the "
+          "work done on it). A free body is stepped in the frame spinning with it.",
           choices=("backward_euler", "newmark"), fem=True),
     Field("anchors", "tables", (), "", "Held regions, see `[[bodies.anchors]]`.", table="bodies.anchors",
           fem=True, default_text="none"),

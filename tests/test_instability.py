@@ -51,16 +51,3 @@ def test_rigid_body_far_away_names_the_body(sim):
         check_finite(s.model, s.state)
     assert err.value.body == "ball" and err.value.quantity == "distance from origin (m)"
     assert err.value.value == pytest.approx(2e6)
-
-
-def test_run_warns_about_newmark_on_a_corotated_body(sim, tmp_path):
-    """Newmark has no numerical damping for the corotated frame's not exactly conservative force
-    (a rubber block at dt = 0.01 s diverged within 10 s): the run log says so at the start."""
-    from hybrid.run import run_scene
-    scene = SCENE.replace("[simulation]\ndt = 0.001", "[simulation]\ndt = 0.001\nduration = 0.002")
-    for extra, expected in (("", 0), ('frame = "corotated"\nintegrator = "newmark"\n', 1)):
-        messages = []
-        s = sim(scene.replace("poisson = 0.3\n", "poisson = 0.3\n" + extra))
-        run_scene(s.scene, tmp_path / f"run{expected}", progress=False, log=messages.append)
-        warned = [m for m in messages if "'block'" in m and "newmark" in m and "corotated" in m]
-        assert len(warned) == expected
