@@ -117,7 +117,7 @@ def warped_stiffness(model, tet_R):
 def elastic_force(model, state, tet_R=None):
     """Elastic node forces ``(n, 3)`` (N), world frame, linear elasticity in the model's frame."""
     if model.frame == "corotated":
-        tet_R = tet_rotations(model, state.x) if tet_R is None else tet_R
+        tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
         return warped_forces(model.elements, tet_R, state.x, model.rest_points, model.node_count)
     u = (state.x - state.c) @ state.R - model.rest_offsets
     return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
