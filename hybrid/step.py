@@ -22,7 +22,7 @@ from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
 
 from .build import HybridState
-from .fem_contact import detect_fem_pairs
+from .fem_contact import detect_fem_pairs, detect_rigid_points
 
 
 class InstabilityError(RuntimeError):
@@ -78,7 +78,8 @@ def _coupled_step(model, state):
     node_x = np.concatenate([s.x[n] for s, n in zip(state.fem, nodes)])
     node_v = np.concatenate([p.v[n] for p, n in zip(predicted, nodes)])
     R = quat.to_matrix(rs.orientation)
-    c_rigid = detect(rm, rs.position, R, rigid_step.reach(rm, rigid_bodies, h), model.settings.margin)
+    rigid_sweep = rigid_step.reach(rm, rigid_bodies, h)
+    c_rigid = detect(rm, rs.position, R, rigid_sweep, model.settings.margin)
     fem_bodies = _fem_bodies(model)
     mu = np.array([b.friction for b in fem_bodies])[node_body]
     e = np.array([b.restitution for b in fem_bodies])[node_body]
@@ -87,10 +88,13 @@ def _coupled_step(model, state):
     node_offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
     fa, fb, fp, fn, fg, fmu, fe = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset,
                                                    node_x, sweep, model.settings.margin)
+    # rigid corners and edges against deformable faces (the rigid body is side a)
+    *on_fem, point_id = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem,
+                                            fem_bodies, node_offset, sweep, model.settings.margin)
 
     # 4. touched nodes join the solver as particles, grouped by body, each group answering
     #    impulses through its body's exact Delassus block (fem.contact_response)
-    touched = np.unique(np.concatenate([c_nodes.body_a, fa, fb]))
+    touched = np.unique(np.concatenate([c_nodes.body_a, fa, fb, on_fem[1]]))
     # per body, the solver's node set (kept across steps while contact rests, see contact_set)
     touched = np.concatenate([node_offset[j] + np.searchsorted(
         nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
@@ -119,10 +123,12 @@ def _coupled_step(model, state):
         w_ptr=w_ptr, w_col=w_col, W=W)
     keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
                            contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
-                           contact_keys(fa, fb, len(node_x), nb, True)])
+                           contact_keys(fa, fb, len(node_x), nb, True),
+                           point_keys(point_id, on_fem[1], len(node_x), nb)])
     c_nodes.body_a = particle_of[c_nodes.body_a]
     c_pairs = Contacts(particle_of[fa], particle_of[fb], fp, fn, fg, fmu, fe)
-    contacts = concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0)
+    c_points = Contacts(on_fem[0], particle_of[on_fem[1]], *on_fem[2:])
+    contacts = concatenate(concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0), c_points, 0, 0)
 
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
     #    its nodes through its own implicit system (apply_contact_impulses). The blocks are exact for
@@ -205,6 +211,13 @@ def contact_keys(a, b, node_count, rigid_count, node_pairs):
     distinct (a, b) give distinct keys."""
     other = b if node_pairs else node_count + 1 + b
     return (np.asarray(a, np.int64) * (node_count + rigid_count + 1) + other).astype(np.int64)
+
+
+def point_keys(point, node, node_count, rigid_count):
+    """Identity across steps of rigid sample point ``point`` against stacked surface node ``node``
+    (int64), above every key of :func:`contact_keys`."""
+    base = (node_count + 1) * (node_count + rigid_count + 1) + 1
+    return (base + np.asarray(point, np.int64) * (node_count + 1) + np.asarray(node, np.int64)).astype(np.int64)
 
 
 @dataclass(frozen=True)
