@@ -160,3 +160,10 @@ def test_new_run_replaces_stale_files_of_an_earlier_run(tmp_path):
     assert sorted(p.name for p in (run_dir / "frames").iterdir()) == ["frame_00000.vtu"]
     assert not (run_dir / "regions.csv").exists()
     assert len((run_dir / "bodies.csv").read_text().splitlines()) == 2
+
+
+def test_drift_figures_stay_meaningful_when_a_quantity_starts_at_zero():
+    from hybrid.run import _drift
+    assert _drift([0.0, 5.0, 3.0], 0.0) == pytest.approx(1.0)          # was 5 / 1e-300
+    assert _drift([2.0, 2.02, 1.99], 2.0) == pytest.approx(0.02 / 2.02)
+    assert _drift(np.zeros((4, 3)), np.zeros(3)) == 0.0
