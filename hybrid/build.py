@@ -70,10 +70,6 @@ def rigid_desc(body):
 def build(scene):
     """HybridModel and initial HybridState of ``scene``."""
     sim = scene.simulation
-    auto = [b.name for b in scene.bodies if b.model == "auto"]
-    if auto:
-        raise ValueError(f"body '{auto[0]}': model = \"auto\" (switching between rigid and FEM) is "
-                         f"not implemented yet; use \"rigid\" or \"fem\"")
     rigid_bodies = [b for b in scene.bodies if b.model == "rigid"]
     fem_bodies = [b for b in scene.bodies if b.model != "rigid"]
     planes = [PlaneDesc(p.point, p.normal, p.friction, p.restitution) for p in scene.planes]

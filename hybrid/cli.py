@@ -90,7 +90,8 @@ def main(argv=None):
     p.add_argument("scene")
     args = parser.parse_args(argv)
     if args.command == "validate":
-        return validate_command(args.scene)
+        from .build import build     # meshes and regions are checked on the built bodies
+        return validate_command(args.scene, check=build)
     try:
         return {"run": _run, "render": _render}[args.command](args)
     except KeyboardInterrupt:

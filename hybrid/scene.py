@@ -22,6 +22,11 @@ from hybrid import geometry
 FEM_MODELS = ("fem", "auto")
 # A quaternion whose norm differs from 1 by more than this is a mistake, not round-off.
 QUATERNION_TOLERANCE = 1e-6
+# a scene of more steps than this is a typo (1e9 steps take days at 1e4 steps/s)
+MAX_STEPS = 1e9
+# most elements a shape may be meshed into (a mistyped resolution would otherwise exhaust memory
+# before any message: 1e-4 m on a 0.1 m box asked for 7.5 GiB in one array)
+MAX_ELEMENTS = 2e6
 
 
 class _Marker:
@@ -110,7 +115,7 @@ SIMULATION = Section("simulation", "[simulation]",
     _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
     Field("solver", "table", None, "", "Contact solver settings.", table="simulation.solver",
           default_text="see `[simulation.solver]`"),
-), rules=("`dt` must be <= `duration`.",))
+), rules=("`dt` must be <= `duration`.", "`duration / dt` (the number of steps) must be at most 1e9."))
 
 PLANE = Section("planes", "[[planes]]", "Static half-spaces: the solid side is opposite the normal.", (
     Field("point", "vector", (0.0, 0.0, 0.0), "m", "A point on the plane."),
@@ -131,7 +136,9 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
               shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
           "`capsule`; `height` with `cylinder`, `capsule`.",
-          "A capsule's `height` must be >= 2 `radius`."))
+          "A capsule's `height` must be >= 2 `radius`.",
+          "A `resolution` that would mesh the shape into more than 2e6 elements (tetrahedra for a "
+          "deformable body, surface triangles for a rigid one) is rejected."))
 
 DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = mass M + stiffness K` "
                   "(FEM only).", (
@@ -222,7 +229,11 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "`tearing_strain` needs `yield_stress`.",
           "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
           "A mesh must be readable and closed; an FEM body's mesh must contain tetra (order 1) or "
-          "tetra10 (order 2) cells."))
+          "tetra10 (order 2) cells.",
+          "`model = \"auto\"` is not implemented yet: a scene using it is rejected.",
+          "Every anchor and load box must hold at least one node of the body's mesh (checked when "
+          "the body is built, by `run` and `validate`).",
+          "A scene needs at least one body."))
 
 TOP = Section("", "top level", "The scene file.", (
     Field("simulation", "table", None, "", "Time stepping.", table="simulation"),
@@ -523,6 +534,8 @@ def parse_scene(data, source, base_dir):
                             f"(first used by bodies[{first_index[body.name]}])"))
             first_index.setdefault(body.name, i)
         bodies.append(body)
+    if not bodies and not any("bodies" in str(p) for p in problems):
+        problems.append(_Where(source, "top level").general("needs at least one [[bodies]] table"))
     if problems:
         raise SceneError(problems)
     return Scene(simulation.name, Path(source), simulation, planes, tuple(bodies), data)
@@ -540,6 +553,10 @@ def _parse_simulation(table, source, problems):
     if _valid(values["dt"], values["duration"]) and values["dt"] > values["duration"]:
         problems.append(where.problem("dt", f"must be <= duration ({_fmt(values['duration'])} s), "
                                             f"got {_fmt(values['dt'])}"))
+    elif _valid(values["dt"], values["duration"]) and values["duration"] / values["dt"] > MAX_STEPS:
+        problems.append(where.problem("dt", f"gives {values['duration'] / values['dt']:.3g} steps over "
+                                            f"duration {_fmt(values['duration'])} s; at most "
+                                            f"{MAX_STEPS:.0e} steps are allowed"))
     return Simulation(solver=solver, **values)
 
 
@@ -587,6 +604,11 @@ def _parse_body(table, source, index, base_dir, problems):
                                       + ("both" if has_shape else "neither")))
     if has_shape and values["shape"] is not None:
         values["shape"] = _parse_shape(values["shape"], where, problems)
+        if _valid(model) and isinstance(values["shape"], Shape):
+            _check_element_count(values["shape"], fem_model, where, problems)
+    if model == "auto":
+        problems.append(where.problem("model", "= \"auto\" (switching between rigid and FEM) is not "
+                                               "implemented yet; use \"rigid\" or \"fem\""))
     if has_mesh and _valid(values["mesh"]) and _valid(model):
         _check_mesh(table["mesh"], values["mesh"], model, where, problems)
 
@@ -630,6 +652,28 @@ def _parse_shape(table, where, problems):
         problems.append(shape_where.problem("height", f"must be >= 2 radius ({_fmt(2 * radius)} m) "
                                                       f"for a capsule, got {_fmt(height)}"))
     return Shape(**values)
+
+
+def _check_element_count(shape, fem_model, where, problems):
+    """Record a problem if meshing the shape at its ``resolution`` would make more elements than
+    MAX_ELEMENTS (tetrahedra for a deformable body, surface triangles for a rigid one)."""
+    h = shape.resolution
+    if not _valid(h) or h is None:
+        return
+    r = shape.radius
+    if shape.type == "box":
+        cells = [math.ceil(a / h - 1e-9) for a in shape.size]
+        count = 6 * cells[0] * cells[1] * cells[2] if fem_model else \
+            4 * (cells[0] * cells[1] + cells[1] * cells[2] + cells[2] * cells[0])
+    else:
+        length = 2 * r if shape.type == "sphere" else shape.height
+        count = 6 * (2 * r / h) ** 2 * (length / h) if fem_model else \
+            2 * (2 * math.pi * r * length + 4 * math.pi * r * r) / h ** 2
+    if count > MAX_ELEMENTS:
+        kind = "tetrahedra" if fem_model else "surface triangles"
+        problems.append(where.nested("shape").problem(
+            "resolution", f"= {_fmt(h)} m would mesh the shape into about {count:.2g} {kind}; at "
+                          f"most {MAX_ELEMENTS:.0e} are allowed (use a coarser resolution)"))
 
 
 def _check_mesh(written, resolved, model, where, problems):
@@ -853,10 +897,19 @@ def reference_markdown():
     return "\n".join(out)
 
 
-def validate_command(path):
-    """``hybrid validate <path>``: print "OK: ..." (stdout) or every problem (stderr); return 0 or 2."""
+def validate_command(path, check=None):
+    """``hybrid validate <path>``: print "OK: ..." (stdout) or every problem (stderr); return 0 or 2.
+
+    ``check(scene)``, when given, runs on a scene that parsed and raises ValueError for problems
+    only the built bodies show (an anchor box holding no node, say): what ``hybrid run`` would
+    reject, ``validate`` rejects too."""
     try:
         scene = load_scene(path)
+        if check is not None:
+            try:
+                check(scene)
+            except (ValueError, geometry.MeshError) as error:
+                raise SceneError([f"{path}: {error}"]) from None
     except SceneError as error:
         for problem in error.problems:
             print(problem, file=sys.stderr)

@@ -142,6 +142,15 @@ def test_render_writes_non_blank_pngs_and_a_movie(small_run):
 BAD_SCENES = {
     "negative_density": (SMALL_SCENE.replace("density = 800.0", "density = -800.0"), "density"),
     "unknown_key": (SMALL_SCENE.replace("output_fps = 30", "output_fps = 30\nbogus_key = 1"), "bogus_key"),
+    # what `run` met only once it started (tracebacks, or `validate` saying OK to a scene `run` rejected)
+    "no_bodies": (SMALL_SCENE[:SMALL_SCENE.index("[[bodies]]")], "[[bodies]]"),
+    "auto_model": (SMALL_SCENE.replace('name = "box"', 'name = "box"\nmodel = "auto"\nyoung = 1e6'), "model"),
+    "anchor_holds_nothing": (SMALL_SCENE + 'model = "fem"\nyoung = 1e6\n'
+                             '[[bodies.anchors]]\nbox = [[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]\n', "[[bodies.anchors]] 0 box"),
+    "mesh_too_fine": (SMALL_SCENE.replace("size = [0.2, 0.1, 0.1] }", "size = [0.2, 0.1, 0.1], resolution = 1e-4 }"),
+                      "shape.resolution"),
+    "steps_beyond_reach": (SMALL_SCENE.replace("duration = 0.3\ndt = 0.004166666666666667",
+                                               "duration = 1e300\ndt = 1e-300"), "dt"),
 }
 
 
@@ -166,3 +175,4 @@ def test_run_without_a_scene_runs_the_built_in_default_scene(tmp_path):
     assert summary["status"] == "ok"
     assert summary["simulated_time"] == pytest.approx(3.0)
     assert (tmp_path / "default_run" / "default.pvd").is_file()
+

@@ -245,6 +245,13 @@ def test_dt_longer_than_duration_is_rejected(tmp_path):
     assert only_problem(path) == f"{path}: [simulation]: field 'dt' must be <= duration (0.01 s), got 0.1"
 
 
+def test_a_number_of_steps_beyond_reach_is_rejected(tmp_path):
+    path = write_scene(tmp_path, "[simulation]\nduration = 1e300\ndt = 1e-300\n" + BODY)
+    message = only_problem(path)      # was an OverflowError traceback when the run began
+    assert "field 'dt' gives inf steps" in message
+    assert "at most 1e+09 steps are allowed" in message
+
+
 @pytest.mark.parametrize("shape, field, expected", [
     ('{ type = "box", size = [0.1, -0.1, 0.1] }', "shape.size", "must be a list of 3 numbers > 0"),
     ('{ type = "box", size = [0.1, 0.1] }', "shape.size", "must be a list of 3 numbers > 0"),
