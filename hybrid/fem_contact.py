@@ -43,15 +43,19 @@ def _reach(m, s):
     return centre, float(np.sqrt(((x - centre) ** 2).sum(axis=1).max()))
 
 
-def _against(mb, sb, x, reach, radius=None):
+def _moved(m, s):
+    """How far the body's deformation moved its surface nodes from their rest places ``(s, 3)`` m,
+    in its rest frame: X = R^T (x - c) + X_c (floating); anchored bodies: R = I, c = X_c."""
+    return (s.x[m.surface_nodes] - s.c) @ s.R + m.rest_center - m.rest_points[m.surface_nodes]
+
+
+def _against(mb, sb, moved, x, reach, radius=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
-    those closer than ``reach`` (p,) m: ``(rows, nearest, point, normal, gap)``, ``nearest`` the
-    index into ``mb.surface_nodes`` of b's side and ``normal`` pointing from b towards the point."""
+    those closer than ``reach`` (p,) m, ``moved`` being b's :func:`_moved`: ``(rows, nearest, point,
+    normal, gap)``, ``nearest`` the index into ``mb.surface_nodes`` of b's side and ``normal``
+    pointing from b towards the point."""
     radius = np.zeros(len(x)) if radius is None else radius
-    # into b's rest frame: X = R^T (x - c) + X_c (floating); anchored bodies: R = I, c = X_c
-    X = (x - sb.c) @ sb.R + mb.rest_center
-    # b's surface nodes there, and how far its deformation moved them from their rest places
-    moved = (sb.x[mb.surface_nodes] - sb.c) @ sb.R + mb.rest_center - mb.rest_points[mb.surface_nodes]
+    X = (x - sb.c) @ sb.R + mb.rest_center                  # into b's rest frame
     phi, n_rest = _grid(mb).query(X)
     phi = phi - radius
     near = np.nonzero((phi < reach + np.sqrt((moved ** 2).sum(axis=1).max(initial=0.0)))
@@ -83,6 +87,7 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
     if len(models) < 2:
         return _stacked(out)
     spheres = [_reach(m, s) for m, s in zip(models, states)]
+    moved = {}
     for a, ma in enumerate(models):
         for b, (mb, sb) in enumerate(zip(models, states)):
             if a == b or not _overlap(*spheres[a], *spheres[b], margin + node_sweep.max(initial=0.0)):
@@ -90,7 +95,9 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
             ia = np.arange(node_offset[a], node_offset[a] + len(ma.surface_nodes))
             ib = node_offset[b] + np.arange(len(mb.surface_nodes))
             reach = margin + node_sweep[ia] + node_sweep[ib].max(initial=0.0)
-            rows, nearest, point, normal, gap = _against(mb, sb, node_x[ia], reach)
+            if b not in moved:
+                moved[b] = _moved(mb, sb)
+            rows, nearest, point, normal, gap = _against(mb, sb, moved[b], node_x[ia], reach)
             _append(out, ia[rows], ib[nearest], point, normal, gap,
                     combine_friction(bodies[a].friction, bodies[b].friction),
                     combine_restitution(bodies[a].restitution, bodies[b].restitution))
@@ -115,13 +122,15 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
     for j, (mb, sb) in enumerate(zip(models, states)):
         ib = node_offset[j] + np.arange(len(mb.surface_nodes))
         slack = margin + node_sweep[ib].max(initial=0.0)
+        moved = None
         for r in range(rigid.body_count):
             if not _overlap(position[r], rigid.body_radius[r] + rigid_sweep[r], *spheres[j], slack):
                 continue
             at = np.arange(rigid.point_start[r], rigid.point_start[r + 1])
             x = position[r] + rigid.point_local[at] @ rotation[r].T
             reach = np.full(len(at), slack + rigid_sweep[r])
-            rows, nearest, point, normal, gap = _against(mb, sb, x, reach, rigid.point_radius[at])
+            moved = _moved(mb, sb) if moved is None else moved
+            rows, nearest, point, normal, gap = _against(mb, sb, moved, x, reach, rigid.point_radius[at])
             # a point right over its node (within a tenth of the margin across the normal) is the
             # node's own contact with the rigid body; a second one there only slows the solver
             # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)

@@ -534,7 +534,7 @@ def parse_scene(data, source, base_dir):
                             f"(first used by bodies[{first_index[body.name]}])"))
             first_index.setdefault(body.name, i)
         bodies.append(body)
-    if not bodies and not any("bodies" in str(p) for p in problems):
+    if not bodies and isinstance(top["bodies"], (list, tuple)):       # none given (a bad value is reported)
         problems.append(_Where(source, "top level").general("needs at least one [[bodies]] table"))
     if problems:
         raise SceneError(problems)
