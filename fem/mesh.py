@@ -24,7 +24,7 @@ def check_tets(points, tets, rel_tol=1e-10):
 
     Returns ``(tets, flipped)``: a copy with every tet positively oriented and the indices ``(k,)``
     of the tets that were inverted (swap of vertices 1 and 2; for tetra10 the midside nodes are
-    permuted to match), so the caller can warn. Raises ``ValueError`` listing the indices of tets
+    permuted to match), so the caller can warn. Raises ``ValueError`` naming the indices of tets
     whose volume is below ``rel_tol`` times the mean absolute tet volume.
     """
     tets = np.array(tets, dtype=np.int64)
@@ -32,7 +32,8 @@ def check_tets(points, tets, rel_tol=1e-10):
     scale = np.mean(np.abs(vol)) if len(vol) else 0.0
     degenerate = np.nonzero(np.abs(vol) <= rel_tol * scale)[0]
     if len(degenerate) or scale == 0.0:
-        raise ValueError(f"degenerate tets (near-zero volume): {degenerate.tolist()}")
+        raise ValueError(f"{len(degenerate)} of {len(tets)} tets are degenerate (near-zero volume): "
+                         f"{index_list(degenerate)}")
     flipped = np.nonzero(vol < 0)[0]
     if tets.shape[1] == 4:
         swap = [0, 2, 1, 3]
@@ -41,6 +42,14 @@ def check_tets(points, tets, rel_tol=1e-10):
         swap = [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]
     tets[flipped] = tets[flipped][:, swap]
     return tets, flipped
+
+
+def index_list(indices, shown=10):
+    """``"tets 3, 17, 40"`` for messages: the first ``shown`` indices, then how many more."""
+    indices = [int(i) for i in indices]
+    text = ", ".join(map(str, indices[:shown]))
+    more = len(indices) - shown
+    return f"tets {text}" + (f" and {more} more" if more > 0 else "")
 
 
 def _finish(points, tets):

@@ -4,13 +4,14 @@ A :class:`FemModel` holds the rest mesh, material, assembled matrices, anchors, 
 cached factorisation of the system matrix; a :class:`FemState` holds node positions, velocities and
 the best-fit frame. Build both with :func:`build_fem_model` and :func:`rest_state`.
 """
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from fem.assembly import ElementData, assemble
-from fem.mesh import check_tets, surface_triangles
+from fem.mesh import check_tets, index_list, surface_triangles
 from fem.solver import FactorCache
 
 FRAMES = ("floating", "corotated")
@@ -252,7 +253,10 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         points, tets = quadratic_tets(points, tets)
     if tets.shape[1] != (4 if order == 1 else 10):
         raise ValueError(f"order {order} needs tets with {4 if order == 1 else 10} nodes")
-    tets, _ = check_tets(points, tets)
+    tets, flipped = check_tets(points, tets)
+    if len(flipped):
+        warnings.warn(f"{len(flipped)} of {len(tets)} tets were inverted (negative volume) and have "
+                      f"been reoriented: {index_list(flipped)}", stacklevel=2)
     n = len(points)
     K, M_scalar, elements = assemble(points, tets, young, poisson, density)
     node_mass, M = _mass_matrices(M_scalar, mass)

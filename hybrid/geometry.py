@@ -8,20 +8,19 @@ tets ``(t, 4)`` or ``(t, 10)`` int64, surfaces oriented outward, tets with posit
 """
 import contextlib
 import io
+import warnings
 from pathlib import Path
 
 import meshio
 import numpy as np
 
+from fem.mesh import check_tets, index_list
 from rigid import trimesh
 
 # meshio cell types whose first 3 (triangles) or 4 (quads, tets) nodes are the corners
 _TET_TYPES = {"tetra": 1, "tetra10": 2}
 _TRIANGLE_TYPES = ("triangle", "triangle6", "triangle7")
 _QUAD_TYPES = ("quad", "quad8", "quad9")
-# tetra10 node order (meshio/VTK): corners 0-3, then edges 01, 12, 20, 03, 13, 23.
-# Swapping corners 1 and 2 flips a tet; the edge nodes follow: 01<->02, 13<->23.
-_FLIP = {1: [0, 2, 1, 3], 2: [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]}
 
 
 class MeshError(Exception):
@@ -31,6 +30,27 @@ class MeshError(Exception):
         self.path = Path(path)
         self.reason = reason
         super().__init__(f"{path}: {reason}")
+
+
+class MeshWarning(UserWarning):
+    """A mesh file that was usable only after a repair (inverted tets reoriented)."""
+
+
+@contextlib.contextmanager
+def caught_mesh_warnings():
+    """Collect the MeshWarning messages raised inside the block into the yielded list (for the
+    command line to print as ``warning: ...``); other warnings pass through."""
+    messages = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeshWarning)
+        try:
+            yield messages
+        finally:
+            for w in caught:
+                if issubclass(w.category, MeshWarning):
+                    messages.append(str(w.message))
+                else:
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
 def read_mesh(path):
@@ -63,10 +83,12 @@ def read_mesh(path):
 
 
 def tets_from_mesh(mesh, path):
-    """``(points, tets, order)`` from a meshio mesh: all its tetra (order 1) or tetra10 (order 2) cells.
+    """``(points, tets, order, flipped)`` from a meshio mesh: all its tetra (order 1) or tetra10
+    (order 2) cells, in file order.
 
-    Points no tet uses are dropped; tets with negative volume are flipped; MeshError if there are no
-    tets, both orders are mixed, or a tet has zero volume.
+    Points no tet uses are dropped; tets with negative volume are reoriented and their indices
+    returned in ``flipped``; MeshError if there are no tets, both orders are mixed, or tets have
+    zero volume (the message names them by index).
     """
     blocks = {kind: [c.data for c in mesh.cells if c.type == kind] for kind in _TET_TYPES}
     present = [kind for kind in _TET_TYPES if blocks[kind]]
@@ -81,14 +103,11 @@ def tets_from_mesh(mesh, path):
     remap = -np.ones(len(mesh.points), dtype=np.int64)
     remap[used] = np.arange(len(used))
     points, tets = mesh.points[used], remap[tets]
-    volume = _tet_volumes(points, tets)
-    scale = np.ptp(points, axis=0).max() if len(points) else 0.0
-    degenerate = np.abs(volume) <= 1e-12 * scale ** 3
-    if np.any(degenerate):
-        raise MeshError(path, f"{int(degenerate.sum())} of {len(tets)} tets have zero volume")
-    flip = volume < 0
-    tets[flip] = tets[flip][:, _FLIP[order]]
-    return points, tets, order
+    try:
+        tets, flipped = check_tets(points, tets)
+    except ValueError as error:
+        raise MeshError(path, str(error)) from None
+    return points, tets, order, flipped
 
 
 def surface_from_mesh(mesh, path):
@@ -100,7 +119,7 @@ def surface_from_mesh(mesh, path):
     the surface is not closed or not consistently oriented, or it encloses no volume.
     """
     if any(c.type in _TET_TYPES for c in mesh.cells):
-        points, tets, _ = tets_from_mesh(mesh, path)
+        points, tets, _, _ = tets_from_mesh(mesh, path)      # a closed surface needs no warning
         triangles = trimesh.tet_boundary(tets[:, :4])
     else:
         points = mesh.points
@@ -130,10 +149,15 @@ def load_surface(path):
 def load_tet_mesh(path):
     """Tet mesh ``(points (n, 3) m, tets (t, 4|10), order 1|2)`` for an FEM body.
 
-    tetra cells give order 1, tetra10 cells order 2. Raises MeshError naming the file when the file
-    is missing or unreadable, has no tet cells, or has degenerate tets.
+    tetra cells give order 1, tetra10 cells order 2. Inverted tets are reoriented with a
+    :class:`MeshWarning` naming them by index. Raises MeshError naming the file when the file is
+    missing or unreadable, has no tet cells, or has degenerate tets.
     """
-    return tets_from_mesh(read_mesh(path), Path(path))
+    points, tets, order, flipped = tets_from_mesh(read_mesh(path), Path(path))
+    if len(flipped):
+        warnings.warn(f"{path}: {len(flipped)} of {len(tets)} tets were inverted (negative volume) "
+                      f"and have been reoriented: {index_list(flipped)}", MeshWarning, stacklevel=2)
+    return points, tets, order
 
 
 def _check_closed(triangles, path):
@@ -149,13 +173,6 @@ def _check_closed(triangles, path):
     if same_direction:
         raise MeshError(path, f"surface is not consistently oriented: {same_direction} edges are "
                               "traversed twice in the same direction")
-
-
-def _tet_volumes(points, tets):
-    """Signed volumes ``(t,)`` (m^3) of the corner tets."""
-    p = points[tets[:, :4]]
-    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
-    return np.einsum("ij,ij->i", e1, np.cross(e2, e3)) / 6.0
 
 
 def _cell_summary(mesh):

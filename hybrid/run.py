@@ -10,7 +10,7 @@ import numpy as np
 from rigid.contacts import detect
 from rigid import quaternion as quat
 
-from . import observe
+from . import geometry, observe
 from .build import build
 from .output import RunWriter
 from .events import between_steps
@@ -104,7 +104,10 @@ def _forwarded(logger, log):
 
 def _run(scene, out_dir, progress, log):
     sim = scene.simulation
-    model, state = build(scene)
+    with geometry.caught_mesh_warnings() as repaired:
+        model, state = build(scene)
+    for message in repaired:
+        log(f"warning: {message}")
     for a, b in overlapping_bodies(model, state):
         log(f"warning: bodies '{a}' and '{b}' overlap at the start")
     steps_total = int(round(sim.duration / sim.dt))

@@ -229,7 +229,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "`tearing_strain` needs `yield_stress`.",
           "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
           "A mesh must be readable and closed; an FEM body's mesh must contain tetra (order 1) or "
-          "tetra10 (order 2) cells.",
+          "tetra10 (order 2) cells. Tets with zero volume are rejected, listed by index; inverted tets "
+          "(negative volume) are reoriented, with a warning listing them by index.",
           "`model = \"auto\"` is not implemented yet: a scene using it is rejected.",
           "Every anchor and load box must hold at least one node of the body's mesh (checked when "
           "the body is built, by `run` and `validate`).",
@@ -907,9 +908,12 @@ def validate_command(path, check=None):
         scene = load_scene(path)
         if check is not None:
             try:
-                check(scene)
+                with geometry.caught_mesh_warnings() as repaired:
+                    check(scene)
             except (ValueError, geometry.MeshError) as error:
                 raise SceneError([f"{path}: {error}"]) from None
+            for message in repaired:
+                print(f"warning: {message}", file=sys.stderr)
     except SceneError as error:
         for problem in error.problems:
             print(problem, file=sys.stderr)

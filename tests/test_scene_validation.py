@@ -397,8 +397,13 @@ def test_tet_mesh_surface_is_closed_outward_with_the_cube_volume(tmp_path):
     assert math.isclose(trimesh.signed_volume(vertices, triangles), 1.0)
 
 
-def test_tet_mesh_loader_flips_negative_tets_and_reports_order(tmp_path):
-    points, tets, order = geometry.load_tet_mesh(write_tet_cube(tmp_path / "cube.vtu"))
+def test_tet_mesh_loader_flips_negative_tets_with_a_warning_naming_them(tmp_path):
+    path = write_tet_cube(tmp_path / "cube.vtu")
+    with pytest.warns(geometry.MeshWarning) as caught:
+        points, tets, order = geometry.load_tet_mesh(path)
+    # tets 1, 2 and 5 of CUBE_TETS have negative volume; the message names the file and them
+    assert [str(w.message) for w in caught] == [
+        f"{path}: 3 of 6 tets were inverted (negative volume) and have been reoriented: tets 1, 2, 5"]
     assert order == 1 and tets.shape == (6, 4)
     p = points[tets]
     volume = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])) / 6
@@ -411,13 +416,38 @@ def test_quadratic_tets_give_order_two_and_keep_edge_nodes_consistent(tmp_path):
     edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
     points = np.vstack([corners, [(corners[a] + corners[b]) / 2 for a, b in edges]])
     meshio.write(tmp_path / "t10.vtu", meshio.Mesh(points, [("tetra10", np.arange(10)[None])]))
-    points, tets, order = geometry.load_tet_mesh(tmp_path / "t10.vtu")
+    with pytest.warns(geometry.MeshWarning, match="1 of 1 tets were inverted .*: tets 0$"):
+        points, tets, order = geometry.load_tet_mesh(tmp_path / "t10.vtu")
     assert order == 2
     tet = tets[0]
     for k, (a, b) in enumerate(edges):
         assert np.allclose(points[tet[4 + k]], (points[tet[a]] + points[tet[b]]) / 2)
     p = points[tet[:4]]
     assert np.dot(p[1] - p[0], np.cross(p[2] - p[0], p[3] - p[0])) > 0
+
+
+def test_degenerate_tets_are_named_by_index(tmp_path):
+    # tet 2 repeats a corner, tet 4 has its four corners on one face of the cube
+    tets = np.vstack([CUBE_TETS[:2], [[0, 1, 1, 7]], CUBE_TETS[2:3], [[0, 1, 2, 3]]])
+    meshio.write(tmp_path / "flat.vtu", meshio.Mesh(CUBE_POINTS, [("tetra", tets)]))
+    with pytest.raises(geometry.MeshError, match=r"flat.vtu: 2 of 5 tets are degenerate .*: tets 2, 4$"):
+        geometry.load_tet_mesh(tmp_path / "flat.vtu")
+    text = '[[bodies]]\nname = "m"\nmodel = "fem"\nyoung = 1e6\nmesh = "flat.vtu"\n'
+    assert only_problem(write_scene(tmp_path, text)).endswith("2 of 5 tets are degenerate (near-zero "
+                                                              "volume): tets 2, 4")
+
+
+def test_validate_and_run_print_the_reoriented_tets_as_a_warning(tmp_path, capsys):
+    from hybrid.cli import main
+    write_tet_cube(tmp_path / "cube.vtu")
+    path = write_scene(tmp_path, '[simulation]\nduration = 0.002\ndt = 0.001\n[[bodies]]\nname = "m"\n'
+                                 'model = "fem"\nyoung = 1e6\nmesh = "cube.vtu"\n')
+    warning = "tets were inverted (negative volume) and have been reoriented: tets 1, 2, 5"
+    assert main(["validate", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("OK:") and err.count(warning) == 1 and err.startswith("warning: ")
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert capsys.readouterr().err.count(warning) == 1
 
 
 def test_mesh_errors_name_the_file(tmp_path):
