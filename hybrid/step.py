@@ -76,7 +76,10 @@ def _coupled_step(model, state):
     node_body = np.concatenate([np.full(len(n), j) for j, n in enumerate(nodes)])
     node_local = np.concatenate(nodes)
     node_x = np.concatenate([s.x[n] for s, n in zip(state.fem, nodes)])
-    node_v = np.concatenate([p.v[n] for p, n in zip(predicted, nodes)])
+    # how fast each node moves over the step: it ends at x_base + x_rate v (backward Euler: at
+    # x + h v; Newmark: at x + h (v_t + v) / 2). Contacts ask that no gap closes by the step's end,
+    # so the solver works with these velocities and a response scaled by x_rate / h
+    node_v = np.concatenate([_moving(p, s, n, h) for p, s, n in zip(predicted, state.fem, nodes)])
     R = quat.to_matrix(rs.orientation)
     rigid_sweep = rigid_step.reach(rm, rigid_bodies, h)
     c_rigid = detect(rm, rs.position, R, rigid_sweep, model.settings.margin)
@@ -86,60 +89,69 @@ def _coupled_step(model, state):
     sweep = np.linalg.norm(node_v, axis=1) * h
     c_nodes = detect_points(rm, rs.position, R, node_x, sweep, model.settings.margin, mu, e)
     node_offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
-    fa, fb, fp, fn, fg, fmu, fe = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset,
-                                                   node_x, sweep, model.settings.margin)
-    # rigid corners and edges against deformable faces (the rigid body is side a)
-    *on_fem, point_id = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem,
-                                            fem_bodies, node_offset, sweep, model.settings.margin)
+    # surface nodes against other deformable bodies' faces; rigid corners and edges against them
+    # (the rigid body is side a); side b is a place in a surface triangle
+    pairs = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset, node_x, sweep,
+                             model.settings.margin)
+    on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, fem_bodies,
+                                   node_offset, sweep, model.settings.margin)
+    corners = np.concatenate([pairs.corners, on_faces.corners])
+    weights = np.concatenate([pairs.weights, on_faces.weights])
 
-    # 4. touched nodes join the solver as particles, grouped by body, each group answering
-    #    impulses through its body's exact Delassus block (fem.contact_response)
-    touched = np.unique(np.concatenate([c_nodes.body_a, fa, fb, on_fem[1]]))
+    # 4. touched nodes, and the places on surface triangles, join the solver as particles grouped
+    #    by body, each group answering impulses through its body's exact Delassus block
+    #    (fem.contact_response; a place's blocks are its triangle's, weighted)
+    touched = np.unique(np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()]))
     # per body, the solver's node set (kept across steps while contact rests, see contact_set)
     touched = np.concatenate([node_offset[j] + np.searchsorted(
         nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
         for j in np.unique(node_body[touched])]).astype(np.int64) if len(touched) else touched
-    particle_of = -np.ones(len(node_x), dtype=np.int64)
-    particle_of[touched] = nb + np.arange(len(touched))
-    group = node_body[touched]
-    bodies_touched = np.unique(group)
+    parts = _Particles.of(touched, corners, weights, node_body)
+    bodies_touched = np.unique(parts.body)
     group_id = -np.ones(len(model.fem), dtype=np.int64)
     group_id[bodies_touched] = np.arange(len(bodies_touched))
-    blocks = [delassus_block(model.fem[j], h, node_local[touched[group == j]],
-                             report=_reporter(model.names[model.fem_ids[j]])) for j in bodies_touched]
-    p = len(touched)
+    blocks = [delassus_block(model.fem[j], h, node_local[parts.nodes_of(j)], points=parts.places_of(j),
+                             scale=predicted[j].x_rate / h, report=_reporter(model.names[model.fem_ids[j]]))
+              for j in bodies_touched]
+    p = parts.count
     w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
     bodies = rigid_step.SolverBodies(
         inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
         inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.zeros((p, 3, 3))]),
-        position=np.concatenate([rigid_bodies.position, node_x[touched]]),
-        velocity=np.concatenate([rigid_bodies.velocity, node_v[touched]]),
-        velocity_at_t=np.concatenate([rigid_bodies.velocity_at_t, node_v[touched]]),
+        position=np.concatenate([rigid_bodies.position, parts.mean(node_x)]),
+        velocity=np.concatenate([rigid_bodies.velocity, parts.mean(node_v)]),
+        velocity_at_t=np.concatenate([rigid_bodies.velocity_at_t, parts.mean(node_v)]),
         angular=np.concatenate([rigid_bodies.angular, np.zeros((p, 3))]),
         accel=np.concatenate([rigid_bodies.accel, np.zeros((p, 3))]),
         static=np.concatenate([rigid_bodies.static, held]),
-        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[group]]),
+        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[parts.body]]),
         group_R=np.array([state.fem[j].R for j in bodies_touched]) if blocks else np.eye(3)[None],
         w_ptr=w_ptr, w_col=w_col, W=W)
     keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
                            contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
-                           contact_keys(fa, fb, len(node_x), nb, True),
-                           point_keys(point_id, on_fem[1], len(node_x), nb)])
-    c_nodes.body_a = particle_of[c_nodes.body_a]
-    c_pairs = Contacts(particle_of[fa], particle_of[fb], fp, fn, fg, fmu, fe)
-    c_points = Contacts(on_fem[0], particle_of[on_fem[1]], *on_fem[2:])
+                           contact_keys(pairs.a, pairs.nearest, len(node_x), nb, True),
+                           point_keys(on_faces.sample, on_faces.nearest, len(node_x), nb)])
+    c_nodes.body_a = nb + parts.node_particle[c_nodes.body_a]
+    place = nb + parts.place_particle
+    c_pairs = Contacts(nb + parts.node_particle[pairs.a], place[:pairs.count], pairs.point, pairs.normal,
+                       pairs.gap, pairs.friction, pairs.restitution)
+    c_points = Contacts(on_faces.a, place[pairs.count:], on_faces.point, on_faces.normal, on_faces.gap,
+                        on_faces.friction, on_faces.restitution)
     contacts = concatenate(concatenate(concatenate(c_rigid, c_nodes, 0, 0), c_pairs, 0, 0), c_points, 0, 0)
 
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
-    #    its nodes through its own implicit system (apply_contact_impulses). The blocks are exact for
-    #    floating and anchored bodies; for corotated ones a second round corrects the difference.
+    #    its nodes (a place's shared among its triangle's nodes by its weights) through its own
+    #    implicit system (apply_contact_impulses). The blocks are exact for floating and anchored
+    #    bodies; for corotated ones a second round corrects the difference.
     rounds = 2 if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
     warm = state.contact_memory.recall(keys) if state.contact_memory is not None else None
     res, applied = None, np.zeros((contacts.count, 3))
     for _ in range(rounds):
         if res is not None:     # solve again from the velocities the bodies really took
-            bodies.velocity = np.concatenate([res.velocity[:nb]] + [
-                predicted[j].v[node_local[touched[group == j]]] for j in bodies_touched])
+            for j in bodies_touched:
+                at = parts.nodes_of(j)
+                node_v[at] = _moving(predicted[j], state.fem[j], node_local[at], h)
+            bodies.velocity = np.concatenate([res.velocity[:nb], parts.mean(node_v)])
             bodies.velocity_at_t = bodies.velocity
             bodies.angular = res.angular
         res = rigid_step.resolve_contacts(bodies, contacts, h, g, model.settings, previous=res, warm=warm)
@@ -151,28 +163,90 @@ def _coupled_step(model, state):
         impulse = np.zeros((p, 3))
         np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
         np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
+        node_impulse = parts.spread(impulse, len(node_x))
         for j in bodies_touched:
+            at = parts.nodes_of(j)
             predicted[j] = apply_contact_impulses(model.fem[j], state.fem[j], predicted[j], h,
-                                                  node_local[touched[group == j]], impulse[group == j])
+                                                  node_local[at], node_impulse[at])
 
     # 6. rigid drift; deformable bodies finish their step; touched nodes take their share of
-    #    penetration recovery (positions only)
+    #    penetration recovery (positions only; a place's share reached its nodes in the solver)
     rigid_res = rigid_step.Resolution(*(a[:nb] for a in (
         res.velocity, res.angular, res.shift, res.shift_rotation, res.pseudo_velocity,
         res.pseudo_angular, res.impact_dv, res.momentum_fix)))
     new_rigid = rigid_step.drift(rm, rs, rigid_res, h, v)
     new_fem = []
+    pseudo = res.pseudo_velocity[nb:]
     for j, (m, s, pr) in enumerate(zip(model.fem, state.fem, predicted)):
         s_new = fem_dyn.finish(m, s, pr, h)
-        sel = group == j
-        if sel.any() and np.any(res.pseudo_velocity[nb:][sel]):
+        sel = parts.is_node & (parts.body == j)
+        if sel.any() and np.any(pseudo[sel]):
             x = s_new.x.copy()
-            x[node_local[touched[sel]]] += h * res.pseudo_velocity[nb:][sel]
+            x[node_local[parts.corners[sel, 0]]] += h * pseudo[sel]
             R_fit, c_fit = fem_dyn.body_frame(m, x)
             s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
         new_fem.append(s_new)
     return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
                        contact_memory=ContactMemory.of(keys, res.contact_impulse))
+
+
+def _moving(step, state, nodes, h):
+    """Mean velocity ``(k, 3)`` m/s of ``nodes`` over a deformable body's step in progress."""
+    return (step.x_base[nodes] - state.x[nodes] + step.x_rate * step.v[nodes]) / h
+
+
+@dataclass
+class _Particles:
+    """The solver's particles: grouped by body in body order, each group's touched surface nodes
+    (sorted) and then its places on surface triangles. Particle i is the sum of the stacked surface
+    nodes ``corners[i]`` (3,) with ``weights[i]`` (a node: itself with weight 1). ``node_particle``
+    maps a stacked node to its particle (-1: none), ``place_particle`` each place to its own."""
+    corners: np.ndarray
+    weights: np.ndarray
+    body: np.ndarray
+    is_node: np.ndarray
+    node_particle: np.ndarray
+    place_particle: np.ndarray
+
+    @staticmethod
+    def of(touched, corners, weights, node_body):
+        k = len(touched)
+        all_corners = np.concatenate([np.repeat(touched[:, None], 3, axis=1), corners]).astype(np.int64)
+        all_weights = np.concatenate([np.tile([1.0, 0.0, 0.0], (k, 1)), weights])
+        body = node_body[all_corners[:, 0]] if len(all_corners) else np.zeros(0, np.int64)
+        order = np.lexsort((np.arange(len(body)) >= k, body))      # by body; nodes before places
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        node_particle = -np.ones(len(node_body), dtype=np.int64)
+        node_particle[touched] = rank[:k]
+        return _Particles(all_corners[order], all_weights[order], body[order], order < k, node_particle,
+                          rank[k:])
+
+    @property
+    def count(self):
+        return len(self.body)
+
+    def nodes_of(self, j):
+        """Stacked surface nodes (sorted) that are body j's particles."""
+        return self.corners[self.is_node & (self.body == j), 0]
+
+    def places_of(self, j):
+        """Body j's places for :func:`fem.contact_response.delassus_block`: (corners as indices into
+        :meth:`nodes_of`, weights), or None when it has none."""
+        mine = ~self.is_node & (self.body == j)
+        if not mine.any():
+            return None
+        return np.searchsorted(self.nodes_of(j), self.corners[mine]), self.weights[mine]
+
+    def mean(self, node_values):
+        """Each particle's weighted sum ``(P, 3)`` of stacked node values ``(nodes, 3)``."""
+        return np.einsum("pi,pij->pj", self.weights, node_values[self.corners])
+
+    def spread(self, impulse, node_count):
+        """Particle impulses ``(P, 3)`` as impulses on the stacked surface nodes ``(node_count, 3)``."""
+        out = np.zeros((node_count, 3))
+        np.add.at(out, self.corners.ravel(), (self.weights[:, :, None] * impulse[:, None, :]).reshape(-1, 3))
+        return out
 
 
 _last_stack = [None, None]    # the last call's (blocks, nb) and answer: resting contact repeats it

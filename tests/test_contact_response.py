@@ -86,3 +86,26 @@ def test_a_long_column_solve_reports_its_progress(monkeypatch):
     cr.delassus_block(model, DT, np.arange(6), report=heard.append)
     assert len(heard) == 5              # after every batch but the last
     assert "6 new contact nodes: 1 solved" in heard[0]
+
+
+def test_a_place_in_a_triangle_answers_as_its_weighted_nodes():
+    """A point of the surface (weights on three nodes) in the solver: the velocity of any node or
+    place per unit impulse on a place is the one the body gives when the impulse is shared among
+    the place's nodes by its weights, and the place moves with the weighted sum of its nodes."""
+    model = _model()
+    nodes = np.array([3, 17, 40, 41, 52])
+    corners = np.array([[0, 1, 2], [2, 3, 4]])          # indices into nodes
+    weights = np.array([[0.2, 0.3, 0.5], [0.6, 0.1, 0.3]])
+    W = _dense(cr.delassus_block(model, DT, nodes, points=(corners, weights), scale=0.5))
+    inverse = np.linalg.inv(system_matrix(model, DT).toarray())
+    # T maps impulses on (nodes, places) to impulses on all the body's DOFs
+    T = np.zeros((3 * model.node_count, 3 * (len(nodes) + len(corners))))
+    for i, node in enumerate(nodes):
+        T[3 * node:3 * node + 3, 3 * i:3 * i + 3] = np.eye(3)
+    for u in range(len(corners)):
+        for i in range(3):
+            node = nodes[corners[u, i]]
+            T[3 * node:3 * node + 3, 3 * (len(nodes) + u):3 * (len(nodes) + u) + 3] = weights[u, i] * np.eye(3)
+    k = len(nodes) + len(corners)
+    exact = 0.5 * (T.T @ inverse @ T).reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+    np.testing.assert_allclose(W, exact, rtol=0, atol=1e-10 * np.abs(exact).max())

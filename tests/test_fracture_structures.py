@@ -194,9 +194,10 @@ def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
     model, state, events = run(model, state, 150, watch)
     assert len(model.names) >= 4 + 3, "expected several fragments"
     assert max(checks["momentum"]) < 1e-9        # splitting never changes momentum
-    # the fragments fall 0.3 m (about 20 J) and bounce and tumble for a while (still a few J at
-    # 0.7 s, at rest by 1.2 s)
-    model, state, more = run(model, state, 1150)
+    # the fragments fall 0.3 m (about 20 J) and bounce and tumble for a while; how long depends on
+    # the pattern the plate breaks into, which any contact detail changes (seen at rest by 1.1 s
+    # and by 1.65 s), so they get until 1.8 s
+    model, state, more = run(model, state, 1650)
     energy, _, _ = totals(model, state)
     assert energy <= energy0
     # everything has landed and is at rest, nothing flew off
