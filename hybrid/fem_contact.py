@@ -73,6 +73,47 @@ def _rest_triangles(m, Y):
     return tri[face[best]], weights, close[:, 0]
 
 
+# a node touching a rigid body whose surface there turns more than this from the node's own face
+# (cosine between the rigid normal and the node's inward normal) sits at a rigid edge or corner
+EDGE_COS = np.cos(np.radians(70.0))
+
+
+def edge_normals(models, states, node_offset, node_body, contacts, margin):
+    """Normals ``(c, 3)`` and gaps ``(c,)`` for surface nodes' ``contacts`` (stacked node a, rigid
+    body b >= 0 or a plane): a node touching (within a tenth of ``margin``) where the rigid surface
+    turns away from its own face by more than 70 degrees, i.e. at a rigid edge or corner, takes its
+    own face's normal, and its gap is measured along it. There the rigid normal and distance turn
+    by 90 degrees as the node moves by a micrometre: a box whose bottom edges sit on a slab's
+    nodes was pushed sideways by them, or (nodes bulging out a few micrometres past the edge) was
+    let sink by their distance to the edge onto the node under its middle, balanced there and
+    tipped over, and a 5-box stack on the slab toppled."""
+    normal, gap = contacts.normal.copy(), contacts.gap.copy()
+    at = np.nonzero((contacts.body_b >= 0) & (np.abs(contacts.gap) < 0.1 * margin))[0]
+    if not len(at):
+        return normal, gap
+    node = contacts.body_a[at]
+    own = np.zeros((len(at), 3))
+    for j in np.unique(node_body[node]):
+        mine = node_body[node] == j
+        own[mine] = _node_normals(models[j], states[j], node[mine] - node_offset[j])
+    along = np.einsum("ij,ij->i", normal[at], -own)
+    turned = along < EDGE_COS
+    normal[at[turned]] = -own[turned]
+    gap[at[turned]] *= along[turned]            # the offset to the rigid surface, along the new normal
+    return normal, gap
+
+
+def _node_normals(m, s, local):
+    """Current outward unit normals ``(k, 3)`` of body m's surface nodes ``local`` (indices into
+    ``surface_nodes``): the area-weighted normals of the triangles around each."""
+    _, tri, around = _surface_index(m)
+    faces = around[local]
+    corners = s.x[m.surface_nodes[tri[np.maximum(faces, 0)]]]            # (k, d, 3, 3)
+    n = np.cross(corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0])
+    n = (n * (faces >= 0)[:, :, None]).sum(axis=1)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
 def _reach(m, s):
     """Centre (3,) and radius (m) of a sphere holding the body's surface nodes."""
     x = s.x[m.surface_nodes]

@@ -22,7 +22,7 @@ from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
 
 from .build import HybridState
-from .fem_contact import detect_fem_pairs, detect_rigid_points
+from .fem_contact import detect_fem_pairs, detect_rigid_points, edge_normals
 
 
 class InstabilityError(RuntimeError):
@@ -75,6 +75,7 @@ def _coupled_step(model, state):
     nodes = [m.surface_nodes for m in model.fem]
     node_body = np.concatenate([np.full(len(n), j) for j, n in enumerate(nodes)])
     node_local = np.concatenate(nodes)
+    node_offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
     node_x = np.concatenate([s.x[n] for s, n in zip(state.fem, nodes)])
     # how fast each node moves over the step: it ends at x_base + x_rate v (backward Euler: at
     # x + h v; Newmark: at x + h (v_t + v) / 2). Contacts ask that no gap closes by the step's end,
@@ -88,7 +89,8 @@ def _coupled_step(model, state):
     e = np.array([b.restitution for b in fem_bodies])[node_body]
     sweep = np.linalg.norm(node_v, axis=1) * h
     c_nodes = detect_points(rm, rs.position, R, node_x, sweep, model.settings.margin, mu, e)
-    node_offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
+    c_nodes.normal, c_nodes.gap = edge_normals(model.fem, state.fem, node_offset, node_body, c_nodes,
+                                  model.settings.margin)
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset, node_x, sweep,
