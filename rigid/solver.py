@@ -300,22 +300,36 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
 
 
 @nb.njit(cache=True)
-def stack_levels(ia, ib, normal, up, body_count, is_static):
+def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
     """Height of each body in the contact graph (Guendelman 2003 shock propagation).
 
     Static bodies are level 0; a body resting (normal within ~70 degrees of up) on a body of level
-    k has level <= k + 1. Bodies touching nothing below them get a level above every other.
+    k has level <= k + 1. The particles of one group (``group_of`` >= 0, the touched nodes of one
+    deformable body) are one body: all take the level of the lowest (a slab lying on the ground
+    carries what rests on its top). Bodies touching nothing below them get a level above every other.
     """
     big = body_count + 1
     level = np.full(body_count, big, dtype=np.int64)
     for i in range(body_count):
         if is_static[i]:
             level[i] = 0
+    groups = 0
+    for i in range(body_count):
+        groups = max(groups, group_of[i] + 1)
+    lowest = np.empty(groups, dtype=np.int64)
     changed = True
     sweeps = 0
-    while changed and sweeps < body_count + 1:
+    while changed and sweeps < 2 * body_count + 2:
         changed = False
         sweeps += 1
+        lowest[:] = big
+        for i in range(body_count):
+            if group_of[i] >= 0:
+                lowest[group_of[i]] = min(lowest[group_of[i]], level[i])
+        for i in range(body_count):
+            if group_of[i] >= 0 and lowest[group_of[i]] < level[i]:
+                level[i] = lowest[group_of[i]]
+                changed = True
         for k in range(len(ia)):
             s = np.dot(normal[k], up)
             if s > 0.34:

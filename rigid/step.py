@@ -190,10 +190,10 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     sa = sb = ones
     gnorm = np.linalg.norm(gravity)
     if gnorm > 0:
-        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static)
+        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static, groups[0])
         c_level, sa, sb = shock_scales(ia, ib, level)
         # (contacts between particles and the static world gain nothing from it: left out)
-        rigid_side = ~particle[ia] | ((ib >= 0) & ~particle[ib0])
+        rigid_side = ~particle[ia] & ((ib < 0) | ~particle[ib0])
         for lv in np.unique(c_level[rigid_side]):
             at_level = (c_level == lv) & rigid_side
             level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
