@@ -193,26 +193,30 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
     node_offset[j]: index of body j's first surface node in the stacked node arrays node_x (k, 3)
     and node_sweep (k,) (how far each node may move this step). bodies: the scene bodies (for
     friction and restitution). Returns :class:`SurfaceContacts` with ``a`` the stacked node.
+    Each body's surface is queried once, with the nodes of every other body near it (a shattered
+    part of 17 pieces pressing on each other made 270 pairs, each a query of its own).
     """
     parts = []
     if len(models) < 2:
         return SurfaceContacts.stacked(parts)
-    spheres = [_reach(m, s) for m, s in zip(models, states)]
-    moved = {}
-    for a, ma in enumerate(models):
-        for b, (mb, sb) in enumerate(zip(models, states)):
-            if a == b or not _overlap(*spheres[a], *spheres[b], margin + node_sweep.max(initial=0.0)):
-                continue
-            ia = np.arange(node_offset[a], node_offset[a] + len(ma.surface_nodes))
-            ib = node_offset[b] + np.arange(len(mb.surface_nodes))
-            reach = margin + node_sweep[ia] + node_sweep[ib].max(initial=0.0)
-            if b not in moved:
-                moved[b] = _moved(mb, sb)
-            rows, corners, weights, nearest, point, normal, gap = _against(mb, sb, moved[b], node_x[ia], reach)
-            _append(parts, ia[rows], ib[corners], weights, ib[nearest], point, normal, gap,
-                    combine_friction(bodies[a].friction, bodies[b].friction),
-                    combine_restitution(bodies[a].restitution, bodies[b].restitution),
-                    np.full(len(rows), -1))
+    node_body = np.repeat(np.arange(len(models)), np.diff(node_offset))
+    mu = np.array([body.friction for body in bodies])
+    e = np.array([body.restitution for body in bodies])
+    for b, (mb, sb) in enumerate(zip(models, states)):
+        ib = np.arange(node_offset[b], node_offset[b + 1])
+        centre, radius = _reach(mb, sb)
+        slack = margin + node_sweep[ib].max(initial=0.0)
+        # other bodies' nodes within reach of b's bounding sphere
+        near = np.nonzero((node_body != b) & (np.linalg.norm(node_x - centre, axis=1)
+                                              <= radius + slack + node_sweep))[0]
+        if not len(near):
+            continue
+        found = _against(mb, sb, _moved(mb, sb), node_x[near], slack + node_sweep[near])
+        rows, corners, weights, nearest, point, normal, gap = found
+        a = near[rows]
+        _append(parts, a, ib[corners], weights, ib[nearest], point, normal, gap,
+                combine_friction(mu[node_body[a]], mu[b]), combine_restitution(e[node_body[a]], e[b]),
+                np.full(len(rows), -1))
     return SurfaceContacts.stacked(parts)
 
 
@@ -259,5 +263,5 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
 
 def _append(parts, a, corners, weights, nearest, point, normal, gap, friction, restitution, sample):
     if len(a):
-        parts.append((a, corners, weights, nearest, point, normal, gap, np.full(len(a), friction),
-                      np.full(len(a), restitution), sample))
+        parts.append((a, corners, weights, nearest, point, normal, gap,
+                      np.broadcast_to(friction, len(a)), np.broadcast_to(restitution, len(a)), sample))
