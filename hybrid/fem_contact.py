@@ -151,10 +151,6 @@ def _against(mb, sb, moved, x, reach, radius=None):
     return rows, corners, weights, nearest, point, normal, gap
 
 
-def _overlap(ca, ra, cb, rb, slack):
-    return np.linalg.norm(ca - cb) <= ra + rb + slack
-
-
 @dataclass
 class SurfaceContacts:
     """Contacts of side a (a stacked surface node, or a rigid body) with places on FEM surfaces
@@ -234,30 +230,32 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
     parts = []
     if rigid.body_count == 0 or not models:
         return SurfaceContacts.stacked(parts)
-    spheres = [_reach(m, s) for m, s in zip(models, states)]
     for j, (mb, sb) in enumerate(zip(models, states)):
         ib = node_offset[j] + np.arange(len(mb.surface_nodes))
         slack = margin + node_sweep[ib].max(initial=0.0)
-        moved = None
-        for r in range(rigid.body_count):
-            if not _overlap(position[r], rigid.body_radius[r] + rigid_sweep[r], *spheres[j], slack):
-                continue
-            at = np.arange(rigid.point_start[r], rigid.point_start[r + 1])
-            x = position[r] + rigid.point_local[at] @ rotation[r].T
-            reach = np.full(len(at), slack + rigid_sweep[r])
-            moved = _moved(mb, sb) if moved is None else moved
-            found = _against(mb, sb, moved, x, reach, rigid.point_radius[at])
-            # a point right over a node (within a tenth of the margin across the normal) is that
-            # node's own contact with the rigid body; a second one there only slows the solver
-            # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)
-            rows, nearest, normal = found[0], found[3], found[5]
-            offset = sb.x[mb.surface_nodes[nearest]] - x[rows]
-            offset -= np.einsum("ij,ij->i", offset, normal)[:, None] * normal
-            apart = np.linalg.norm(offset, axis=1) > 0.1 * margin
-            rows, corners, weights, nearest, point, normal, gap = (f[apart] for f in found)
-            _append(parts, np.full(len(rows), r), ib[corners], weights, ib[nearest], point, normal, gap,
-                    combine_friction(rigid.body_friction[r], bodies[j].friction),
-                    combine_restitution(rigid.body_restitution[r], bodies[j].restitution), at[rows])
+        centre, radius = _reach(mb, sb)
+        # every sample point of the rigid bodies whose bounding spheres reach this body, at once
+        near = np.nonzero(np.linalg.norm(position - centre, axis=1)
+                          <= rigid.body_radius + rigid_sweep + radius + slack)[0]
+        if not len(near):
+            continue
+        count = rigid.point_start[near + 1] - rigid.point_start[near]
+        owner = np.repeat(near, count)
+        at = np.repeat(rigid.point_start[near] - np.cumsum(count) + count, count) + np.arange(count.sum())
+        x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], rigid.point_local[at])
+        found = _against(mb, sb, _moved(mb, sb), x, slack + rigid_sweep[owner], rigid.point_radius[at])
+        # a point right over a node (within a tenth of the margin across the normal) is that
+        # node's own contact with the rigid body; a second one there only slows the solver
+        # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)
+        rows, nearest, normal = found[0], found[3], found[5]
+        offset = sb.x[mb.surface_nodes[nearest]] - x[rows]
+        offset -= np.einsum("ij,ij->i", offset, normal)[:, None] * normal
+        apart = np.linalg.norm(offset, axis=1) > 0.1 * margin
+        rows, corners, weights, nearest, point, normal, gap = (f[apart] for f in found)
+        r = owner[rows]
+        _append(parts, r, ib[corners], weights, ib[nearest], point, normal, gap,
+                combine_friction(rigid.body_friction[r], bodies[j].friction),
+                combine_restitution(rigid.body_restitution[r], bodies[j].restitution), at[rows])
     return SurfaceContacts.stacked(parts)
 
 
