@@ -291,6 +291,19 @@ def _frame_mesh(path: Path, field: str | None, association: str = "cell"):
     return mesh
 
 
+# colour bar text (pixels) and the room its widest label ("-1.23e+06") and the bar take
+BAR_FONT = 14
+BAR_ROOM = 40 + 9 * 0.62 * BAR_FONT
+
+
+def _scalar_bar(field, width):
+    """Colour bar arguments: vertical at the right edge, placed so that its labels stay inside an
+    image ``width`` pixels wide (at 0.86 of the width, 640 px cut "-1.31e+06" to "-1.31e+0")."""
+    return {"title": f"{field} (Pa)", "color": "black", "vertical": True, "fmt": "%.3g",
+            "title_font_size": BAR_FONT, "label_font_size": BAR_FONT,
+            "position_x": min(0.86, 1.0 - (BAR_ROOM + 16) / width), "position_y": 0.1}
+
+
 def render_run(run_dir: Path | str, out: Path | str | None = None,
                size: tuple[int, int] = (960, 540), fps: float | None = None,
                field: str | None = None,
@@ -362,9 +375,7 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
                 else:
                     plotter.add_mesh(shown, scalars=field, preference=association, clim=clim,
                                      cmap="viridis",
-                                     scalar_bar_args={"title": field, "color": "black",
-                                                      "vertical": True, "position_x": 0.86,
-                                                      "position_y": 0.1}, **style)
+                                     scalar_bar_args=_scalar_bar(field, width), **style)
             else:
                 shown.copy_from(mesh, deep=False)
             label.input = f"t = {time:.3f} s"
