@@ -127,21 +127,31 @@ def _moved(m, s):
     return (s.x[m.surface_nodes] - s.c) @ s.R + m.rest_center - m.rest_points[m.surface_nodes]
 
 
-def _against(mb, sb, moved, x, reach, radius=None):
+def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
     those closer than ``reach`` (p,) m, ``moved`` being b's :func:`_moved`: ``(rows, corners,
     weights, nearest, point, normal, gap)``. b's side is a place in its surface triangle ``corners``
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
-    node nearest it (the contact's identity across steps); ``normal`` points from b towards x."""
+    node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
+    With ``off_nodes`` (m), points within that distance of their nearest node across the normal
+    are left out (that node's own contact covers them)."""
     radius = np.zeros(len(x)) if radius is None else radius
     X = (x - sb.c) @ sb.R + mb.rest_center                  # into b's rest frame
     phi, n_rest = _grid(mb).query(X)
     phi = phi - radius
     near = np.nonzero((phi < reach + np.sqrt((moved ** 2).sum(axis=1).max(initial=0.0)))
                       & np.any(n_rest != 0, axis=1))[0]
-    # the closest rest surface point, its triangle, and how far the triangle has moved there along
-    # the normal since rest (a dent in b moves its surface away)
-    corners, weights, nearest = _rest_triangles(mb, X[near] - (phi[near] + radius[near])[:, None] * n_rest[near])
+    Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
+    if off_nodes is not None and len(near):
+        node = mb.surface_nodes[_surface_index(mb)[0].query(Y)[1]]
+        across = sb.x[node] - x[near]
+        normal = n_rest[near] @ sb.R.T
+        across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
+        keep = np.einsum("ij,ij->i", across, across) > off_nodes ** 2
+        near, Y = near[keep], Y[keep]
+    # its triangle, and how far the triangle has moved there along the normal since rest (a dent
+    # in b moves its surface away)
+    corners, weights, nearest = _rest_triangles(mb, Y)
     shift = np.einsum("pi,pij->pj", weights, moved[corners])
     gap = phi[near] - np.einsum("ij,ij->i", shift, n_rest[near])
     hit = gap < reach[near]
@@ -243,15 +253,11 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         owner = np.repeat(near, count)
         at = np.repeat(rigid.point_start[near] - np.cumsum(count) + count, count) + np.arange(count.sum())
         x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], rigid.point_local[at])
-        found = _against(mb, sb, _moved(mb, sb), x, slack + rigid_sweep[owner], rigid.point_radius[at])
         # a point right over a node (within a tenth of the margin across the normal) is that
         # node's own contact with the rigid body; a second one there only slows the solver
         # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)
-        rows, nearest, normal = found[0], found[3], found[5]
-        offset = sb.x[mb.surface_nodes[nearest]] - x[rows]
-        offset -= np.einsum("ij,ij->i", offset, normal)[:, None] * normal
-        apart = np.linalg.norm(offset, axis=1) > 0.1 * margin
-        rows, corners, weights, nearest, point, normal, gap = (f[apart] for f in found)
+        rows, corners, weights, nearest, point, normal, gap = _against(
+            mb, sb, _moved(mb, sb), x, slack + rigid_sweep[owner], rigid.point_radius[at], 0.1 * margin)
         r = owner[rows]
         _append(parts, r, ib[corners], weights, ib[nearest], point, normal, gap,
                 combine_friction(rigid.body_friction[r], bodies[j].friction),
