@@ -157,17 +157,10 @@ def _learn(model, dt, cache, new, nodes, report):
             last_report = now
 
 
-def delassus_block(model, dt, nodes, report=None, points=None, scale=1.0):
+def delassus_block(model, dt, nodes, report=None, scale=1.0):
     """The Delassus matrix of the k ``nodes`` in the body's solve frame (world = R W R^T, R the
     frame's rotation, e.g. the best-fit rotation of a floating body), block-sparse by rows
     (:func:`sparse_rows`): block [l, i] is the velocity of node l per unit impulse on node i.
-
-    ``points = (corners (q, 3), weights (q, 3))``, when given, adds q surface points after the
-    nodes: point u is the weighted sum of nodes ``corners[u]`` (indices into ``nodes``), its
-    velocity the same sum of theirs, and an impulse on it acts on those nodes in the same
-    proportions (a contact inside a surface triangle, barycentric weights). Its blocks follow from
-    the nodes' (``T W T^T``), so an impulse there moves the nodes as the body would.
-
     ``scale`` multiplies every block: the solver may want the response of another velocity than
     the end-of-step one (the nodes' mean velocity over the step under Newmark, half of it).
 
@@ -176,22 +169,9 @@ def delassus_block(model, dt, nodes, report=None, points=None, scale=1.0):
     """
     cache = _cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
-    same = cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes)
-    if same and points is None and cache.last_block is not None and cache.last_scale == scale:
+    if cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes) \
+            and cache.last_scale == scale:
         return cache.last_block
-    W = _dense_block(model, dt, cache, nodes, report)
-    if scale != 1.0:
-        W *= scale
-    if not same:
-        cache.last_nodes, cache.last_block, cache.last_columns = nodes.copy(), None, None
-    if points is None:
-        cache.last_block, cache.last_scale = sparse_rows(W), scale
-        return cache.last_block
-    return sparse_rows(with_points(W, *points))
-
-
-def _dense_block(model, dt, cache, nodes, report):
-    """(k, k, 3, 3) Delassus blocks of ``nodes``, new nodes' columns solved and cached first."""
     k = len(nodes)
     new = nodes[cache.slot[nodes] < 0]
     if len(new):
@@ -201,22 +181,10 @@ def _dense_block(model, dt, cache, nodes, report):
         _learn(model, dt, cache, new, nodes, report)
     dofs = (3 * cache.slot[nodes][:, None] + np.arange(3)).ravel()
     # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
-    return np.ascontiguousarray(cache.W[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3))
-
-
-def with_points(W, corners, weights):
-    """Delassus blocks ``(k + q, k + q, 3, 3)`` of k nodes (blocks ``W`` (k, k, 3, 3)) followed by q
-    points, point u the sum of nodes ``corners[u]`` (q, 3) with ``weights[u]`` (q, 3)."""
-    corners, weights = np.asarray(corners, dtype=np.int64), np.asarray(weights, dtype=float)
-    k, q = len(W), len(corners)
-    out = np.empty((k + q, k + q, 3, 3))
-    out[:k, :k] = W
-    # block [u, l] = sum_i w_ui W[c_ui, l]; block [u, v] = sum_j w_vj [u, c_vj]
-    point_node = sum(weights[:, i, None, None, None] * W[corners[:, i]] for i in range(3))
-    out[k:, :k] = point_node
-    out[:k, k:] = point_node.transpose(1, 0, 3, 2)
-    out[k:, k:] = sum(weights[None, :, j, None, None] * point_node[:, corners[:, j]] for j in range(3))
-    return out
+    W = cache.W[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+    W = sparse_rows(scale * np.ascontiguousarray(W))
+    cache.last_nodes, cache.last_block, cache.last_columns, cache.last_scale = nodes.copy(), W, None, scale
+    return W
 
 
 def sparse_rows(W, tol=None):

@@ -10,8 +10,8 @@ in B moves its surface away from A (against the rest shape it would look like a 
 whose recovery, pushing single nodes, doubled the energy of two soft bodies meeting head-on), and
 it changes continuously as A slides over B (measured to B's nearest node instead, it jumped by
 millimetres when that node changed, and the recovery fed energy in). In the contact solver the
-place is a point of B's body (fem.contact_response.with_points): its impulse goes to the three
-nodes in the same proportions, so the two sides' impulses act along one line: linear momentum is
+place moves with the weighted sum of its three nodes and its impulse goes to them in the same
+proportions (rigid.solver.pgs, places), so the two sides' impulses act along one line: linear momentum is
 kept exactly, and what angular momentum still changes is first order in the time step (1.6% at
 1 ms, 0.66% at 0.5 ms for a soft block grazing a soft ball; tests/test_coupling.py).
 """

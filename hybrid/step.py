@@ -100,23 +100,25 @@ def _coupled_step(model, state):
     corners = np.concatenate([pairs.corners, on_faces.corners])
     weights = np.concatenate([pairs.weights, on_faces.weights])
 
-    # 4. touched nodes, and the places on surface triangles, join the solver as particles grouped
-    #    by body, each group answering impulses through its body's exact Delassus block
-    #    (fem.contact_response; a place's blocks are its triangle's, weighted)
+    # 4. touched nodes join the solver as particles grouped by body, each group answering
+    #    impulses through its body's exact Delassus block (fem.contact_response); the places on
+    #    surface triangles join as points that move with, and push, their triangle's nodes
     touched = np.unique(np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()]))
     # per body, the solver's node set (kept across steps while contact rests, see contact_set)
     touched = np.concatenate([node_offset[j] + np.searchsorted(
         nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
         for j in np.unique(node_body[touched])]).astype(np.int64) if len(touched) else touched
-    parts = _Particles.of(touched, corners, weights, node_body)
+    parts = _Particles(touched, node_body[touched], corners, weights, node_body)
     bodies_touched = np.unique(parts.body)
     group_id = -np.ones(len(model.fem), dtype=np.int64)
     group_id[bodies_touched] = np.arange(len(bodies_touched))
-    blocks = [delassus_block(model.fem[j], h, node_local[parts.nodes_of(j)], points=parts.places_of(j),
-                             scale=predicted[j].x_rate / h, report=_reporter(model.names[model.fem_ids[j]]))
-              for j in bodies_touched]
+    blocks = [delassus_block(model.fem[j], h, node_local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
+                             report=_reporter(model.names[model.fem_ids[j]])) for j in bodies_touched]
     p = parts.count
     w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
+    corner = parts.solver_corners(nb)
+    w_ptr = np.concatenate([w_ptr, np.full(len(corners), w_ptr[-1])])       # places: no rows
+    held = np.concatenate([held, held[corner[nb + len(touched):] - nb].all(axis=1)])
     bodies = rigid_step.SolverBodies(
         inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
         inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.zeros((p, 3, 3))]),
@@ -126,15 +128,17 @@ def _coupled_step(model, state):
         angular=np.concatenate([rigid_bodies.angular, np.zeros((p, 3))]),
         accel=np.concatenate([rigid_bodies.accel, np.zeros((p, 3))]),
         static=np.concatenate([rigid_bodies.static, held]),
-        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[parts.body]]),
+        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[parts.body],
+                                 group_id[node_body[corners[:, 0]]]]),
         group_R=np.array([state.fem[j].R for j in bodies_touched]) if blocks else np.eye(3)[None],
-        w_ptr=w_ptr, w_col=w_col, W=W)
+        w_ptr=w_ptr, w_col=w_col, W=W, corner=corner,
+        corner_w=np.concatenate([np.zeros((nb + len(touched), 3)), weights]))
     keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
                            contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
                            contact_keys(pairs.a, pairs.nearest, len(node_x), nb, True),
                            point_keys(on_faces.sample, on_faces.nearest, len(node_x), nb)])
     c_nodes.body_a = nb + parts.node_particle[c_nodes.body_a]
-    place = nb + parts.place_particle
+    place = nb + len(touched) + np.arange(len(corners))
     c_pairs = Contacts(nb + parts.node_particle[pairs.a], place[:pairs.count], pairs.point, pairs.normal,
                        pairs.gap, pairs.friction, pairs.restitution)
     c_points = Contacts(on_faces.a, place[pairs.count:], on_faces.point, on_faces.normal, on_faces.gap,
@@ -178,13 +182,13 @@ def _coupled_step(model, state):
         res.pseudo_angular, res.impact_dv, res.momentum_fix)))
     new_rigid = rigid_step.drift(rm, rs, rigid_res, h, v)
     new_fem = []
-    pseudo = res.pseudo_velocity[nb:]
+    pseudo = res.pseudo_velocity[nb:nb + len(touched)]
     for j, (m, s, pr) in enumerate(zip(model.fem, state.fem, predicted)):
         s_new = fem_dyn.finish(m, s, pr, h)
-        sel = parts.is_node & (parts.body == j)
+        sel = parts.body == j
         if sel.any() and np.any(pseudo[sel]):
             x = s_new.x.copy()
-            x[node_local[parts.corners[sel, 0]]] += h * pseudo[sel]
+            x[node_local[parts.nodes[sel]]] += h * pseudo[sel]
             R_fit, c_fit = fem_dyn.body_frame(m, x)
             s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
         new_fem.append(s_new)
@@ -199,55 +203,45 @@ def _moving(step, state, nodes, h):
 
 @dataclass
 class _Particles:
-    """The solver's particles: grouped by body in body order, each group's touched surface nodes
-    (sorted) and then its places on surface triangles. Particle i is the sum of the stacked surface
-    nodes ``corners[i]`` (3,) with ``weights[i]`` (a node: itself with weight 1). ``node_particle``
-    maps a stacked node to its particle (-1: none), ``place_particle`` each place to its own."""
+    """The solver's particles and places. Particle i (i < k) is the stacked surface node
+    ``nodes[i]`` (grouped by ``body``, sorted within it); place u (after them) is the sum of the
+    stacked nodes ``corners[u]`` (3,), all among ``nodes``, with ``weights[u]``."""
+    nodes: np.ndarray
+    body: np.ndarray
     corners: np.ndarray
     weights: np.ndarray
-    body: np.ndarray
-    is_node: np.ndarray
-    node_particle: np.ndarray
-    place_particle: np.ndarray
+    node_body: np.ndarray
 
-    @staticmethod
-    def of(touched, corners, weights, node_body):
-        k = len(touched)
-        all_corners = np.concatenate([np.repeat(touched[:, None], 3, axis=1), corners]).astype(np.int64)
-        all_weights = np.concatenate([np.tile([1.0, 0.0, 0.0], (k, 1)), weights])
-        body = node_body[all_corners[:, 0]] if len(all_corners) else np.zeros(0, np.int64)
-        order = np.lexsort((np.arange(len(body)) >= k, body))      # by body; nodes before places
-        rank = np.empty(len(order), dtype=np.int64)
-        rank[order] = np.arange(len(order))
-        node_particle = -np.ones(len(node_body), dtype=np.int64)
-        node_particle[touched] = rank[:k]
-        return _Particles(all_corners[order], all_weights[order], body[order], order < k, node_particle,
-                          rank[k:])
+    def __post_init__(self):
+        self.node_particle = -np.ones(len(self.node_body), dtype=np.int64)
+        self.node_particle[self.nodes] = np.arange(len(self.nodes))
 
     @property
     def count(self):
-        return len(self.body)
+        return len(self.nodes) + len(self.corners)
 
     def nodes_of(self, j):
         """Stacked surface nodes (sorted) that are body j's particles."""
-        return self.corners[self.is_node & (self.body == j), 0]
+        return self.nodes[self.body == j]
 
-    def places_of(self, j):
-        """Body j's places for :func:`fem.contact_response.delassus_block`: (corners as indices into
-        :meth:`nodes_of`, weights), or None when it has none."""
-        mine = ~self.is_node & (self.body == j)
-        if not mine.any():
-            return None
-        return np.searchsorted(self.nodes_of(j), self.corners[mine]), self.weights[mine]
+    def solver_corners(self, nb):
+        """Solver indices ``(nb + count, 3)`` of each place's corners (-1 rows for the others)."""
+        out = -np.ones((nb + self.count, 3), dtype=np.int64)
+        out[nb + len(self.nodes):] = nb + self.node_particle[self.corners]
+        return out
 
     def mean(self, node_values):
-        """Each particle's weighted sum ``(P, 3)`` of stacked node values ``(nodes, 3)``."""
-        return np.einsum("pi,pij->pj", self.weights, node_values[self.corners])
+        """Each particle's and place's value ``(count, 3)`` from stacked node values ``(nodes, 3)``."""
+        return np.concatenate([node_values[self.nodes],
+                               np.einsum("pi,pij->pj", self.weights, node_values[self.corners])])
 
     def spread(self, impulse, node_count):
-        """Particle impulses ``(P, 3)`` as impulses on the stacked surface nodes ``(node_count, 3)``."""
+        """Particle and place impulses ``(count, 3)`` as impulses on the stacked surface nodes
+        ``(node_count, 3)`` (a place's shared among its corners by their weights)."""
         out = np.zeros((node_count, 3))
-        np.add.at(out, self.corners.ravel(), (self.weights[:, :, None] * impulse[:, None, :]).reshape(-1, 3))
+        k = len(self.nodes)
+        out[self.nodes] = impulse[:k]
+        np.add.at(out, self.corners.ravel(), (self.weights[:, :, None] * impulse[k:, None, :]).reshape(-1, 3))
         return out
 
 

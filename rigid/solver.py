@@ -93,29 +93,47 @@ def _push_group(i, J0, J1, J2, v, group_of, group_R, w_ptr, w_col, W):
 
 
 @nb.njit(cache=True)
-def _point_velocity(i, r, v, w, group_of, group_R):
+def _point_velocity(i, r, v, w, group_of, group_R, corner, corner_w):
     """World velocity (x, y, z) of body i at arm r (particles: their group-frame velocity rotated
-    out)."""
+    out; places: the weighted sum of their corner particles')."""
     if i < 0:
         return 0.0, 0.0, 0.0
     if group_of[i] >= 0:
         R = group_R[group_of[i]]
-        return (R[0, 0] * v[i, 0] + R[0, 1] * v[i, 1] + R[0, 2] * v[i, 2],
-                R[1, 0] * v[i, 0] + R[1, 1] * v[i, 1] + R[1, 2] * v[i, 2],
-                R[2, 0] * v[i, 0] + R[2, 1] * v[i, 1] + R[2, 2] * v[i, 2])
+        if corner[i, 0] >= 0:
+            u0 = u1 = u2 = 0.0
+            for c in range(3):
+                q, f = corner[i, c], corner_w[i, c]
+                u0 += f * v[q, 0]
+                u1 += f * v[q, 1]
+                u2 += f * v[q, 2]
+        else:
+            u0, u1, u2 = v[i, 0], v[i, 1], v[i, 2]
+        return (R[0, 0] * u0 + R[0, 1] * u1 + R[0, 2] * u2,
+                R[1, 0] * u0 + R[1, 1] * u1 + R[1, 2] * u2,
+                R[2, 0] * u0 + R[2, 1] * u1 + R[2, 2] * u2)
     return (v[i, 0] + w[i, 1] * r[2] - w[i, 2] * r[1],
             v[i, 1] + w[i, 2] * r[0] - w[i, 0] * r[2],
             v[i, 2] + w[i, 0] * r[1] - w[i, 1] * r[0])
 
 
 @nb.njit(cache=True)
-def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W):
-    """Impulse scale * (j0, j1, j2) (world) on body i at arm r."""
+def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner,
+           corner_w):
+    """Impulse scale * (j0, j1, j2) (world) on body i at arm r (a place: shared among its corners
+    by their weights)."""
     if i < 0 or scale == 0.0:
         return
     j0, j1, j2 = scale * j0, scale * j1, scale * j2
     if group_of[i] >= 0:
-        _push_group(i, j0, j1, j2, v, group_of, group_R, w_ptr, w_col, W)
+        if corner[i, 0] >= 0:
+            for c in range(3):
+                f = corner_w[i, c]
+                if f != 0.0:
+                    _push_group(corner[i, c], f * j0, f * j1, f * j2, v, group_of, group_R, w_ptr,
+                                w_col, W)
+        else:
+            _push_group(i, j0, j1, j2, v, group_of, group_R, w_ptr, w_col, W)
         return
     m = inv_m[i]
     v[i, 0] += m * j0
@@ -130,14 +148,29 @@ def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr,
 
 @nb.njit(cache=True)
 def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w,
-                group_of, group_R, w_ptr, w_col, W):
+                group_of, group_R, w_ptr, w_col, W, corner, corner_w):
     """Impulse l0 n + l1 t1 + l2 t2 (contact j's basis) on side a of contact k, its opposite on b."""
     J0 = l0 * basis[j, 0, 0] + l1 * basis[j, 1, 0] + l2 * basis[j, 2, 0]
     J1 = l0 * basis[j, 0, 1] + l1 * basis[j, 1, 1] + l2 * basis[j, 2, 1]
     J2 = l0 * basis[j, 0, 2] + l1 * basis[j, 1, 2] + l2 * basis[j, 2, 2]
-    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W,
+           corner, corner_w)
     _apply(ib[k], rb[k], -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col,
-           W)
+           W, corner, corner_w)
+
+
+@nb.njit(cache=True)
+def _add_pair_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out):
+    """:func:`_add_block` for particles or places i and l of one group (a place's block is the
+    weighted sum of its corners')."""
+    ni = 3 if corner[i, 0] >= 0 else 1
+    nl = 3 if corner[l, 0] >= 0 else 1
+    for a in range(ni):
+        p, fp = (corner[i, a], corner_w[i, a]) if ni == 3 else (i, 1.0)
+        for b in range(nl):
+            q, fq = (corner[l, b], corner_w[l, b]) if nl == 3 else (l, 1.0)
+            if fp != 0.0 and fq != 0.0:
+                _add_block(p, q, D, scale * fp * fq, group_of, group_R, w_ptr, w_col, W, out)
 
 
 @nb.njit(cache=True)
@@ -160,13 +193,13 @@ def _add_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, out):
 
 
 @nb.njit(cache=True)
-def _response(i, r, D, scale, inv_m, invI, group_of, group_R, w_ptr, w_col, W, out):
+def _response(i, r, D, scale, inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out):
     """Add to out (3, 3) the velocity of body i at arm r along the rows of D per unit impulse along
     them, times scale."""
     if i < 0 or scale == 0.0:
         return
     if group_of[i] >= 0:
-        _add_block(i, i, D, scale, group_of, group_R, w_ptr, w_col, W, out)
+        _add_pair_block(i, i, D, scale, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out)
         return
     I = invI[i]
     for e in range(3):
@@ -196,7 +229,7 @@ def _rotate_particles(v, group_of, group_R, to_group):
 
 @nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
-        iterations, group_of, group_R, w_ptr, w_col, W, apply_lam):
+        iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w, apply_lam):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
 
     lam[:, 0] accumulates the normal impulse (N s), lam[:, 1:] the friction impulse in the
@@ -210,7 +243,11 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     particle i per unit impulse on particle w_col[p] (symmetric; the diagonal block comes first;
     w_ptr has n + 1 entries, empty rows for rigid bodies). Blocks are in the group's frame, whose
     rotation to world is group_R[g] (world blocks are R W R^T; during the sweeps particle velocities
-    are kept in their group frame, which spares rotating W).
+    are kept in their group frame, which spares rotating W). A place (a point of a deformable
+    body's surface between its nodes) is a solver body with corner[i, 0] >= 0: its velocity is the
+    sum of its corner particles' corner[i] (3,) with weights corner_w[i] (3,), an impulse on it
+    acts on them in those proportions, and it has no block row of its own (corner[i, 0] = -1 for
+    every other body).
     Each contact is solved as a block: normal, then the two tangents, each with the exact 3x3
     response of the contact, and the sum is applied to the bodies once.
     Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
@@ -224,19 +261,24 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
         k = idx[j]
         a, b = ia[k], ib[k]
         D = basis[j]
-        _response(a, ra[k], D, scale_a[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, K[j])
-        _response(b, rb[k], D, scale_b[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, K[j])
+        _response(a, ra[k], D, scale_a[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner,
+                  corner_w, K[j])
+        _response(b, rb[k], D, scale_b[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner,
+                  corner_w, K[j])
         if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
             # both sides in one deformable body: an impulse on one side moves the other too
-            _add_block(a, b, D, -scale_b[k], group_of, group_R, w_ptr, w_col, W, K[j])
-            _add_block(b, a, D, -scale_a[k], group_of, group_R, w_ptr, w_col, W, K[j])
+            _add_pair_block(a, b, D, -scale_b[k], group_of, group_R, w_ptr, w_col, W, corner,
+                            corner_w, K[j])
+            _add_pair_block(b, a, D, -scale_a[k], group_of, group_R, w_ptr, w_col, W, corner,
+                            corner_w, K[j])
     _rotate_particles(v, group_of, group_R, True)
     if apply_lam:
         for j in range(m):
             k = idx[j]
             if K[j, 0, 0] > 0.0:
                 _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
-                            scale_b, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+                            scale_b, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner,
+                            corner_w)
     u = np.zeros(3)
     delta = np.zeros(3)
     for sweep in range(iterations):
@@ -247,8 +289,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                 continue
             k = idx[j]
             a, b = ia[k], ib[k]
-            x0, x1, x2 = _point_velocity(a, ra[k], v, w, group_of, group_R)
-            y0, y1, y2 = _point_velocity(b, rb[k], v, w, group_of, group_R)
+            x0, x1, x2 = _point_velocity(a, ra[k], v, w, group_of, group_R, corner, corner_w)
+            y0, y1, y2 = _point_velocity(b, rb[k], v, w, group_of, group_R, corner, corner_w)
             x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
             for d in range(3):
                 u[d] = basis[j, d, 0] * x0 + basis[j, d, 1] * x1 + basis[j, d, 2] * x2
@@ -288,7 +330,7 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                 continue
             largest_change = max(largest_change, change)
             _apply_pair(j, k, delta[0], delta[1], delta[2], basis, ia, ib, ra, rb, scale_a, scale_b,
-                        inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W)
+                        inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner, corner_w)
         if sweep > 0 and largest_change <= 1e-7 * largest:
             break
     _rotate_particles(v, group_of, group_R, False)

@@ -51,7 +51,10 @@ class SolverBodies:
     Particles (FEM surface nodes in contact) have group_of >= 0: the particles of group g (one
     deformable body) answer impulses through the group's Delassus matrix, block-sparse by rows
     (w_ptr (n + 1,), w_col, W (nnz, 3, 3)), in the group's frame, whose rotation to world is
-    group_R[g] (see rigid.solver.pgs). No particles: group_of all -1.
+    group_R[g] (see rigid.solver.pgs). Places (points of a deformable surface between its
+    nodes) are particles without block rows whose velocity and impulses are shared among three
+    particles: corner (n, 3) solver indices (-1 in column 0 for every other body) with weights
+    corner_w (n, 3). No particles: group_of all -1.
     """
     inv_mass: np.ndarray
     inv_inertia: np.ndarray
@@ -66,14 +69,19 @@ class SolverBodies:
     w_ptr: np.ndarray = None
     w_col: np.ndarray = None
     W: np.ndarray = None
+    corner: np.ndarray = None
+    corner_w: np.ndarray = None
 
     def groups(self):
-        """(group_of, group_R, w_ptr, w_col, W) for the solver kernel (empty when no particles)."""
+        """(group_of, group_R, w_ptr, w_col, W, corner, corner_w) for the solver kernel (empty
+        when there are no particles or places)."""
+        n = len(self.inv_mass)
+        corner = np.full((n, 3), -1, np.int64) if self.corner is None else self.corner
+        corner_w = np.zeros((n, 3)) if self.corner_w is None else self.corner_w
         if self.group_of is None:
-            n = len(self.inv_mass)
             return (np.full(n, -1, np.int64), np.eye(3)[None], np.zeros(n + 1, np.int64),
-                    np.zeros(1, np.int64), np.zeros((1, 3, 3)))
-        return self.group_of, self.group_R, self.w_ptr, self.w_col, self.W
+                    np.zeros(1, np.int64), np.zeros((1, 3, 3)), corner, corner_w)
+        return self.group_of, self.group_R, self.w_ptr, self.w_col, self.W, corner, corner_w
 
 
 @dataclass
