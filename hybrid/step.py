@@ -108,31 +108,12 @@ def _coupled_step(model, state):
     touched = np.concatenate([node_offset[j] + np.searchsorted(
         nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
         for j in np.unique(node_body[touched])]).astype(np.int64) if len(touched) else touched
-    parts = _Particles(touched, node_body[touched], corners, weights, node_body)
+    parts = _Particles(touched, corners, weights, node_body)
     bodies_touched = np.unique(parts.body)
-    group_id = -np.ones(len(model.fem), dtype=np.int64)
-    group_id[bodies_touched] = np.arange(len(bodies_touched))
     blocks = [delassus_block(model.fem[j], h, node_local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
                              report=_reporter(model.names[model.fem_ids[j]])) for j in bodies_touched]
-    p = parts.count
-    w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
-    corner = parts.solver_corners(nb)
-    w_ptr = np.concatenate([w_ptr, np.full(len(corners), w_ptr[-1])])       # places: no rows
-    held = np.concatenate([held, held[corner[nb + len(touched):] - nb].all(axis=1)])
-    bodies = rigid_step.SolverBodies(
-        inv_mass=np.concatenate([rigid_bodies.inv_mass, np.zeros(p)]),
-        inv_inertia=np.concatenate([rigid_bodies.inv_inertia, np.zeros((p, 3, 3))]),
-        position=np.concatenate([rigid_bodies.position, parts.mean(node_x)]),
-        velocity=np.concatenate([rigid_bodies.velocity, parts.mean(node_v)]),
-        velocity_at_t=np.concatenate([rigid_bodies.velocity_at_t, parts.mean(node_v)]),
-        angular=np.concatenate([rigid_bodies.angular, np.zeros((p, 3))]),
-        accel=np.concatenate([rigid_bodies.accel, np.zeros((p, 3))]),
-        static=np.concatenate([rigid_bodies.static, held]),
-        group_of=np.concatenate([np.full(nb, -1, np.int64), group_id[parts.body],
-                                 group_id[node_body[corners[:, 0]]]]),
-        group_R=np.array([state.fem[j].R for j in bodies_touched]) if blocks else np.eye(3)[None],
-        w_ptr=w_ptr, w_col=w_col, W=W, corner=corner,
-        corner_w=np.concatenate([np.zeros((nb + len(touched), 3)), weights]))
+    bodies = parts.solver_bodies(rigid_bodies, blocks, [state.fem[j].R for j in bodies_touched],
+                                 node_x, node_v)
     keys = np.concatenate([np.full(c_rigid.count, -1, np.int64),
                            contact_keys(c_nodes.body_a, c_nodes.body_b, len(node_x), nb, False),
                            contact_keys(pairs.a, pairs.nearest, len(node_x), nb, True),
@@ -166,7 +147,7 @@ def _coupled_step(model, state):
         on_a, on_b = contacts.body_a >= nb, contacts.body_b >= nb
         if not (on_a.any() or on_b.any()):
             break
-        impulse = np.zeros((p, 3))
+        impulse = np.zeros((parts.count, 3))
         np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
         np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
         node_impulse = parts.spread(impulse, len(node_x))
@@ -204,15 +185,16 @@ def _moving(step, state, nodes, h):
 @dataclass
 class _Particles:
     """The solver's particles and places. Particle i (i < k) is the stacked surface node
-    ``nodes[i]`` (grouped by ``body``, sorted within it); place u (after them) is the sum of the
-    stacked nodes ``corners[u]`` (3,), all among ``nodes``, with ``weights[u]``."""
+    ``nodes[i]`` (grouped by body, sorted within it); place u (after them) is the sum of the
+    stacked nodes ``corners[u]`` (3,), all among ``nodes``, with ``weights[u]``. ``node_body``
+    (stacked nodes,) is each stacked surface node's body."""
     nodes: np.ndarray
-    body: np.ndarray
     corners: np.ndarray
     weights: np.ndarray
     node_body: np.ndarray
 
     def __post_init__(self):
+        self.body = self.node_body[self.nodes]
         self.node_particle = -np.ones(len(self.node_body), dtype=np.int64)
         self.node_particle[self.nodes] = np.arange(len(self.nodes))
 
@@ -224,11 +206,29 @@ class _Particles:
         """Stacked surface nodes (sorted) that are body j's particles."""
         return self.nodes[self.body == j]
 
-    def solver_corners(self, nb):
-        """Solver indices ``(nb + count, 3)`` of each place's corners (-1 rows for the others)."""
-        out = -np.ones((nb + self.count, 3), dtype=np.int64)
-        out[nb + len(self.nodes):] = nb + self.node_particle[self.corners]
-        return out
+    def solver_bodies(self, rigid, blocks, rotations, node_x, node_v):
+        """The rigid solver bodies followed by the particles (block rows: ``blocks``, one per
+        touched body in body order, whose frames turn by ``rotations``) and the places (no rows;
+        they move with and push their corners)."""
+        nb, k, q = len(rigid.inv_mass), len(self.nodes), len(self.corners)
+        w_ptr, w_col, W, held = _stacked_rows(blocks, nb)
+        corner = -np.ones((nb + k + q, 3), dtype=np.int64)
+        corner[nb + k:] = nb + self.node_particle[self.corners]
+        group = np.unique(self.body, return_inverse=True)[1].ravel()
+        held = np.concatenate([held, held[self.node_particle[self.corners]].all(axis=1)])
+        return rigid_step.SolverBodies(
+            inv_mass=np.concatenate([rigid.inv_mass, np.zeros(k + q)]),
+            inv_inertia=np.concatenate([rigid.inv_inertia, np.zeros((k + q, 3, 3))]),
+            position=np.concatenate([rigid.position, self.mean(node_x)]),
+            velocity=np.concatenate([rigid.velocity, self.mean(node_v)]),
+            velocity_at_t=np.concatenate([rigid.velocity_at_t, self.mean(node_v)]),
+            angular=np.concatenate([rigid.angular, np.zeros((k + q, 3))]),
+            accel=np.concatenate([rigid.accel, np.zeros((k + q, 3))]),
+            static=np.concatenate([rigid.static, held]),
+            group_of=np.concatenate([np.full(nb, -1, np.int64), group, group[self.node_particle[self.corners[:, 0]]]]),
+            group_R=np.array(rotations) if blocks else np.eye(3)[None],
+            w_ptr=np.concatenate([w_ptr, np.full(q, w_ptr[-1])]), w_col=w_col, W=W, corner=corner,
+            corner_w=np.concatenate([np.zeros((nb + k, 3)), self.weights]))
 
     def mean(self, node_values):
         """Each particle's and place's value ``(count, 3)`` from stacked node values ``(nodes, 3)``."""

@@ -110,8 +110,9 @@ position = [0.0, 0.0, 0.111]
     assert 0.05 < heights[-1] - 0.05 < slab_top + 0.001
 
 
-def test_fem_ball_dropped_on_ground_bounces_and_comes_to_rest(sim):
-    s = sim("""
+def dropped_ball(fields):
+    """A soft ball (radius 0.1 m) dropped from 0.4 m onto the ground, with its other ``fields``."""
+    return """
 [simulation]
 dt = 0.002
 [[planes]]
@@ -119,13 +120,18 @@ dt = 0.002
 name = "ball"
 model = "fem"
 shape = { type = "sphere", radius = 0.1, resolution = 0.04 }
-density = 1000.0
-young = 1e5
 poisson = 0.3
 position = [0.0, 0.0, 0.4]
+""" + fields
+
+
+def test_fem_ball_dropped_on_ground_bounces_and_comes_to_rest(sim):
+    s = sim(dropped_ball("""
+density = 1000.0
+young = 1e5
 restitution = 0.0
 damping = { mass = 0.5, stiffness = 0.002 }
-""")
+"""))
     vz, kinetic, lowest = [], [], []
 
     def record(sim_):
@@ -148,19 +154,10 @@ def test_undamped_newmark_ball_bounces_on_the_ground_without_gaining_energy(sim)
     along that path. Asked only that the end velocity not close it (backward Euler's path), the
     nodes ended each impact step 2 mm inside the ground, the penetration recovery pushed them out
     and every bounce went higher: +26% energy in 2 s."""
-    s = sim("""
-[simulation]
-dt = 0.002
-[[planes]]
-[[bodies]]
-name = "ball"
-model = "fem"
-shape = { type = "sphere", radius = 0.1, resolution = 0.04 }
+    s = sim(dropped_ball("""
 young = 1.0e6
-poisson = 0.3
 integrator = "newmark"
-position = [0.0, 0.0, 0.4]
-""")
+"""))
     E0 = totals(s.model, s.state)[0]
     energies, lowest = [], []
 
