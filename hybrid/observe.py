@@ -87,6 +87,25 @@ def plastic_dissipation(model, state):
     return float(sum(s.plastic_dissipation for s in state.fem))
 
 
+def momentum_scales(model, state):
+    """How much momentum the bodies carry, without the cancellations of the totals: the sums of
+    |p| (kg m/s) and of |x x p| plus |spin| (kg m^2/s) over bodies and nodes. Two bodies meeting
+    head-on have no total angular momentum; a drift is measured against these instead."""
+    linear, angular = 0.0, 0.0
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count:
+        free = ~rm.body_fixed
+        p = np.where(free, rm.body_mass, 0.0)[:, None] * reported_velocity(rm, rs, model.gravity)
+        linear += float(np.linalg.norm(p, axis=1).sum())
+        angular += float(np.linalg.norm(np.cross(rs.position, p), axis=1).sum()
+                         + np.linalg.norm(np.where(free[:, None], rs.angular_momentum, 0.0), axis=1).sum())
+    for mm, s in zip(model.fem, state.fem):
+        p = (mm.M @ s.v.ravel()).reshape(-1, 3)
+        linear += float(np.linalg.norm(p, axis=1).sum())
+        angular += float(np.linalg.norm(np.cross(s.x, p), axis=1).sum())
+    return linear, angular
+
+
 def totals(model, state):
     """Total energy (kinetic + gravitational + elastic, J), linear momentum (kg m/s) and angular
     momentum about the origin (kg m^2/s) of the moving bodies."""

@@ -167,3 +167,5 @@ def test_drift_figures_stay_meaningful_when_a_quantity_starts_at_zero():
     assert _drift([0.0, 5.0, 3.0], 0.0) == pytest.approx(1.0)          # was 5 / 1e-300
     assert _drift([2.0, 2.02, 1.99], 2.0) == pytest.approx(0.02 / 2.02)
     assert _drift(np.zeros((4, 3)), np.zeros(3)) == 0.0
+    # no total at all (two bodies meeting head-on) but 10 units carried: a change of 1e-5 is 1e-6
+    assert _drift([[0, 0, 0], [0, 1e-5, 0]], np.zeros(3), [10.0, 9.0]) == pytest.approx(1e-6)
