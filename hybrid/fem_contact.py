@@ -50,16 +50,21 @@ def _surface_index(m):
     return found
 
 
-def _rest_triangles(m, Y):
+def _nearest_nodes(m, Y):
+    """The (up to) three surface nodes of body m nearest each rest point Y (p, 3), nearest first:
+    ``(p, 3)`` indices into ``surface_nodes``."""
+    _, close = _surface_index(m)[0].query(Y, k=min(3, len(m.surface_nodes)))
+    return np.asarray(close).reshape(len(Y), -1)
+
+
+def _rest_triangles(m, Y, close):
     """The rest surface triangle of body m holding each rest surface point Y (p, 3) (the closest one
-    among the triangles around the three surface nodes nearest it): ``(corners (p, 3), weights (p,
-    3), nearest (p,))``, corners indices into ``surface_nodes`` with Y's barycentric weights, and
-    the surface node nearest Y."""
-    tree, tri, around = _surface_index(m)
+    among the triangles around ``close``, its nearest surface nodes, :func:`_nearest_nodes`):
+    ``(corners (p, 3), weights (p, 3))``, corners indices into ``surface_nodes`` with Y's
+    barycentric weights."""
+    _, tri, around = _surface_index(m)
     if len(Y) == 0:
-        return np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
-    _, close = tree.query(Y, k=min(3, len(m.surface_nodes)))
-    close = close.reshape(len(Y), -1)
+        return np.zeros((0, 3), np.int64), np.zeros((0, 3))
     candidates = around[close].reshape(len(Y), -1)
     row, slot = np.nonzero(candidates >= 0)
     face = candidates[row, slot]
@@ -70,7 +75,7 @@ def _rest_triangles(m, Y):
     order = np.lexsort((np.einsum("ij,ij->i", off, off), row))
     best = order[np.searchsorted(row[order], np.arange(len(Y)))]        # each point's closest
     weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
-    return tri[face[best]], weights, close[:, 0]
+    return tri[face[best]], weights
 
 
 # a node touching a rigid body whose surface there turns more than this from the node's own face
@@ -142,16 +147,17 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     near = np.nonzero((phi < reach + np.sqrt((moved ** 2).sum(axis=1).max(initial=0.0)))
                       & np.any(n_rest != 0, axis=1))[0]
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
+    close = _nearest_nodes(mb, Y) if len(near) else np.zeros((0, 1), np.int64)
     if off_nodes is not None and len(near):
-        node = mb.surface_nodes[_surface_index(mb)[0].query(Y)[1]]
-        across = sb.x[node] - x[near]
+        across = sb.x[mb.surface_nodes[close[:, 0]]] - x[near]
         normal = n_rest[near] @ sb.R.T
         across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
         keep = np.einsum("ij,ij->i", across, across) > off_nodes ** 2
-        near, Y = near[keep], Y[keep]
+        near, Y, close = near[keep], Y[keep], close[keep]
     # its triangle, and how far the triangle has moved there along the normal since rest (a dent
     # in b moves its surface away)
-    corners, weights, nearest = _rest_triangles(mb, Y)
+    corners, weights = _rest_triangles(mb, Y, close)
+    nearest = close[:, 0]
     shift = np.einsum("pi,pij->pj", weights, moved[corners])
     gap = phi[near] - np.einsum("ij,ij->i", shift, n_rest[near])
     hit = gap < reach[near]
