@@ -11,12 +11,15 @@ has about the requested number of tets (box cells split into six tets each). For
 support and frame (floating, corotated), measured in the same run, side by side:
 
   step     the coupled step (contacts with the ground and the box, coupling rounds), after
-           ``--warmup`` steps so the box has settled into contact; median of ``--steps`` steps
+           ``--warmup`` steps so the box has settled into contact and the slab's resting nodes
+           on the ground are held (hybrid.resting; floating frame only, ``held_nodes`` in the CSV
+           counts them); median of ``--steps`` steps
   elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
            loaded state; median of ``--steps`` repetitions
   in-step  the same back-substitutions timed inside ``--steps`` more coupled steps (median): the
            floor as the step meets it, with the caches the rest of the step has used
-  floor    one back-substitution of the same prefactored system (the row's sparse backend,
+  floor    one back-substitution of the slab's own prefactored system, no node held (the
+           row's sparse backend,
            ``--backends``: CHOLMOD, the project's default, and SuperLU),
            ``fem.dynamics.system_factorisation(model, dt).solve`` on a random right-hand side;
            median of 20 repetitions
@@ -167,6 +170,8 @@ def measure(cells, frame, support, steps, warmup):
         times.append(time.perf_counter() - t0)
     step_ms = 1e3 * float(np.median(times))
     q1, q3 = 1e3 * np.percentile(times, [25, 75])
+    record = state.resting[0] if state.resting is not None else None
+    held = len(record.nodes) if record is not None and record.held else 0
     # elastic-only FEM step from the settled, loaded state (same input every repetition)
     settled = state.fem[0]
     elastic, _ = median_ms(lambda: fem_dyn.step(fem_model, settled, DT, model.gravity), steps)
@@ -174,7 +179,7 @@ def measure(cells, frame, support, steps, warmup):
     state, in_step = in_step_solve_ms(model, state, steps)
     sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
     return model, state, dict(step_ms=step_ms, step_q1=q1, step_q3=q3, elastic_ms=elastic,
-                              floor_ms=floor, solve_in_step_ms=in_step, **sanity)
+                              floor_ms=floor, solve_in_step_ms=in_step, held_nodes=held, **sanity)
 
 
 def in_step_solve_ms(model, state, steps):
@@ -205,7 +210,8 @@ def main():
                         help="target tet counts (default 1000 10000)")
     parser.add_argument("--big", action="store_true", help="add ~50k tets")
     parser.add_argument("--steps", type=int, default=30, help="timed steps per configuration")
-    parser.add_argument("--warmup", type=int, default=20, help="steps before timing (box settles)")
+    parser.add_argument("--warmup", type=int, default=100,
+                        help="steps before timing (the box settles, the slab's resting nodes are held)")
     parser.add_argument("--naive-steps", type=int, default=3, help="timed naive steps per size")
     parser.add_argument("--supports", nargs="+", default=list(SUPPORTS), choices=SUPPORTS,
                         help="how the slab is held up (default: both)")
@@ -228,7 +234,8 @@ def main():
                     rows.append(measure_row(cells, frame, support, backend, naive, args))
                     print(f"  {rows[-1]['tets']} tets {support} {backend} {frame}: step "
                           f"{rows[-1]['step_ms']:.1f} ms (box z {rows[-1]['box_z']:.4f} m, slab min z "
-                          f"{rows[-1]['slab_min_z']:.2e} m)", flush=True)
+                          f"{rows[-1]['slab_min_z']:.2e} m, {rows[-1]['held_nodes']} nodes held)",
+                          flush=True)
     fem_solver.BACKEND = default_backend
     report(rows, args)
     if not args.no_plastic:

@@ -94,9 +94,10 @@ def system_factorisation(model, dt):
 def body_frame(model, x):
     """Best-fit rotation ``R`` (3, 3) and centre ``c`` (3,) m of positions ``x`` (n, 3) m.
 
-    Anchored bodies have no floating frame: ``(I, X_c)``.
+    Anchored bodies have no floating frame: ``(I, X_c)`` (nodes held by resting contact leave
+    the frame floating, see :func:`fem.model.holding`).
     """
-    if model.anchored:
+    if model.has_anchors:
         return np.eye(3), model.rest_center.copy()
     return best_fit_frame(model.rest_offsets, x, model.node_mass)
 
@@ -179,11 +180,13 @@ def _fixed_rows(model, A, v):
     return (A @ v)[model.fixed_dofs]
 
 
-def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
+def predict(model, state, dt, gravity=(0.0, 0.0, 0.0), held_velocity=None):
     """Contact-free end-of-step velocities. Returns :class:`StepData` with ``v`` ``(n, 3)`` m/s.
 
     dt s; gravity ``(3,)`` m/s^2. The floating frame reuses the factorisation cached in the model;
     the corotated frame assembles the warped stiffness and solves (see ``COROTATED_SOLVER``).
+    ``held_velocity``: ``(k, 3)`` m/s, the end-of-step velocities (world) of a variant's
+    ``held_nodes`` (:func:`fem.model.holding`).
     """
     if not model.anchored:
         return _predict_spin_frame(model, state, dt, gravity)
@@ -193,7 +196,7 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
     rhs = _right_hand_side(model, dt, state.v, force, K, R)
     if A is None and model.anchored:
         A = system_matrix(model, dt)
-    v_fixed = model.anchor_velocity[model.node_anchor[model.node_anchor >= 0]]
+    v_fixed = _prescribed_velocity(model, held_velocity)
     v_new = _solve_in_frame(model, solve, A, rhs, (v_fixed @ R).ravel())
     if A is None:
         A = _LazyMatrix(model, dt)
@@ -204,6 +207,18 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0)):
         x_base, x_rate = state.x, dt
     return StepData(v=v_new, x_base=x_base, x_rate=x_rate, rhs=rhs, impulse=np.zeros_like(state.v), R=R,
                     matrix=A, solve=solve, iterations=iterations, load=load, allowance=_allowance(model, state))
+
+
+def _prescribed_velocity(model, held_velocity):
+    """``(k, 3)`` world velocities (m/s) of the prescribed nodes (``model.fixed_nodes``): their
+    anchor's, or for held nodes ``held_velocity`` (in ``model.held_nodes`` order)."""
+    nodes = model.fixed_nodes
+    anchor = model.node_anchor[nodes]
+    v = np.zeros((len(nodes), 3))
+    v[anchor >= 0] = model.anchor_velocity[anchor[anchor >= 0]]
+    if model.held_nodes is not None:
+        v[np.searchsorted(nodes, model.held_nodes)] = held_velocity
+    return v
 
 
 def _right_hand_side(model, dt, v, force, K, R):
@@ -479,7 +494,7 @@ def _cap_energy(model, state, step, end, dt):
         return end.replace(energy_slack=-excess)
     if model.anchored:
         rigid = np.zeros_like(v)
-        rigid[model.node_anchor >= 0] = v[model.node_anchor >= 0]
+        rigid[model.fixed_nodes] = v[model.fixed_nodes]
     else:
         m = model.node_mass
         y = end.x - m @ end.x / m.sum()

@@ -61,6 +61,8 @@ class FemModel:
     reference_peeq: ``(t, q)`` accumulated equivalent plastic strain at the last reference-shape
         update (-), zeros when built; None for elastic bodies.
     reference_updates: number of reference-shape updates that led to this model.
+    held_nodes: ``(k,)`` sorted nodes held by resting contact, or None: set only on the variants
+        :func:`holding` makes, whose fixed DOFs are the anchors' and these nodes'.
     """
     rest_points: np.ndarray
     tets: np.ndarray
@@ -97,6 +99,7 @@ class FemModel:
     max_plastic_strain: float | None = None
     reference_peeq: np.ndarray | None = None
     reference_updates: int = 0
+    held_nodes: np.ndarray | None = None
 
     @property
     def node_count(self):
@@ -118,8 +121,18 @@ class FemModel:
 
     @property
     def anchored(self):
-        """True when some node is prescribed by an anchor (the body then has no floating frame)."""
+        """True when some node is prescribed (by an anchor, or held by :func:`holding`)."""
         return len(self.fixed_dofs) > 0
+
+    @property
+    def has_anchors(self):
+        """True when an anchor region holds nodes (the body then has no floating frame)."""
+        return any(len(nodes) for nodes in self.anchor_nodes)
+
+    @property
+    def fixed_nodes(self):
+        """``(k,)`` sorted nodes whose DOFs are prescribed (every DOF of a prescribed node is)."""
+        return self.fixed_dofs[::3] // 3
 
     @property
     def region_names(self):
@@ -197,6 +210,25 @@ def with_rest_points(model, points, dt=None, **changes):
         from fem.dynamics import system_factorisation
         system_factorisation(new, dt)
     return new
+
+
+def holding(model, nodes):
+    """A variant of ``model`` whose ``nodes`` are also prescribed, as if anchored: a body resting
+    on static ground is stepped with its resting nodes held at the velocities the contact asks of
+    them (hybrid.resting). It shares K, M and the rest data, keeps the body's frame (floating
+    bodies still fit their best rotation) and has its own factorisation and contact response
+    (solved on its first use). Kept on ``model`` for the last ``nodes`` asked for."""
+    nodes = np.unique(np.asarray(nodes, dtype=np.int64))
+    last = getattr(model, "_holding", None)
+    if last is not None and np.array_equal(last.held_nodes, nodes):
+        return last
+    fixed = np.zeros(3 * model.node_count, dtype=bool)
+    fixed[model.fixed_dofs] = True
+    fixed[(3 * nodes[:, None] + np.arange(3)).ravel()] = True
+    variant = replace(model, free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0],
+                      factor_cache=FactorCache(), held_nodes=nodes)
+    object.__setattr__(model, "_holding", variant)
+    return variant
 
 
 def _node_indices(selection, n):

@@ -36,13 +36,15 @@ class HybridModel:
 @dataclass
 class HybridState:
     """Everything that changes: rigid state, one FemState per deformable body, time (s), steps,
-    and the last step's node-contact impulses (hybrid.step.ContactMemory, a warm start; None
-    before the first step and after bodies change)."""
+    the last step's node-contact impulses (hybrid.step.ContactMemory, a warm start) and each
+    deformable body's resting nodes (hybrid.resting.Resting or None, one per body); both None
+    before the first step and after bodies change."""
     rigid: object
     fem: list = field(default_factory=list)
     time: float = 0.0
     steps: int = 0
     contact_memory: object = None
+    resting: tuple = None
 
 
 def _shape_dict(shape):
@@ -77,7 +79,8 @@ def build(scene):
     index = {b.name: i for i, b in enumerate(scene.bodies)}
     from . import deformable  # FEM bodies are built by their own module
     fem_models, fem_states = deformable.build_bodies(fem_bodies, sim.dt)
-    settings = ContactSettings(iterations=sim.solver.iterations, margin=sim.solver.contact_margin)
+    settings = ContactSettings(iterations=sim.solver.iterations, margin=sim.solver.contact_margin,
+                               hold_resting=sim.solver.hold_resting)
     model = HybridModel(rigid=rigid_model, rigid_ids=np.array([index[b.name] for b in rigid_bodies], dtype=int),
                         fem=fem_models, fem_ids=[index[b.name] for b in fem_bodies],
                         names=[b.name for b in scene.bodies], gravity=np.asarray(sim.gravity, float),

@@ -553,7 +553,7 @@ def apply_fracture(model, state, timings=None):
     new_model = _with(model, rigid=rigid_model, rigid_ids=np.array(rigid_ids, dtype=int), fem=fem,
                       fem_ids=fem_ids, names=names, scene=scene, fragment_of=origins,
                       fracture=data)
-    new_state = replace(state, rigid=rigid_state, fem=fem_states, contact_memory=None)
+    new_state = replace(state, rigid=rigid_state, fem=fem_states, contact_memory=None, resting=None)
     timings["fracture_rebuild"] += clock.perf_counter() - t1
     return new_model, new_state, events
 

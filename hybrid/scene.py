@@ -103,6 +103,9 @@ def _unit_interval(name, default, doc, **kw):
 SOLVER = Section("simulation.solver", "[simulation.solver]", "Contact solver settings.", (
     Field("iterations", "integer", 20, "", "Contact solver iterations per step.", low=1),
     _non_negative("contact_margin", 0.005, "m", "Distance at which contacts are detected before touching."),
+    Field("hold_resting", "boolean", True, "", "Step a deformable body lying still on static ground "
+          "with its resting nodes held, checked every step (see How it works: resting contact is "
+          "held); `false` leaves every contact to the solver."),
 ))
 
 SIMULATION = Section("simulation", "[simulation]",
@@ -353,6 +356,7 @@ Box = tuple[Vec3, Vec3]
 class Solver:
     iterations: int = _default(SOLVER, "iterations")
     contact_margin: float = _default(SOLVER, "contact_margin")
+    hold_resting: bool = _default(SOLVER, "hold_resting")
 
 
 @dataclass(frozen=True)

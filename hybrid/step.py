@@ -11,7 +11,7 @@ which gives the velocities the solver expected. Node contacts keep their impulse
 the next (ContactMemory) to warm-start the solver: resting contact then converges in few sweeps.
 """
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
 
+from . import resting
 from .build import HybridState
 from .fem_contact import detect_fem_pairs, detect_rigid_points, edge_normals
 
@@ -53,9 +54,28 @@ def step(model, state):
         rigid, _ = rigid_step.step(model.rigid, state.rigid, model.dt, model.gravity, model.settings)
         new = HybridState(rigid=rigid, fem=[], time=state.time + model.dt, steps=state.steps + 1)
     else:
-        new = _coupled_step(model, state)
+        while True:
+            try:
+                new = _coupled_step(model, state)
+                break
+            except _LetGo as go:    # a held body's resting nodes let go: the step again, them free
+                records = list(_records(model, state))
+                records[go.body] = resting.released(records[go.body])
+                state = replace(state, resting=tuple(records))
     check_finite(model, new)
     return new
+
+
+class _LetGo(Exception):
+    """The resting nodes held in deformable body ``body`` (an index into model.fem) let go."""
+
+    def __init__(self, body):
+        super().__init__(body)
+        self.body = body
+
+
+def _records(model, state):
+    return state.resting if state.resting is not None else (None,) * len(model.fem)
 
 
 def _coupled_step(model, state):
@@ -63,8 +83,14 @@ def _coupled_step(model, state):
     rm, rs = model.rigid, state.rigid
     nb = rm.body_count
 
-    # 1. deformable bodies: implicit step without contact (prefactored system)
-    predicted = [fem_dyn.predict(m, s, h, g) for m, s in zip(model.fem, state.fem)]
+    # 1. deformable bodies: implicit step without contact (prefactored system); a body resting on
+    #    static ground steps with its resting nodes held (hybrid.resting)
+    records = _records(model, state)
+    hold = [r if model.settings.hold_resting and r is not None and r.held and resting.eligible(m)
+            else None for m, r in zip(model.fem, records)]
+    fems = [m if r is None else resting.held_model(m, r) for m, r in zip(model.fem, hold)]
+    predicted = [fem_dyn.predict(m, s, h, g, None if r is None else resting.held_velocity(m, s, r, h))
+                 for m, s, r in zip(fems, state.fem, hold)]
 
     # 2. rigid bodies: leapfrog kick
     v, v_at_t, gvec = rigid_step.kick(rm, rs, h, g)
@@ -99,6 +125,12 @@ def _coupled_step(model, state):
                                    node_offset, sweep, model.settings.margin)
     corners = np.concatenate([pairs.corners, on_faces.corners])
     weights = np.concatenate([pairs.weights, on_faces.weights])
+    # held nodes leave the solver: their contacts with static ground are the hold's
+    in_others = np.concatenate([pairs.a, corners[weights > 0]])
+    static_b = _static_side(rm, c_nodes.body_b)
+    held_rows, held_nodes = _held_rows(hold, nodes, node_offset, node_body, c_nodes, static_b, in_others)
+    c_all, static_all = c_nodes, static_b
+    c_nodes = c_nodes.take(~held_rows)
 
     # 4. touched nodes join the solver as particles grouped by body, each group answering
     #    impulses through its body's exact Delassus block (fem.contact_response); the places on
@@ -106,11 +138,11 @@ def _coupled_step(model, state):
     touched = np.unique(np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()]))
     # per body, the solver's node set (kept across steps while contact rests, see contact_set)
     touched = np.concatenate([node_offset[j] + np.searchsorted(
-        nodes[j], contact_set(model.fem[j], h, node_local[touched[node_body[touched] == j]]))
+        nodes[j], contact_set(fems[j], h, node_local[touched[node_body[touched] == j]]))
         for j in np.unique(node_body[touched])]).astype(np.int64) if len(touched) else touched
     parts = _Particles(touched, corners, weights, node_body)
     bodies_touched = np.unique(parts.body)
-    blocks = [delassus_block(model.fem[j], h, node_local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
+    blocks = [delassus_block(fems[j], h, node_local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
                              report=_reporter(model.names[model.fem_ids[j]])) for j in bodies_touched]
     bodies = parts.solver_bodies(rigid_bodies, blocks, [state.fem[j].R for j in bodies_touched],
                                  node_x, node_v)
@@ -153,7 +185,7 @@ def _coupled_step(model, state):
         node_impulse = parts.spread(impulse, len(node_x))
         for j in bodies_touched:
             at = parts.nodes_of(j)
-            predicted[j] = apply_contact_impulses(model.fem[j], state.fem[j], predicted[j], h,
+            predicted[j] = apply_contact_impulses(fems[j], state.fem[j], predicted[j], h,
                                                   node_local[at], node_impulse[at])
 
     # 6. rigid drift; deformable bodies finish their step; touched nodes take their share of
@@ -164,7 +196,7 @@ def _coupled_step(model, state):
     new_rigid = rigid_step.drift(rm, rs, rigid_res, h, v)
     new_fem = []
     pseudo = res.pseudo_velocity[nb:nb + len(touched)]
-    for j, (m, s, pr) in enumerate(zip(model.fem, state.fem, predicted)):
+    for j, (m, s, pr) in enumerate(zip(fems, state.fem, predicted)):
         s_new = fem_dyn.finish(m, s, pr, h)
         sel = parts.body == j
         if sel.any() and np.any(pseudo[sel]):
@@ -173,8 +205,68 @@ def _coupled_step(model, state):
             R_fit, c_fit = fem_dyn.body_frame(m, x)
             s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
         new_fem.append(s_new)
+
+    # 7. held nodes: the impulses they took must push and stick, else the step is taken again
+    row_impulse = np.zeros((c_all.count, 3))
+    row_impulse[~held_rows] = res.contact_impulse[c_rigid.count:c_rigid.count + c_nodes.count]
+    for j, r in enumerate(hold):
+        if r is None:
+            continue
+        impulse = h * new_fem[j].node_reaction[r.nodes]
+        if resting.violations(r, impulse).any():
+            raise _LetGo(j)
+        rows = np.nonzero(held_rows & (node_body[c_all.body_a] == j))[0]
+        at = np.searchsorted(r.nodes, node_local[c_all.body_a[rows]])
+        share = np.bincount(at, minlength=len(r.nodes))[at]
+        row_impulse[rows] = impulse[at] / share[:, None]
+        reaction = new_fem[j].node_reaction.copy()
+        reaction[r.nodes] = 0.0           # the ground's push is a contact's, not an anchor's
+        new_fem[j] = new_fem[j].replace(node_reaction=reaction)
+    keys = np.concatenate([keys, contact_keys(c_all.body_a[held_rows], c_all.body_b[held_rows],
+                                              len(node_x), nb, False)])
+    memory = ContactMemory.of(keys, np.concatenate([res.contact_impulse, row_impulse[held_rows]]))
+    records = _watch(model, state, records, c_all, static_all, row_impulse, in_others, node_body,
+                     node_local)
     return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
-                       contact_memory=ContactMemory.of(keys, res.contact_impulse))
+                       contact_memory=memory, resting=records)
+
+
+def _watch(model, state, records, contacts, static_b, impulse, in_others, node_body, node_local):
+    """Each deformable body's resting record after the step (hybrid.resting.observe) from its
+    node contacts with planes and rigid bodies (stacked nodes on side a, their ``impulse``) and
+    the stacked nodes ``in_others`` in any other contact; None where bodies are not held."""
+    if not model.settings.hold_resting:
+        return (None,) * len(model.fem)
+    body = node_body[contacts.body_a]
+    out = []
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        on = body == j
+        out.append(resting.observe(
+            records[j], node_local[contacts.body_a[on]], node_local[in_others[node_body[in_others] == j]],
+            contacts.normal[on], contacts.gap[on], s.x, contacts.friction[on], impulse[on], static_b[on],
+            m.node_anchor >= 0) if resting.eligible(m) else None)
+    return tuple(out)
+
+
+def _static_side(rigid_model, body_b):
+    """``(c,)`` bool: side b is static (a plane, or a fixed rigid body)."""
+    if rigid_model.body_count == 0:
+        return body_b < 0
+    return (body_b < 0) | rigid_model.body_fixed[np.maximum(body_b, 0)]
+
+
+def _held_rows(hold, nodes, node_offset, node_body, contacts, static_b, in_others):
+    """Which node contacts (stacked nodes on side a) are held nodes' contacts with static ground
+    ``(c,)`` bool, and the held stacked nodes. A held node in any other contact lets go."""
+    held = np.zeros(len(node_body), dtype=bool)
+    for j, r in enumerate(hold):
+        if r is not None:
+            held[node_offset[j] + np.searchsorted(nodes[j], r.nodes)] = True
+    rows = held[contacts.body_a]
+    for at in (contacts.body_a[rows & ~static_b], in_others[held[in_others]]):
+        if len(at):
+            raise _LetGo(int(node_body[at[0]]))
+    return rows, np.nonzero(held)[0]
 
 
 def _moving(step, state, nodes, h):

@@ -33,6 +33,11 @@ class Contacts:
     def count(self):
         return len(self.gap)
 
+    def take(self, rows):
+        """The contacts ``rows`` (a bool mask or indices) picks."""
+        return Contacts(*(getattr(self, name)[rows] for name in (
+            "body_a", "body_b", "point", "normal", "gap", "friction", "restitution")))
+
 
 def combine_friction(mu_a, mu_b):
     """Geometric mean: equal coefficients give that coefficient; a frictionless side gives 0."""

@@ -29,7 +29,8 @@ class ContactSettings:
     only, no velocity is added). restitution_threshold m/s: slower impacts are resting contact (no
     bounce, no jitter). shock_iterations: sweeps per level of shock propagation. max_substeps: cap
     on adaptive substeps, taken when a body would move more than half the thinnest body's
-    thickness in one step.
+    thickness in one step. hold_resting: deformable bodies resting on static ground are stepped
+    with their resting nodes held (hybrid.resting).
     """
     iterations: int = 20
     margin: float = 0.005
@@ -38,6 +39,7 @@ class ContactSettings:
     restitution_threshold: float = 0.05
     shock_iterations: int = 10
     max_substeps: int = 32
+    hold_resting: bool = True
 
 
 @dataclass

@@ -374,7 +374,10 @@ def test_warm_start_and_dropped_blocks_leave_the_contact_answer_unchanged(sim, m
     from dataclasses import replace
 
     import fem.contact_response as response
+    from hybrid import resting
     from hybrid.step import step
+
+    monkeypatch.setattr(resting, "ENTER_AFTER", 10 ** 9)     # the patch stays with the solver
 
     s = sim("""
 [simulation]

@@ -1,0 +1,129 @@
+"""Resting contact held as a constraint (hybrid.resting): a deformable body lying on static
+ground steps with its resting nodes held, and must move exactly as the contact solver would
+move it, let go when the ground stops pushing, and hold on a slope within its friction cone."""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from hybrid import resting
+
+SLAB = """
+[simulation]
+dt = 0.002
+[[planes]]
+normal = [{nx}, 0.0, {nz}]
+[[bodies]]
+name = "slab"
+model = "fem"
+shape = {{ type = "box", size = [0.3, 0.3, 0.06], resolution = 0.05 }}
+young = 1.0e6
+density = 1000.0
+integrator = "{integrator}"
+damping = {{ mass = {damping} }}
+position = {position}
+orientation = {orientation}
+"""
+
+BOX_ON_TOP = """
+[[bodies]]
+name = "box"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+density = 2000.0
+position = [0.0, 0.0, 0.1105]
+"""
+
+
+def slab(integrator="backward_euler", damping=2.0, tilt=0.0, box=True, hold=True):
+    """The slab (and a box on it) on the ground, or on a plane tilted by ``tilt`` degrees about y
+    with the slab turned to lie on it; ``hold``: the scene's ``hold_resting``."""
+    t = math.radians(tilt)
+    turn = f"[{math.cos(t / 2)}, 0.0, {-math.sin(t / 2)}, 0.0]"     # (w, x, y, z)
+    up = 0.0301 * np.array([-math.sin(t), 0.0, math.cos(t)])
+    text = SLAB.format(nx=-math.sin(t), nz=math.cos(t), integrator=integrator, damping=damping,
+                       orientation=turn, position=[float(u) for u in up])
+    solver = "" if hold else "[simulation.solver]\nhold_resting = false\n"
+    return text.replace("[[planes]]", solver + "[[planes]]") + (BOX_ON_TOP if box else "")
+
+
+def positions(s):
+    return np.concatenate([s.state.fem[0].x, s.state.rigid.position])
+
+
+@pytest.mark.parametrize("integrator", ["backward_euler", "newmark"])
+def test_held_slab_moves_as_the_contact_solver_moves_it(sim, integrator):
+    """A slab settling on the ground under a box (held once its resting nodes stay the same)
+    follows the solver-only trajectory to the solver's own tolerance, and factorises its held
+    system once."""
+    held = sim(slab(integrator))
+    seen = []
+    held.advance(0.4, each=lambda s: seen.append(s.state.resting[0] is not None and s.state.resting[0].held))
+    assert sum(seen) > 40, "the slab was held for too few steps"
+    variant = getattr(held.model.fem[0], "_holding")
+    assert variant.factor_cache.factor_count == 1
+    free = sim(slab(integrator, hold=False))
+    free.advance(0.4)
+    assert not any(r is not None and r.held for r in free.state.resting)
+    assert np.abs(positions(held) - positions(free)).max() < 1e-7
+    # the solver stops at 1e-7 of its largest impulse; Newmark carries the difference on in the
+    # velocities it alternates (4e-5 m/s of 0.04 here), backward Euler damps it (2e-9 m/s)
+    v = free.state.fem[0].v
+    assert np.abs(held.state.fem[0].v - v).max() < 1e-6 + 5e-3 * np.abs(v).max()
+
+
+def test_ground_carries_the_weight_of_a_held_slab_and_its_load(sim):
+    """At rest, the impulses the held nodes take per step add up to the weight of the slab and
+    the box on it, and they push only along the ground's normal."""
+    s = sim(slab(damping=20.0))
+    s.advance(0.6)
+    assert s.state.resting[0].held
+    h, g = s.model.dt, 9.81
+    weight = (1000.0 * 0.3 * 0.3 * 0.06 + 2000.0 * 0.1 ** 3) * g
+    memory = s.state.contact_memory
+    # the ground's contacts among the remembered ones (hybrid.step.contact_keys: b = -1)
+    nodes, bodies = len(s.model.fem[0].surface_nodes), s.model.rigid.body_count
+    ground = (memory.keys % (nodes + bodies + 1) == nodes) & (memory.keys < nodes * (nodes + bodies + 1))
+    total = memory.impulse[ground].sum(axis=0) / h
+    assert total[2] == pytest.approx(weight, rel=2e-3)
+    assert abs(total[0]) < 1e-3 * weight and abs(total[1]) < 1e-3 * weight
+
+
+def test_held_nodes_let_go_when_the_slab_is_thrown_up(sim):
+    """A held slab given 1 m/s upwards: the ground would have to pull, so the step is taken again
+    with the nodes free, and the slab flies as it does without holding."""
+    def thrown(s):
+        s.advance(0.3)
+        fem = s.state.fem[0]
+        s.state = replace(s.state, fem=[fem.replace(v=fem.v + [0.0, 0.0, 1.0])])
+        z0 = s.state.fem[0].c[2]
+        s.advance(0.05)
+        return s, z0
+
+    held, z0 = thrown(sim(slab(box=False)))
+    record = held.state.resting[0]
+    assert record is None or not record.held
+    rise = held.state.fem[0].c[2] - z0
+    # flight with the slab's mass damping a = 2/s: z = (v0 + g/a)(1 - e^-at)/a - g t/a
+    t, a, g = 0.05, 2.0, 9.81
+    assert rise == pytest.approx((1.0 + g / a) * (1.0 - math.exp(-a * t)) / a - g * t / a, rel=0.03)
+    free, _ = thrown(sim(slab(box=False, hold=False)))
+    assert np.abs(positions(held) - positions(free)).max() < 1e-7
+
+
+def test_slab_held_on_a_slope_inside_its_friction_cone(sim):
+    """On a 20 degree slope (tan 20 = 0.36 < mu = 0.5) the slab sticks: it is held, its reactions
+    carry m g sin 20 along the slope and m g cos 20 across it, and it does not slide."""
+    s = sim(slab(damping=20.0, tilt=20.0, box=False))
+    s.advance(0.4)
+    c0 = s.state.fem[0].c.copy()
+    s.advance(0.2)
+    assert s.state.resting[0].held
+    t = math.radians(20.0)
+    n = np.array([-math.sin(t), 0.0, math.cos(t)])
+    along = np.array([math.cos(t), 0.0, math.sin(t)])
+    weight = 1000.0 * 0.3 * 0.3 * 0.06 * 9.81
+    total = s.state.contact_memory.impulse.sum(axis=0) / s.model.dt
+    assert total @ n == pytest.approx(weight * math.cos(t), rel=2e-3)
+    assert total @ along == pytest.approx(weight * math.sin(t), rel=2e-3)
+    assert np.linalg.norm(s.state.fem[0].c - c0) < 1e-6
