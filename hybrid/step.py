@@ -128,7 +128,7 @@ def _coupled_step(model, state):
     # held nodes leave the solver: their contacts with static ground are the hold's
     in_others = np.concatenate([pairs.a, corners[weights > 0]])
     static_b = _static_side(rm, c_nodes.body_b)
-    held_rows, held_nodes = _held_rows(hold, nodes, node_offset, node_body, c_nodes, static_b, in_others)
+    held_rows = _held_rows(hold, nodes, node_offset, node_body, c_nodes, static_b, in_others)
     c_all, static_all = c_nodes, static_b
     c_nodes = c_nodes.take(~held_rows)
 
@@ -256,8 +256,8 @@ def _static_side(rigid_model, body_b):
 
 
 def _held_rows(hold, nodes, node_offset, node_body, contacts, static_b, in_others):
-    """Which node contacts (stacked nodes on side a) are held nodes' contacts with static ground
-    ``(c,)`` bool, and the held stacked nodes. A held node in any other contact lets go."""
+    """Which node contacts (stacked nodes on side a) are held nodes' contacts with static ground,
+    ``(c,)`` bool. A held node in any other contact lets go."""
     held = np.zeros(len(node_body), dtype=bool)
     for j, r in enumerate(hold):
         if r is not None:
@@ -266,7 +266,7 @@ def _held_rows(hold, nodes, node_offset, node_body, contacts, static_b, in_other
     for at in (contacts.body_a[rows & ~static_b], in_others[held[in_others]]):
         if len(at):
             raise _LetGo(int(node_body[at[0]]))
-    return rows, np.nonzero(held)[0]
+    return rows
 
 
 def _moving(step, state, nodes, h):
