@@ -292,7 +292,7 @@ def _skew(a):
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
-def _implicitness(model):
+def implicitness(model):
     """Weight theta of the end-of-step velocity in the position update ``x+ = x + h ((1 - theta) v
     + theta v+)``: 1/2 for Newmark (trapezoidal rule), 1 for backward Euler."""
     return 0.5 if model.integrator == "newmark" else 1.0
@@ -313,7 +313,7 @@ def _predict_spin_frame(model, state, dt, gravity):
     slows translation and spin as it slows the deformation. With no spin this is the world-frame
     step, the translation split off. Newmark stays second order (tests/test_fem_free_body.py).
     """
-    h, theta = dt, _implicitness(model)
+    h, theta = dt, implicitness(model)
     a_M = system_coefficients(model, dt)[0]
     m = model.node_mass
     total = m.sum()

@@ -23,8 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fem.dynamics import _implicitness
-from fem.model import holding
+from fem.dynamics import implicitness
 
 ENTER_AFTER = 10        # steps a set must rest unchanged before it is held
 RETRY_AFTER = 50        # steps after a release before a set may be held again
@@ -55,11 +54,6 @@ def eligible(model):
     return model.frame == "floating" and not model.plastic
 
 
-def held_model(model, rest):
-    """The body's model with ``rest``'s nodes held (:func:`fem.model.holding`)."""
-    return holding(model, rest.nodes)
-
-
 def held_velocity(model, state, rest, h):
     """End-of-step velocities ``(k, 3)`` m/s of the held nodes: over the step they close no gap
     (a node above its surface comes down to it, none sinks further) and do not slide. Under
@@ -67,7 +61,7 @@ def held_velocity(model, state, rest, h):
     x = state.x[rest.nodes]
     gap = np.einsum("kd,kd->k", rest.normal, x - rest.point)
     mean = rest.normal * (-np.maximum(gap, 0.0) / h)[:, None]
-    theta = _implicitness(model)
+    theta = implicitness(model)
     return (mean - (1.0 - theta) * state.v[rest.nodes]) / theta
 
 

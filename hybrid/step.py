@@ -17,6 +17,7 @@ import numpy as np
 
 from fem import dynamics as fem_dyn
 from fem.contact_response import apply_contact_impulses, contact_set, delassus_block
+from fem.model import holding
 from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
@@ -88,7 +89,7 @@ def _coupled_step(model, state):
     records = _records(model, state)
     hold = [r if model.settings.hold_resting and r is not None and r.held and resting.eligible(m)
             else None for m, r in zip(model.fem, records)]
-    fems = [m if r is None else resting.held_model(m, r) for m, r in zip(model.fem, hold)]
+    fems = [m if r is None else holding(m, r.nodes) for m, r in zip(model.fem, hold)]
     predicted = [fem_dyn.predict(m, s, h, g, None if r is None else resting.held_velocity(m, s, r, h))
                  for m, s, r in zip(fems, state.fem, hold)]
 

@@ -7,8 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hybrid import resting
-
 SLAB = """
 [simulation]
 dt = 0.002
