@@ -245,7 +245,7 @@ def _watch(model, state, records, contacts, static_b, impulse, in_others, node_b
         out.append(resting.observe(
             records[j], node_local[contacts.body_a[on]], node_local[in_others[node_body[in_others] == j]],
             contacts.normal[on], contacts.gap[on], s.x, contacts.friction[on], impulse[on], static_b[on],
-            m.node_anchor >= 0) if resting.eligible(m) else None)
+            m.node_anchor >= 0, resting.stick_margin(m)) if resting.eligible(m) else None)
     return tuple(out)
 
 
