@@ -3,7 +3,11 @@
 Each FEM body gets a signed-distance grid of its rest surface (rigid.sdf, built the first time
 another body comes near it). A node of body A is tested against body B's grid in B's current
 frame (floating frame: best-fit rotation and centre; anchored: the world), which follows B's rigid
-motion exactly and gives the normal and the closest point of B's rest surface. That point lies in
+motion exactly and gives the normal and the closest point of B's rest surface; the node's place
+is first moved back by the displacement of B's surface node now nearest it, so a body bent by
+more than half its thickness (a soft bridge under a box) is still met on the face the node
+touches, not the opposite face its rest shape puts nearer (or, bent further, off the grid: the
+box fell through the bridge, gaining 8 J). That point lies in
 one of B's rest surface triangles; B's side of the contact is the same place of that triangle now,
 the sum of its three nodes with the point's barycentric weights. The gap is measured to it: a dent
 in B moves its surface away from A (against the rest shape it would look like a penetration,
@@ -132,6 +136,17 @@ def _moved(m, s):
     return (s.x[m.surface_nodes] - s.c) @ s.R + m.rest_center - m.rest_points[m.surface_nodes]
 
 
+def _current_nearest(m, s, x):
+    """The surface node of body m (index into ``surface_nodes``) nearest each world point x (p, 3)
+    in its current shape ``s.x``. The k-d tree of the current surface is kept for the positions
+    it was built from (a step's detection asks about the same positions more than once)."""
+    last = getattr(m, "_current_tree", None)
+    if last is None or last[0] is not s.x:
+        last = (s.x, cKDTree(s.x[m.surface_nodes], balanced_tree=False, compact_nodes=False))
+        object.__setattr__(m, "_current_tree", last)
+    return last[1].query(x)[1] if len(x) else np.zeros(0, np.int64)
+
+
 def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
     those closer than ``reach`` (p,) m, ``moved`` being b's :func:`_moved`: ``(rows, corners,
@@ -141,7 +156,11 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     With ``off_nodes`` (m), points within that distance of their nearest node across the normal
     are left out (that node's own contact covers them)."""
     radius = np.zeros(len(x)) if radius is None else radius
-    X = (x - sb.c) @ sb.R + mb.rest_center                  # into b's rest frame
+    # into b's rest frame, less the deformation there: the displacement of b's surface node now
+    # nearest each point (bent by more than its half thickness, b's rest surface would put a
+    # point pressing on its top face nearer the bottom face, or off b's grid)
+    local = moved[_current_nearest(mb, sb, x)]
+    X = (x - sb.c) @ sb.R + mb.rest_center - local
     phi, n_rest = _grid(mb).query(X)
     phi = phi - radius
     near = np.nonzero((phi < reach + np.sqrt((moved ** 2).sum(axis=1).max(initial=0.0)))
@@ -158,7 +177,7 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     # in b moves its surface away)
     corners, weights = _rest_triangles(mb, Y, close)
     nearest = close[:, 0]
-    shift = np.einsum("pi,pij->pj", weights, moved[corners])
+    shift = np.einsum("pi,pij->pj", weights, moved[corners]) - local[near]
     gap = phi[near] - np.einsum("ij,ij->i", shift, n_rest[near])
     hit = gap < reach[near]
     rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], nearest[hit], gap[hit]

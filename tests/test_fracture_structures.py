@@ -196,8 +196,9 @@ def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
     assert max(checks["momentum"]) < 1e-9        # splitting never changes momentum
     # the fragments fall 0.3 m (about 20 J) and bounce and tumble for a while; how long depends on
     # the pattern the plate breaks into, which any contact detail changes (seen at rest by 1.1 s
-    # and by 1.65 s), so they get until 1.8 s
-    model, state, more = run(model, state, 1650)
+    # and by 1.65 s; in one pattern a 3 kg piece leaning on a support lay still from 0.75 s, slid
+    # off it at 0.97 s and broke again on landing, at rest by 2.05 s), so they get until 2.4 s
+    model, state, more = run(model, state, 2250)
     energy, _, _ = totals(model, state)
     assert energy <= energy0
     # everything has landed and is at rest, nothing flew off
