@@ -28,6 +28,9 @@ def _run(args):
     from .run import run_scene
     from .step import InstabilityError
     out = Path(args.out) if args.out else Path("outputs") / scene.name
+    if out.exists() and not out.is_dir():
+        print(f"{path}: --out {out} is a file; give a folder (it is created if missing)", file=sys.stderr)
+        return 2
     print(f"running '{scene.name}' ({len(scene.bodies)} bodies, {scene.simulation.duration} s at "
           f"dt = {scene.simulation.dt:g} s) -> {out}")
     try:

@@ -167,6 +167,16 @@ def test_bad_scene_exits_with_code_2_naming_file_and_field_without_traceback(tmp
     assert not (tmp_path / "out").exists() and not (tmp_path / "outputs").exists()
 
 
+def test_out_naming_an_existing_file_exits_with_code_2_and_leaves_it(tmp_path):
+    (tmp_path / "scene.toml").write_text(SMALL_SCENE)
+    (tmp_path / "taken").write_text("mine")
+    result = hybrid("run", "scene.toml", "--out", "taken", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "--out" in result.stderr and "taken" in result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+    assert (tmp_path / "taken").read_text() == "mine"
+
+
 def test_run_without_a_scene_runs_the_built_in_default_scene(tmp_path):
     result = hybrid("run", "--out", "default_run", "--quiet", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
