@@ -9,7 +9,8 @@ more than half its thickness (a soft bridge under a box) is still met on the fac
 touches, not the opposite face its rest shape puts nearer (or, bent further, off the grid: the
 box fell through the bridge, gaining 8 J). That point lies in
 one of B's rest surface triangles; B's side of the contact is the same place of that triangle now,
-the sum of its three nodes with the point's barycentric weights. The gap is measured to it: a dent
+the sum of its three nodes with the point's barycentric weights. The normal turns with that
+triangle, so a bent face is met along its bent normal. The gap is measured along it: a dent
 in B moves its surface away from A (against the rest shape it would look like a penetration,
 whose recovery, pushing single nodes, doubled the energy of two soft bodies meeting head-on), and
 it changes continuously as A slides over B (measured to B's nearest node instead, it jumped by
@@ -173,17 +174,42 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
         across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
         keep = np.einsum("ij,ij->i", across, across) > off_nodes ** 2
         near, Y, close = near[keep], Y[keep], close[keep]
-    # its triangle, and how far the triangle has moved there along the normal since rest (a dent
+    # its triangle; the normal turns with that triangle (a bent body's face is sloped where its
+    # rest face was level: on the rest normal a frictionless ball stayed put on an 11 degree slope
+    # of a sagging bridge), and the gap is measured along it to the place as it is now (a dent
     # in b moves its surface away)
     corners, weights = _rest_triangles(mb, Y, close)
     nearest = close[:, 0]
-    shift = np.einsum("pi,pij->pj", weights, moved[corners]) - local[near]
-    gap = phi[near] - np.einsum("ij,ij->i", shift, n_rest[near])
+    rest = mb.rest_points[mb.surface_nodes[corners]]                     # (p, 3, 3) b's frame
+    now = rest + moved[corners]
+    n = _turn(n_rest[near], _unit_normals(rest), _unit_normals(now))
+    place = np.einsum("pi,pij->pj", weights, now)
+    gap = np.einsum("ij,ij->i", X[near] + local[near] - place, n) - radius[near]
     hit = gap < reach[near]
     rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], nearest[hit], gap[hit]
-    normal = n_rest[rows] @ sb.R.T
+    normal = n[hit] @ sb.R.T
     point = x[rows] - (radius[rows] + 0.5 * gap)[:, None] * normal
     return rows, corners, weights, nearest, point, normal, gap
+
+
+def _unit_normals(tri):
+    """Unit normals ``(p, 3)`` of triangles ``(p, 3, 3)`` (corners counter-clockwise seen from
+    outside)."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def _turn(v, a, b):
+    """Vectors ``v`` (p, 3) turned by the smallest rotation taking unit ``a`` to unit ``b``
+    (Rodrigues); left as they are where ``b`` has turned more than 90 degrees from ``a`` (a
+    triangle crushed flat or flipped has no trustworthy normal)."""
+    axis = np.cross(a, b)
+    cos = np.einsum("ij,ij->i", a, b)
+    ok = cos > 0.0
+    k = 1.0 / (1.0 + np.where(ok, cos, 1.0))
+    turned = (v * cos[:, None] + np.cross(axis, v)
+              + axis * (k * np.einsum("ij,ij->i", axis, v))[:, None])
+    return np.where(ok[:, None], turned, v)
 
 
 @dataclass

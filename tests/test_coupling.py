@@ -461,3 +461,81 @@ position = [0.0, 0.0, 0.415]
     assert min(lowest) < 0.285 - 0.015, "the bridge did not bend past half its thickness"
     assert min(worst_gap) > -2e-3, "the box sank into the bridge's top face"
     assert max(gain) < 0.01          # J; the drop releases 2 kg x g x 5 cm = 0.98 J
+
+
+def test_contact_normal_on_a_deformed_body_turns_with_its_face(sim):
+    """A held (anchored) block whose nodes have been turned by 0.3 rad about y, as a bent
+    body's face turns: a sphere over its top face meets that face along the face's turned normal,
+    at the sphere's true distance from it (on the rest normal it was pushed straight up, whatever
+    the face's slope)."""
+    from hybrid.fem_contact import detect_rigid_points
+    s = sim("""
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.4, 0.4, 0.1], resolution = 0.1 }
+young = 1e6
+[[bodies.anchors]]
+box = [[-0.2, -0.2, -0.05], [0.2, 0.2, -0.05]]
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.02 }
+""")
+    m = s.model.fem[0]
+    angle = 0.3
+    turn = np.array([[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]])
+    s.state.fem[0] = s.state.fem[0].replace(x=m.rest_points @ turn.T)
+    n = turn @ [0.0, 0.0, 1.0]
+    expected_gap = 0.003
+    centre = turn @ [0.033, 0.011, 0.05] + (0.02 + expected_gap) * n
+    found = detect_rigid_points(
+        s.model.rigid, centre[None], np.eye(3)[None], np.zeros(1), s.model.fem, s.state.fem,
+        [s.model.scene.bodies[i] for i in s.model.fem_ids], np.array([0, len(m.surface_nodes)]),
+        np.zeros(len(m.surface_nodes)), 0.005)
+    assert found.count == 1
+    assert np.allclose(found.normal[0], n, atol=1e-12)
+    assert found.gap[0] == pytest.approx(expected_gap, abs=1e-12)
+
+
+def test_frictionless_ball_on_a_sagging_bridge_slides_down_its_slope(sim):
+    """A frictionless ball lying on a soft bridge (held at both ends) that sags under its own
+    weight: the contact normal follows the bent face, so the ball slides towards the middle with
+    the horizontal acceleration g sin(a) cos(a) of the local slope a (on the rest normal it stayed
+    put on an 11 degree slope)."""
+    s = sim("""
+[[bodies]]
+name = "bridge"
+model = "fem"
+shape = { type = "box", size = [1.0, 0.1, 0.02], resolution = 0.025 }
+young = 2e6
+density = 1000.0
+friction = 0.0
+damping = { mass = 20.0 }
+[[bodies.anchors]]
+box = [[-0.501, -1.0, -1.0], [-0.499, 1.0, 1.0]]
+[[bodies.anchors]]
+box = [[0.499, -1.0, -1.0], [0.501, 1.0, 1.0]]
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.015 }
+position = [-0.25, 0.0, 0.026]
+density = 500.0
+friction = 0.0
+""")
+    rest = s.model.fem[0].rest_points
+    top = rest[:, 2] > 0.009
+    seen = []
+
+    def watch(s):
+        ball, x = s.state.rigid.position[0], s.state.fem[0].x
+        under = top & (np.abs(rest[:, 0] - ball[0]) < 0.05) & (np.abs(rest[:, 1] - ball[1]) < 0.03)
+        slope = np.polyfit(x[under, 0], x[under, 2], 1)[0]       # of the bent top face, dz/dx
+        seen.append((s.state.time, s.state.rigid.velocity[0, 0], slope))
+
+    s.advance(0.3, each=watch)
+    t, vx, slope = np.array(seen).T
+    window = t > 0.1                         # the bridge has sagged by then
+    assert slope[window].min() < -0.15       # a real slope under the ball (8.5 degrees or more)
+    measured = np.polyfit(t[window], vx[window], 1)[0]
+    expected = np.mean(-9.81 * slope[window] / (1.0 + slope[window] ** 2))
+    assert measured == pytest.approx(expected, rel=0.2)
