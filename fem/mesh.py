@@ -65,7 +65,12 @@ def box_tet_mesh(size, resolution):
     """Box of ``size`` (3,) metres centred at the origin, ``resolution`` (3,) or int cells per axis.
 
     An int resolution is the cell count along the longest side; the others get proportionally
-    many (at least one). Each hexahedral cell is split into six tets (scikit-fem ``init_tensor``).
+    many (at least one). Each hexahedral cell is split into six tets around one of its diagonals
+    (Kuhn), mirrored in every other cell along each axis, so the mesh has the box's mirror
+    symmetries wherever the cell counts are even. With the same diagonal in every cell (scikit-fem's
+    ``init_tensor``) the mesh is anisotropic: a steel cantilever loaded straight down also bent
+    sideways by 5-9% of its deflection, a sagging bridge twisted (its top face tilted 1.4 degrees
+    across), and P1 tip errors were larger (21% against 15% at 40 x 4 x 4 cells).
     Returns ``(points (n, 3), tets (t, 4))``.
     """
     size = np.broadcast_to(np.asarray(size, dtype=float), (3,))
@@ -74,8 +79,19 @@ def box_tet_mesh(size, resolution):
     else:
         cells = np.asarray(resolution, dtype=int)
     axes = [np.linspace(-0.5 * s, 0.5 * s, k + 1) for s, k in zip(size, cells)]
-    mesh = skfem.MeshTet.init_tensor(*axes)
-    return _finish(mesh.p.T, mesh.t.T)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    cell = np.stack(np.meshgrid(*(np.arange(k) for k in cells), indexing="ij"), axis=-1).reshape(-1, 3)
+    mirrored = cell % 2
+    stride = np.array([(cells[1] + 1) * (cells[2] + 1), cells[2] + 1, 1])
+    tets = []
+    for order in _AXIS_ORDERS:       # each tet walks from one corner to the opposite one, an axis at a time
+        walk = np.cumsum(np.vstack([np.zeros(3, int), np.eye(3, dtype=int)[list(order)]]), axis=0)  # (4, 3)
+        corners = cell[:, None, :] + np.abs(walk[None] - mirrored[:, None, :])             # (c, 4, 3)
+        tets.append(corners @ stride)
+    return _finish(points, np.concatenate(tets))
+
+
+_AXIS_ORDERS = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
 
 
 def _disk_triangles(radius, resolution):

@@ -267,7 +267,9 @@ def test_spinning_vibrating_body_converges_at_the_integrators_order(spinning_vib
     model = build_fem_model(points, tets, density=1000.0, young=1e4, poisson=0.3, integrator=integrator)
     amplitude = np.abs(x0 - model.rest_points).max()
     errors = []
-    for dt in (2e-3, 1e-3, 5e-4, 2.5e-4):
+    # backward Euler's damping error is asymptotic only below 0.5 ms for this block (rates 0.46,
+    # 0.67, 0.82, 0.90 from 2 ms down)
+    for dt in (2e-3, 1e-3, 5e-4, 2.5e-4) if order == 2 else (5e-4, 2.5e-4, 1.25e-4, 6.25e-5):
         state = rest_state(model, x=x0, v=v0)
         for _ in range(round(T / dt)):
             state = step(model, state, dt)
@@ -277,4 +279,4 @@ def test_spinning_vibrating_body_converges_at_the_integrators_order(spinning_vib
     # (second order needs each piece: without the mid-step centrifugal force, or with the torque
     # of the frame's force taken out of the velocities only, the last rate drops to 1.1-1.5)
     assert np.all(rates[1:] > 0.85 * order)      # (the coarsest step is not yet asymptotic)
-    assert errors[-1] < (5e-4 if order == 2 else 0.03)
+    assert errors[-1] < (5e-4 if order == 2 else 0.02)

@@ -338,9 +338,9 @@ DENT_YIELD = 35e6
 def test_steel_ball_leaves_a_dent_in_plastic_plate_and_none_in_elastic_plate(sim):
     from hybrid.observe import frame_pieces, plastic_dissipation
     s, early, dent, updates = drop_ball(sim, f"yield_stress = {DENT_YIELD}")
-    assert dent > 2e-5                                       # 0.02 mm on a 1 cm plate (measured 0.041)
+    assert dent > 2e-5                                       # 0.02 mm on a 1 cm plate (measured 0.055)
     assert dent == pytest.approx(early, rel=0.01)            # and it stays
-    assert updates == 0                                      # peeq ~1.5 % < default 2 %
+    assert updates == 0                                      # peeq at most 0.38 % < default 2 %
     st = s.state.fem[0]
     assert plastic_dissipation(s.model, s.state) == st.plastic_dissipation > 0.1
     piece = next(p for p in frame_pieces(s.model, s.state) if p.body_id == s.model.fem_ids[0])
@@ -352,7 +352,7 @@ def test_steel_ball_leaves_a_dent_in_plastic_plate_and_none_in_elastic_plate(sim
     assert s_el.state.fem[0].plastic_dissipation == 0.0
 
     # with frequent reference updates the dent is baked into the rest shape and stays the same
-    s_up, _, dent_up, updates = drop_ball(sim, f"yield_stress = {DENT_YIELD}\nplastic_update_strain = 0.004")
+    s_up, _, dent_up, updates = drop_ball(sim, f"yield_stress = {DENT_YIELD}\nplastic_update_strain = 0.002")
     assert updates >= 1
     assert dent_up == pytest.approx(dent, rel=0.02)
     m = s_up.model.fem[0]
