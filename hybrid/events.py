@@ -417,8 +417,8 @@ def append_rigid(rm, rs, new_model, new_state):
     """RigidModel/RigidState with the bodies of ``new_model`` appended (planes of ``rm`` kept)."""
     per_body = ("body_mass", "body_inv_mass", "body_inertia", "body_inv_inertia", "body_fixed",
                 "body_friction", "body_restitution", "body_radius", "shape_kind", "shape_params",
-                "shape_rotation", "shape_offset", "point_local", "point_radius",
-                "body_min_extent")
+                "shape_rotation", "shape_offset", "point_local", "point_radius", "point_kind",
+                "point_ring", "point_axis", "body_min_extent")
     changes = {k: np.concatenate([getattr(rm, k), getattr(new_model, k)]) for k in per_body}
     changes["names"] = list(rm.names) + list(new_model.names)
     changes["surface_vertices"] = list(rm.surface_vertices) + list(new_model.surface_vertices)

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rigid.contacts import combine_friction, combine_restitution
+from rigid.model import POINT_RING
 from rigid.sdf import SignedDistanceGrid, closest_point_weights
 
 
@@ -303,6 +304,9 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         count = rigid.point_start[near + 1] - rigid.point_start[near]
         owner = np.repeat(near, count)
         at = np.repeat(rigid.point_start[near] - np.cumsum(count) + count, count) + np.arange(count.sum())
+        # a cylinder meets deformable faces with its side's vertices, not the rings they lie on
+        plain = rigid.point_kind[at] != POINT_RING
+        owner, at = owner[plain], at[plain]
         x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], rigid.point_local[at])
         # a point right over a node (within a tenth of the margin across the normal) is that
         # node's own contact with the rigid body; a second one there only slows the solver

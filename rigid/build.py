@@ -5,7 +5,7 @@ import numpy as np
 
 from . import quaternion as quat
 from .mass import mass_properties
-from .model import SHAPE_CODES, RigidModel, RigidState
+from .model import POINT_ON_RING, POINT_PLAIN, POINT_RING, SHAPE_CODES, RigidModel, RigidState
 from .sdf import SignedDistanceGrid
 from .shapes import make_shape
 
@@ -51,6 +51,9 @@ class _Body:
     point_radius: np.ndarray
     grid: object = None
     extra: dict = field(default_factory=dict)
+    point_kind: np.ndarray = None      # RigidModel.point_kind; None: all plain
+    point_ring: np.ndarray = None      # ring radius (m) of POINT_RING points
+    point_axis: np.ndarray = None      # their axis, shape frame
 
 
 def _geometry(desc):
@@ -81,10 +84,31 @@ def _geometry(desc):
         points[:, 2] = np.linspace(-half, half, n)
         radius = np.full(n, r)
     elif kind == "cylinder":
-        params[:2] = float(desc.shape["radius"]), 0.5 * float(desc.shape["height"])
+        r = float(desc.shape["radius"])
+        params[:2] = r, 0.5 * float(desc.shape["height"])
+        return _cylinder_rings(_Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius), r)
     else:
         grid = SignedDistanceGrid.build(vertices, triangles)
     return _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
+
+
+def _cylinder_rings(body, r):
+    """A cylinder's vertices on its side (rims and bands) stand, against rigid bodies and planes,
+    for the circles they lie on: one ring point per height. On its polygon a cylinder rolled from
+    vertex to vertex, losing energy at each (a solid cylinder on a 30 degree slope accelerated at
+    3.0 m/s^2 against 3.27) and drifting sideways (0.15 m/s within 1 s)."""
+    on_side = np.abs(np.hypot(body.points[:, 0], body.points[:, 1]) - r) <= 1e-9 * r
+    heights = np.unique(body.points[on_side, 2])
+    rings = np.column_stack([np.zeros((len(heights), 2)), heights])
+    count = len(body.points)
+    body.points = np.concatenate([body.points, rings])
+    body.point_radius = np.zeros(len(body.points))
+    body.point_kind = np.concatenate([np.where(on_side, POINT_ON_RING, POINT_PLAIN),
+                                      np.full(len(heights), POINT_RING)])
+    body.point_ring = np.concatenate([np.zeros(count), np.full(len(heights), r)])
+    body.point_axis = np.zeros((len(body.points), 3))
+    body.point_axis[count:, 2] = 1.0
+    return body
 
 
 def build_rigid(bodies, planes):
@@ -113,6 +137,12 @@ def build_rigid(bodies, planes):
     surface_vertices = [to_body(i, g.vertices) for i, g in enumerate(geo)]
     local_points = [to_body(i, g.points) for i, g in enumerate(geo)]
     point_radius = np.concatenate([g.point_radius for g in geo]) if b else np.zeros(0)
+    point_kind = np.concatenate([np.full(len(g.points), POINT_PLAIN) if g.point_kind is None else g.point_kind
+                                 for g in geo]).astype(np.int64) if b else np.zeros(0, np.int64)
+    point_ring = np.concatenate([np.zeros(len(g.points)) if g.point_ring is None else g.point_ring
+                                 for g in geo]) if b else np.zeros(0)
+    point_axis = np.concatenate([np.zeros((len(g.points), 3)) if g.point_axis is None else g.point_axis @ axes[i]
+                                 for i, g in enumerate(geo)]) if b else np.zeros((0, 3))
     point_count = np.array([len(p) for p in local_points], dtype=np.int64)
     point_start = np.concatenate([[0], np.cumsum(point_count)]).astype(np.int64)
     body_radius = np.array([np.max(np.linalg.norm(p, axis=1) + g.point_radius)
@@ -140,7 +170,8 @@ def build_rigid(bodies, planes):
         grid_origin=np.array([gr.origin for gr in grids]).reshape(-1, 3) if grids else np.zeros((1, 3)),
         grid_cell=np.array([gr.cell_size for gr in grids], float) if grids else np.ones(1),
         point_body=np.repeat(np.arange(b), point_count), point_local=np.concatenate(local_points) if b else np.zeros((0, 3)),
-        point_radius=point_radius, surface_vertices=surface_vertices,
+        point_radius=point_radius, point_kind=point_kind, point_ring=point_ring, point_axis=point_axis,
+        surface_vertices=surface_vertices,
         surface_triangles=[g.triangles for g in geo],
         plane_point=np.array([p.point for p in planes], float).reshape(-1, 3),
         plane_normal=np.array([np.asarray(p.normal, float) / np.linalg.norm(p.normal) for p in planes]).reshape(-1, 3),

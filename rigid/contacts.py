@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .model import POINT_ON_RING, POINT_RING
 from .sdf_kernels import shape_sdf
 
 
@@ -106,33 +107,68 @@ def _normal_to_world(Rb, Sb, gx, gy, gz):
 
 
 @nb.njit(cache=True)
+def _ring_frame(ax, ay, az, nx, ny, nz):
+    """Unit vectors e, f spanning a ring's plane (axis a): e towards the surface of normal n
+    (the ring's nearest point to it is the centre + radius e), f = a x e."""
+    d = nx * ax + ny * ay + nz * az
+    ex, ey, ez = d * ax - nx, d * ay - ny, d * az - nz
+    size = np.sqrt(ex * ex + ey * ey + ez * ez)
+    if size < 1e-9:     # the ring lies flat on the surface: every point is nearest, pick one
+        ex, ey, ez = (az, 0.0, -ax) if abs(ax) > 0.5 or abs(az) > 0.5 else (0.0, az, -ay)
+        size = np.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / size, ey / size, ez / size
+    return ex, ey, ez, ay * ez - az * ey, az * ex - ax * ez, ax * ey - ay * ex
+
+
+# a ring meets a surface at its nearest point and at the points a quarter, half and three
+# quarters round from it (which hold a ring lying flat on the surface up)
+_RING_COS = np.array([1.0, 0.0, -1.0, 0.0])
+_RING_SIN = np.array([0.0, 1.0, 0.0, -1.0])
+
+
+@nb.njit(cache=True)
+def _ring_point(cx, cy, cz, rho, frame, i):
+    ex, ey, ez, fx, fy, fz = frame
+    c, s = rho * _RING_COS[i], rho * _RING_SIN[i]
+    return cx + c * ex + s * fx, cy + c * ey + s * fy, cz + c * ez + s * fz
+
+
+@nb.njit(cache=True)
 def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_local, point_radius,
-                  shape_kind, shape_params, shape_rotation, shape_offset, grid_index, grid_values,
-                  grid_start, grid_shape, grid_origin, grid_cell, plane_point, plane_normal,
-                  margin, out_a, out_b, out_p, out_n, out_gap):
+                  point_kind, point_ring, point_axis, shape_kind, shape_params, shape_rotation,
+                  shape_offset, grid_index, grid_values, grid_start, grid_shape, grid_origin,
+                  grid_cell, plane_point, plane_normal, margin, out_a, out_b, out_p, out_n, out_gap):
     cap = len(out_gap)
     c = 0
     nb_ = len(fixed)
-    # points against planes
+    zero = np.zeros(3)
+    # points against planes (a ring: its nearest points to the plane)
     for a in range(nb_):
         if fixed[a]:
             continue
         for k in range(point_start[a], point_start[a + 1]):
+            if point_kind[k] == POINT_ON_RING:
+                continue
             px, py, pz = _point_world(rotation[a], position[a], point_local[k])
+            ring = point_kind[k] == POINT_RING
+            ax, ay, az = _point_world(rotation[a], zero, point_axis[k])
             for j in range(len(plane_point)):
                 nx, ny, nz = plane_normal[j, 0], plane_normal[j, 1], plane_normal[j, 2]
-                dist = ((px - plane_point[j, 0]) * nx + (py - plane_point[j, 1]) * ny
-                        + (pz - plane_point[j, 2]) * nz)
-                gap = dist - point_radius[k]
-                if gap < margin + sweep[a]:
-                    if c < cap:
-                        h = point_radius[k] + 0.5 * gap
-                        out_a[c] = a
-                        out_b[c] = -1 - j
-                        out_p[c, 0], out_p[c, 1], out_p[c, 2] = px - nx * h, py - ny * h, pz - nz * h
-                        out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
-                        out_gap[c] = gap
-                    c += 1
+                frame = _ring_frame(ax, ay, az, nx, ny, nz) if ring else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                for i in range(4 if ring else 1):
+                    qx, qy, qz = _ring_point(px, py, pz, point_ring[k], frame, i) if ring else (px, py, pz)
+                    dist = ((qx - plane_point[j, 0]) * nx + (qy - plane_point[j, 1]) * ny
+                            + (qz - plane_point[j, 2]) * nz)
+                    gap = dist - point_radius[k]
+                    if gap < margin + sweep[a]:
+                        if c < cap:
+                            h = point_radius[k] + 0.5 * gap
+                            out_a[c] = a
+                            out_b[c] = -1 - j
+                            out_p[c, 0], out_p[c, 1], out_p[c, 2] = qx - nx * h, qy - ny * h, qz - nz * h
+                            out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
+                            out_gap[c] = gap
+                        c += 1
     # points of one body against the shape of the other, both ways
     for q in range(len(pairs)):
         for side in range(2):
@@ -147,23 +183,39 @@ def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_lo
             cx, cy, cz = _to_shape(Rb, Sb, position[b], shape_offset[b],
                                    position[a, 0], position[a, 1], position[a, 2])
             for k in range(point_start[a], point_start[a + 1]):
-                px, py, pz = _point_world(rotation[a], position[a], point_local[k])
-                sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
-                phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
-                                            grid_values, grid_start, grid_shape, grid_origin,
-                                            grid_cell, sx, sy, sz, cx, cy, cz)
-                gap = phi - point_radius[k]
-                if gap >= reach:
+                if point_kind[k] == POINT_ON_RING:
                     continue
-                nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
-                if c < cap:
-                    h = point_radius[k] + 0.5 * gap
-                    out_a[c] = a
-                    out_b[c] = b
-                    out_p[c, 0], out_p[c, 1], out_p[c, 2] = px - nx * h, py - ny * h, pz - nz * h
-                    out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
-                    out_gap[c] = gap
-                c += 1
+                px, py, pz = _point_world(rotation[a], position[a], point_local[k])
+                ring = point_kind[k] == POINT_RING
+                frame = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                if ring:    # towards b's surface as seen from the ring's centre
+                    sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
+                    phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
+                                                grid_values, grid_start, grid_shape, grid_origin,
+                                                grid_cell, sx, sy, sz, cx, cy, cz)
+                    if phi - point_ring[k] >= reach:
+                        continue
+                    nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
+                    ax, ay, az = _point_world(rotation[a], zero, point_axis[k])
+                    frame = _ring_frame(ax, ay, az, nx, ny, nz)
+                for i in range(4 if ring else 1):
+                    qx, qy, qz = _ring_point(px, py, pz, point_ring[k], frame, i) if ring else (px, py, pz)
+                    sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], qx, qy, qz)
+                    phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
+                                                grid_values, grid_start, grid_shape, grid_origin,
+                                                grid_cell, sx, sy, sz, cx, cy, cz)
+                    gap = phi - point_radius[k]
+                    if gap >= reach:
+                        continue
+                    nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
+                    if c < cap:
+                        h = point_radius[k] + 0.5 * gap
+                        out_a[c] = a
+                        out_b[c] = b
+                        out_p[c, 0], out_p[c, 1], out_p[c, 2] = qx - nx * h, qy - ny * h, qz - nz * h
+                        out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
+                        out_gap[c] = gap
+                    c += 1
     return c
 
 
@@ -172,7 +224,7 @@ def detect(model, position, rotation, sweep, margin):
     fixed = model.body_fixed
     pairs = _broad_phase(position, model.body_radius + margin, sweep, fixed)
     point_start = model.point_start
-    capacity = max(64, 4 * len(model.point_radius))
+    capacity = max(64, 4 * len(model.point_radius))     # grows below if more are found
     while True:
         out_a = np.empty(capacity, np.int64)
         out_b = np.empty(capacity, np.int64)
@@ -180,7 +232,8 @@ def detect(model, position, rotation, sweep, margin):
         out_n = np.empty((capacity, 3))
         out_gap = np.empty(capacity)
         count = _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, model.point_local,
-                              model.point_radius, model.shape_kind, model.shape_params,
+                              model.point_radius, model.point_kind, model.point_ring,
+                              model.point_axis, model.shape_kind, model.shape_params,
                               model.shape_rotation, model.shape_offset, model.grid_index,
                               model.grid_values, model.grid_start, model.grid_shape,
                               model.grid_origin, model.grid_cell, model.plane_point,

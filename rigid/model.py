@@ -13,6 +13,8 @@ from . import quaternion as quat
 SHAPE_SPHERE, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_CYLINDER, SHAPE_GRID = 1, 2, 3, 4, 5
 SHAPE_CODES = {"sphere": SHAPE_SPHERE, "box": SHAPE_BOX, "capsule": SHAPE_CAPSULE,
                "cylinder": SHAPE_CYLINDER, "mesh": SHAPE_GRID}
+# contact point kinds (RigidModel.point_kind)
+POINT_PLAIN, POINT_RING, POINT_ON_RING = 0, 1, 2
 
 
 @dataclass
@@ -30,6 +32,10 @@ class RigidModel:
         grids flat: grid_values (sum of nodes,), grid_start (g,), grid_shape (g, 3) int,
         grid_origin (g, 3) m, grid_cell (g,) m.
     point_body (p,) int, point_local (p, 3) m (body frame), point_radius (p,) m: contact points.
+    point_kind (p,) int: POINT_PLAIN (every detector), POINT_RING (a circle of radius
+        point_ring (p,) m about the unit axis point_axis (p, 3) (body frame) through point_local:
+        rigid bodies and planes meet its nearest points, so a cylinder rolls as a circle, not a
+        polygon) or POINT_ON_RING (a mesh vertex on such a circle, used only against FEM surfaces).
     surface_vertices: list of (n_i, 3) body-frame vertices; surface_triangles: list of (m_i, 3).
     plane_point (k, 3), plane_normal (k, 3) unit, plane_friction (k,), plane_restitution (k,).
     names: list of body names.
@@ -63,6 +69,18 @@ class RigidModel:
     plane_friction: np.ndarray
     plane_restitution: np.ndarray
     body_min_extent: np.ndarray = field(default=None)
+    point_kind: np.ndarray = field(default=None)
+    point_ring: np.ndarray = field(default=None)
+    point_axis: np.ndarray = field(default=None)
+
+    def __post_init__(self):
+        p = len(self.point_radius)
+        if self.point_kind is None:
+            self.point_kind = np.full(p, POINT_PLAIN, dtype=np.int64)
+        if self.point_ring is None:
+            self.point_ring = np.zeros(p)
+        if self.point_axis is None:
+            self.point_axis = np.zeros((p, 3))
 
     @property
     def body_count(self):
