@@ -286,3 +286,26 @@ def test_cylinder_standing_on_its_cap_stays_upright_and_still(sim):
     assert rs.position[0, 2] == pytest.approx(0.1, abs=1e-4)
     assert np.linalg.norm(reported_velocity(s.model.rigid, rs, s.model.gravity)[0]) < 1e-4
     assert np.linalg.norm(angular_velocity(s.model.rigid, rs)[0]) < 1e-4
+
+
+@pytest.mark.parametrize("dt", [1e-3, 2e-4])
+def test_fast_ball_bounces_straight_up_off_a_box_face_beside_its_vertex(sim, dt):
+    """A ball falling at 30 m/s onto a fixed box's top face, 1.5 cm beside the face's centre vertex,
+    bounces straight back at e times its speed. The box's vertex tested against the ball pushed
+    along the ball's normal there, tilted 14 degrees: the ball left sideways at 3.2 m/s at 1 ms."""
+    s = sim(f"""
+[simulation]
+dt = {dt}
+gravity = [0.0, 0.0, 0.0]
+{_box("table", (0.3, 0.3, 0.1), (0.0, 0.0, 0.05), fixed=True)}
+[[bodies]]
+name = "ball"
+shape = {{ type = "sphere", radius = 0.05 }}
+position = [0.015, 0.0, 0.25]
+velocity = [0.0, 0.0, -30.0]
+density = 7800.0
+restitution = 0.5
+""")
+    s.advance(0.012)
+    v = s.state.rigid.velocity[s.rigid_index("ball")]
+    np.testing.assert_allclose(v, [0.0, 0.0, 15.0], atol=1e-9)
