@@ -165,21 +165,10 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
                      "momentum_fix", "collision_impulse"):
             setattr(out, name, getattr(previous, name))
     elif impact.any():
-        target = normal_velocity(ia, ib, ra, rb, nrm, v, w) + (1.0 + contacts.restitution) * approach
-        imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, impact,
-                  c3(), inv_m, invI, v, w, settings.iterations, *groups, False)
-        imp = np.nan_to_num(imp)
-        out.collision_impulse = imp
-        t_imp = np.where(impact, tau, 0.0)[:, None]
-        for side, r, j in ((ia, ra, imp), (ib, rb, -imp)):
-            s = np.maximum(side, 0)
-            dv = j * inv_m[s][:, None]
-            dw = np.einsum("cij,cj->ci", invI[s], np.cross(r, j))
-            _scatter(out.shift, side, -t_imp * dv)           # the impulse acted at t + tau
-            _scatter(out.shift_rotation, side, -t_imp * dw)
-            _scatter(out.impact_dv, side, dv)
-            # with the arm taken where the body is at impact, angular momentum stays exact
-            _scatter(out.momentum_fix, side, t_imp * np.cross(j, v[s]))
+        # (inelastic impacts end in the contact pass the same way with or without the supports)
+        bouncing = bool((contacts.restitution[impact] > 0).any())
+        _collide(out, bodies, contacts, groups, impact, ~impact & ~on_particle & bouncing, tau,
+                 approach, ra, rb, v, w, h, gravity, settings)
 
     # 2. contact: no gap may close by the end of the step (inelastic, Coulomb friction)
     moved = out.shift[ia] + np.cross(out.shift_rotation[ia], ra)
@@ -220,6 +209,83 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
             np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
             settings.iterations, *groups, False)
     return out
+
+
+def _collide(out, bodies, contacts, groups, impact, support, tau, approach, ra, rb, v, w, h, gravity,
+             settings):
+    """Collision pass: each impact reaches its restitution target (e times its approach) at its
+    time of impact ``tau``, solved together with the ``support`` contacts (the other rigid
+    contacts, held to close no further than their gap, as in the contact pass), so a body lying on
+    the ground passes an impact on to it: solved alone, a ball falling at 3 m/s with e = 0.5 on a
+    box lying on the ground pushed the box into the ground and left at 0.08 m/s instead of 1.5.
+    Then, as in the contact pass, the stack is swept bottom-up with the lower side of each
+    contact frozen (Guendelman 2003), which the sweeps alone reach only slowly through a stack
+    (a ball on two stacked boxes left at 2.3 m/s instead of 3.5 after 20 sweeps, and set the top
+    box sliding). Updates v, w in place and fills ``out``'s collision fields."""
+    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
+    n, c = len(bodies.inv_mass), contacts.count
+    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
+    ones = np.ones(c)
+    active = impact | support
+    target = np.where(impact, normal_velocity(ia, ib, ra, rb, nrm, v, w)
+                      + (1.0 + contacts.restitution) * approach, -np.maximum(contacts.gap, 0.0) / h)
+    v0, w0 = v.copy(), w.copy()
+    lam = np.zeros((c, 3))
+    imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, active, lam, inv_m, invI,
+              v, w, settings.iterations, *groups, False)
+    gnorm = np.linalg.norm(gravity)
+    swept = bool(support.any() and gnorm > 0)
+    if swept:
+        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static, groups[0])
+        c_level, sa, sb = shock_scales(ia, ib, level)
+        for lv in np.unique(c_level[active]):
+            at_level = (c_level == lv) & active
+            level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
+                            inv_m, invI, v, w, settings.shock_iterations, *groups, False)
+            imp[at_level] = level_imp[at_level]
+    imp = np.nan_to_num(imp)
+    out.collision_impulse = imp
+    out.impact_dv = v - v0
+    # the bodies are moved back by the time their impulses acted times the velocity they gave, so
+    # bounces do not depend on where an impact falls in the step; their spin takes the angular
+    # momentum that moving them back takes from their motion, so it stays exact
+    t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, n)
+    if swept:   # frozen sides took less than the impulses: each body's own change, at its time
+        t_body = np.zeros(n + 1)
+        np.maximum.at(t_body, np.where(ia >= 0, ia, n), np.where(active, t_contact, 0.0))
+        np.maximum.at(t_body, np.where(ib >= 0, ib, n), np.where(active, t_contact, 0.0))
+        t_body = t_body[:n, None]
+        out.shift = -t_body * (v - v0)
+        out.shift_rotation = -t_body * (w - w0)
+        mass = np.where(inv_m > 0, 1.0 / np.where(inv_m > 0, inv_m, 1.0), 0.0)[:, None]
+        out.momentum_fix = t_body * np.cross(mass * (v - v0), v)
+        return
+    for side, r, j in ((ia, ra, imp), (ib, rb, -imp)):
+        s = np.maximum(side, 0)
+        t = t_contact[:, None]          # each impulse at its own time
+        _scatter(out.shift, side, -t * j * inv_m[s][:, None])
+        _scatter(out.shift_rotation, side, -t * np.einsum("cij,cj->ci", invI[s], np.cross(r, j)))
+        _scatter(out.momentum_fix, side, t * np.cross(j, v[s]))
+
+
+def _impulse_times(ia, ib, tau, support, n, sweeps=8):
+    """When in the step each collision-pass impulse acts (s, (c,)): an impact at its own time
+    ``tau``; a support at the time of the impacts it passes on, found through the bodies it shares
+    with them (down a stack, one body per sweep). The bodies are moved back by these times the
+    velocity they took, so a body that passes an impact on takes no net shift (a box lying on the
+    ground, shifted by the ball's impact but not by the ground's answer to it, rose 2 mm into the
+    ball, which then left at 21 m/s instead of 15)."""
+    t = tau.copy()
+    for _ in range(sweeps):
+        body = np.zeros(n + 1)                  # slot n: planes and static bodies (-1)
+        np.maximum.at(body, np.where(ia >= 0, ia, n), t)
+        np.maximum.at(body, np.where(ib >= 0, ib, n), t)
+        body[n] = 0.0
+        reached = np.where(support, np.maximum(body[np.where(ia >= 0, ia, n)], body[np.where(ib >= 0, ib, n)]), t)
+        if np.array_equal(reached, t):
+            break
+        t = reached
+    return t
 
 
 def warm_lambda(normal, friction, impulse):

@@ -91,6 +91,29 @@ def test_ball_dropped_from_one_metre_bounces_to_e_squared_heights(sim, ball_e, p
     assert z.min() > -1e-3, "the ball sank into the plane"
 
 
+def test_ball_bounces_on_a_stack_of_two_free_boxes_as_on_the_ground(sim):
+    """A table is a stack on the ground: a ball bouncing on two boxes lying on the ground (free,
+    not fixed) rises to e^2 of each height, as on the ground itself, and the boxes stay put. With
+    impacts solved alone the ball pushed the top box into the lower one and did not bounce at all;
+    with the resting contacts but no sweep down the stack it left at 2.3 m/s instead of 3.5 and set
+    the top box sliding."""
+    s = sim(_simulation(DT_240) + _plane()
+            + _box("lower", (0.3, 0.3, 0.1), (0.0, 0.0, 0.05))
+            + _box("upper", (0.2, 0.2, 0.1), (0.0, 0.0, 0.15))
+            + '[[bodies]]\nname = "ball"\nshape = { type = "sphere", radius = 0.05 }\n'
+              'position = [0.0, 0.0, 1.25]\ndensity = 7800.0\nrestitution = 0.5\n')
+    ball = s.rigid_index("ball")
+    heights, boxes_moved = [1.0], []
+    s.advance(1.3, each=lambda s: (heights.append(s.state.rigid.position[ball, 2] - 0.25),
+                                   boxes_moved.append(np.abs(s.state.rigid.position[:2] - [[0, 0, 0.05], [0, 0, 0.15]]).max())))
+    z = np.array(heights)
+    apex = np.nonzero((z[1:-1] > z[:-2]) & (z[1:-1] >= z[2:]))[0] + 1
+    assert len(apex) >= 3, f"expected three bounces, found apexes {z[apex]}"
+    np.testing.assert_allclose(z[apex[:3]], [0.25, 0.0625, 0.015625], rtol=0.03)
+    assert max(boxes_moved) < 1e-4
+    assert np.abs(s.state.rigid.position[ball, :2]).max() < 1e-6
+
+
 # ----------------------------------------------------------------------------- Coulomb friction
 def _incline_slide(sim, mu_box, mu_plane, seconds=1.0, angle_deg=30.0):
     """Distance a 0.1 m cube resting flat on a plane tilted by ``angle_deg`` slides along it."""
