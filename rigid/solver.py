@@ -341,6 +341,10 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     return out
 
 
+# a contact stacks one body on another when its normal is within ~70 degrees of up
+STACK_COS = 0.34
+
+
 @nb.njit(cache=True)
 def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
     """Height of each body in the contact graph (Guendelman 2003 shock propagation).
@@ -374,9 +378,9 @@ def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
                 changed = True
         for k in range(len(ia)):
             s = np.dot(normal[k], up)
-            if s > 0.34:
+            if s > STACK_COS:
                 upper, lower = ia[k], ib[k]
-            elif s < -0.34:
+            elif s < -STACK_COS:
                 upper, lower = ib[k], ia[k]
             else:
                 continue

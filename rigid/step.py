@@ -16,7 +16,7 @@ from . import quaternion as quat
 from .contacts import detect
 from .integrate import rotate_by, rotate_free
 from .model import world_inverse_inertia
-from .solver import arms, contact_basis, normal_velocity, pgs, shock_scales, stack_levels
+from .solver import STACK_COS, arms, contact_basis, normal_velocity, pgs, shock_scales, stack_levels
 
 
 @dataclass
@@ -236,10 +236,14 @@ def _collide(out, bodies, contacts, groups, impact, support, tau, approach, ra, 
     gnorm = np.linalg.norm(gravity)
     swept = bool(support.any() and gnorm > 0)
     if swept:
-        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static, groups[0])
+        up = -np.asarray(gravity) / gnorm
+        level = stack_levels(ia, ib, nrm, up, n, bodies.static, groups[0])
         c_level, sa, sb = shock_scales(ia, ib, level)
-        for lv in np.unique(c_level[active]):
-            at_level = (c_level == lv) & active
+        # only contacts that stack (a sideways hit keeps the answer of the sweeps above: frozen,
+        # the box it hits would act as a wall)
+        stacked = active & (np.abs(nrm @ up) > STACK_COS)
+        for lv in np.unique(c_level[stacked]):
+            at_level = (c_level == lv) & stacked
             level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
                             inv_m, invI, v, w, settings.shock_iterations, *groups, False)
             imp[at_level] = level_imp[at_level]
