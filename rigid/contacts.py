@@ -1,7 +1,9 @@
 """Contact detection: every body's contact points against planes and against other bodies' shapes.
 
 Points (mesh vertices with radius 0, or sphere/capsule centres with their radius) are tested
-against the signed distance of the other body (Guendelman, Bridson, Fedkiw 2003). Contacts are
+against the signed distance of the other body (Guendelman, Bridson, Fedkiw 2003); a cylinder's
+side is tested as rings (its nearest points to the other surface), and a sphere or capsule is met
+through its own centre points only. Contacts are
 kept speculatively while the gap is below a margin, so the solver can stop bodies before they meet.
 Broad phase: bounding spheres, sorted along x (sweep and prune).
 """
