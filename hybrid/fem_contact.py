@@ -89,17 +89,19 @@ def _rest_triangles(m, Y, close):
 EDGE_COS = np.cos(np.radians(70.0))
 
 
-def edge_normals(models, states, node_offset, node_body, contacts, margin):
+def edge_normals(models, states, node_offset, node_body, contacts):
     """Normals ``(c, 3)`` and gaps ``(c,)`` for surface nodes' ``contacts`` (stacked node a, rigid
-    body b >= 0 or a plane): a node touching (within a tenth of ``margin``) where the rigid surface
-    turns away from its own face by more than 70 degrees, i.e. at a rigid edge or corner, takes its
-    own face's normal, and its gap is measured along it. There the rigid normal and distance turn
-    by 90 degrees as the node moves by a micrometre: a box whose bottom edges sit on a slab's
-    nodes was pushed sideways by them, or (nodes bulging out a few micrometres past the edge) was
-    let sink by their distance to the edge onto the node under its middle, balanced there and
-    tipped over, and a 5-box stack on the slab toppled."""
+    body b >= 0 or a plane): a node where the rigid surface turns away from its own face by more
+    than 70 degrees, i.e. at or beside a rigid edge or corner, takes its own face's normal, and its
+    gap is measured along it. There the rigid normal and distance turn by 90 degrees as the node
+    moves by a micrometre: a box whose bottom edges sit on a slab's nodes was pushed sideways by
+    them, or (nodes bulging out a few micrometres past the edge) was let sink by their distance to
+    the edge onto the node under its middle, balanced there and tipped over, and a 5-box stack on
+    the slab toppled. Nodes a little ahead of a sliding box, level with its bottom face, were met on
+    its front face like a wall (a box sliding at 2 m/s lost 0.41 m/s in one step and stopped 36%
+    short) while only those within a tenth of the contact margin of the edge were turned."""
     normal, gap = contacts.normal.copy(), contacts.gap.copy()
-    at = np.nonzero((contacts.body_b >= 0) & (np.abs(contacts.gap) < 0.1 * margin))[0]
+    at = np.nonzero(contacts.body_b >= 0)[0]
     if not len(at):
         return normal, gap
     node = contacts.body_a[at]
