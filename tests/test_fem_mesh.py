@@ -26,6 +26,24 @@ def test_generated_meshes_are_closed_positive_and_centred(make, args, exact_volu
     np.testing.assert_allclose(0.5 * (points.min(axis=0) + points.max(axis=0)), 0, atol=1e-12)
 
 
+@pytest.mark.parametrize("cells", [4, 8, 12])
+def test_sphere_mesh_keeps_the_cube_symmetries_and_the_asked_cell_size(cells):
+    """The ball is the mirrored cube mesh mapped shell by shell onto the sphere: every mirror of
+    the axes maps its node set onto itself, and its longest edge shrinks with the asked resolution
+    (a cube cell's diagonal, sqrt(3) cells, stretched a little by the mapping)."""
+    radius = 0.1
+    points, tets = sphere_tet_mesh(radius, cells)
+    key = lambda p: np.unique(np.round(p / radius, 9), axis=0)
+    for axis in range(3):
+        mirrored = points.copy()
+        mirrored[:, axis] *= -1
+        np.testing.assert_array_equal(key(mirrored), key(points))
+    corners = points[tets]
+    edges = np.linalg.norm(corners[:, [0, 0, 0, 1, 1, 2]] - corners[:, [1, 2, 3, 2, 3, 3]], axis=2)
+    assert edges.max() < 2.1 * (2 * radius / cells)
+    np.testing.assert_allclose(np.linalg.norm(points, axis=1).max(), radius, rtol=1e-12)
+
+
 def test_check_tets_reorients_inverted_and_rejects_degenerate():
     points, tets = box_tet_mesh((1.0, 1.0, 1.0), 1)
     bad = tets.copy()
