@@ -220,6 +220,10 @@ class RunWriter:
                 stale.unlink()
         for name in (BODIES_CSV, REGIONS_CSV, SUMMARY_JSON, self.pvd_path.name):
             (self.out_dir / name).unlink(missing_ok=True)
+        # another scene's index in the same directory named the frames just removed
+        for index in self.out_dir.glob("*.pvd"):
+            if f'file="{FRAMES_DIR}/' in index.read_text(errors="replace"):
+                index.unlink()
         self._started = True
 
     def __enter__(self) -> "RunWriter":
@@ -357,18 +361,19 @@ def _pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
 
 
 def find_pvd(run_dir: Path | str, summary: Mapping[str, Any] | None = None) -> Path:
-    """The run's ``.pvd`` index (the scene's own if several are present)."""
+    """The run's ``.pvd`` index (the scene's own if several are present, else the newest)."""
     run_dir = Path(run_dir)
     candidates = sorted(run_dir.glob("*.pvd"))
     if not candidates:
         raise FileNotFoundError(f"no .pvd index in {run_dir} (is it a run directory?)")
-    if len(candidates) > 1 and summary:
-        name = (summary.get("scene") or {}).get("name") if isinstance(summary.get("scene"), Mapping) else None
-        for c in candidates:
-            if name and c.stem == name:
-                return c
-        return max(candidates, key=lambda c: c.stat().st_mtime)
-    return candidates[0]
+    if len(candidates) == 1:
+        return candidates[0]
+    scene = (summary or {}).get("scene")
+    name = scene.get("name") if isinstance(scene, Mapping) else None
+    for c in candidates:
+        if name and c.stem == name:
+            return c
+    return max(candidates, key=lambda c: c.stat().st_mtime)      # the latest run's
 
 
 def read_summary(run_dir: Path | str) -> dict | None:

@@ -162,6 +162,19 @@ def test_new_run_replaces_stale_files_of_an_earlier_run(tmp_path):
     assert len((run_dir / "bodies.csv").read_text().splitlines()) == 2
 
 
+def test_run_of_another_scene_into_the_same_directory_leaves_one_index(tmp_path):
+    """The earlier scene's .pvd named frames that the new run replaced: it goes with them (before,
+    it stayed and read_run could open the old index on the new frames)."""
+    run_dir = tmp_path / "run"
+    write_three_frames(run_dir)
+    (run_dir / "notes.pvd").write_text("<VTKFile/>")          # not a run's index: left alone
+    with RunWriter(run_dir, "other") as writer:
+        writer.write_frame(0.0, [box_piece(0.0)])
+    assert sorted(p.name for p in run_dir.glob("*.pvd")) == ["notes.pvd", "other.pvd"]
+    times, paths, _ = read_run(run_dir)
+    assert times == [0.0] and [p.name for p in paths] == ["frame_00000.vtu"]
+
+
 def test_drift_figures_stay_meaningful_when_a_quantity_starts_at_zero():
     from hybrid.run import _drift
     assert _drift([0.0, 5.0, 3.0], 0.0) == pytest.approx(1.0)          # was 5 / 1e-300
