@@ -15,15 +15,19 @@ def _default_scene_path():
     return Path(str(resources.files("hybrid.scenes").joinpath("default.toml")))
 
 
+def _rejected(path, err):
+    for problem in err.problems:
+        print(problem, file=sys.stderr)
+    print(f"{path}: {len(err.problems)} problem(s); nothing was run", file=sys.stderr)
+    return 2
+
+
 def _run(args):
     path = Path(args.scene) if args.scene else _default_scene_path()
     try:
         scene = load_scene(path)
     except SceneError as err:
-        for problem in err.problems:
-            print(problem, file=sys.stderr)
-        print(f"{path}: {len(err.problems)} problem(s); nothing was run", file=sys.stderr)
-        return 2
+        return _rejected(path, err)
     from .geometry import MeshError
     from .run import run_scene
     from .step import InstabilityError
@@ -36,6 +40,8 @@ def _run(args):
     try:
         summary = run_scene(scene, out, progress=not args.quiet,
                             log=lambda m: print(m, file=sys.stderr))
+    except SceneError as err:           # problems only the built bodies show
+        return _rejected(path, err)
     except (MeshError, ValueError) as err:
         print(f"{path}: {err}", file=sys.stderr)
         return 2

@@ -44,8 +44,11 @@ def build_bodies(bodies, dt):
         for what, regions in (("anchors", body.anchors), ("loads", body.loads)):
             for k, (nodes, _) in enumerate(anchors if what == "anchors" else loads):
                 if len(np.atleast_1d(np.nonzero(nodes)[0] if np.asarray(nodes).dtype == bool else nodes)) == 0:
+                    low, high = (np.round(e, 6).tolist() for e in (points.min(axis=0), points.max(axis=0)))
                     raise ValueError(f"body '{body.name}': [[bodies.{what}]] {k} box "
-                                     f"{list(map(list, regions[k].box))} contains no mesh node")
+                                     f"{list(map(list, regions[k].box))} contains no mesh node (boxes "
+                                     f"are in the body's own coordinates, where its mesh spans {low} "
+                                     f"to {high})")
         # the rest shape is the placed one: rotate by `orientation`, move by `position`
         R = quat.to_matrix(np.asarray(body.orientation, float))
         placed = points @ R.T + np.asarray(body.position, float)

@@ -13,6 +13,7 @@ from rigid import quaternion as quat
 from . import geometry, observe
 from .build import build
 from .output import RunWriter
+from .scene import SceneError
 from .events import between_steps
 from .step import InstabilityError, step
 from .step import log as step_log
@@ -108,8 +109,11 @@ def _forwarded(logger, log):
 
 def _run(scene, out_dir, progress, log):
     sim = scene.simulation
-    with geometry.caught_mesh_warnings() as repaired:
-        model, state = build(scene)
+    try:
+        with geometry.caught_mesh_warnings() as repaired:
+            model, state = build(scene)
+    except (ValueError, geometry.MeshError) as error:    # what only the built bodies show
+        raise SceneError([f"{scene.source_path}: {error}"]) from None
     for message in repaired:
         log(f"warning: {message}")
     for a, b in overlapping_bodies(model, state):

@@ -165,6 +165,8 @@ def test_bad_scene_exits_with_code_2_naming_file_and_field_without_traceback(tmp
     assert f"{case}.toml" in result.stderr and field in result.stderr
     assert "Traceback" not in result.stdout + result.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "outputs").exists()
+    # every rejection ends with the same count line, whether parsing or building found it
+    assert result.stderr.strip().splitlines()[-1].startswith(f"{case}.toml: 1 problem")
 
 
 def test_out_naming_an_existing_file_exits_with_code_2_and_leaves_it(tmp_path):
