@@ -115,8 +115,9 @@ def _coupled_step(model, state):
     mu = np.array([b.friction for b in fem_bodies])[node_body]
     e = np.array([b.restitution for b in fem_bodies])[node_body]
     sweep = np.linalg.norm(node_v, axis=1) * h
-    c_nodes = detect_points(rm, rs.position, R, node_x, sweep, model.settings.margin, mu, e)
-    c_nodes.normal, c_nodes.gap = edge_normals(model.fem, state.fem, node_offset, node_body, c_nodes)
+    c_nodes = detect_points(rm, rs.position, R, node_x, sweep, rigid_sweep, model.settings.margin, mu, e)
+    c_nodes.normal, c_nodes.gap, front = edge_normals(model.fem, state.fem, node_offset, node_body, c_nodes)
+    c_nodes = c_nodes.take(front)
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, fem_bodies, node_offset, node_x, sweep,

@@ -261,7 +261,7 @@ def detect(model, position, rotation, sweep, margin):
 
 
 @nb.njit(cache=True)
-def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_kind, shape_params,
+def _points_narrow_phase(points, sweep, body_sweep, position, rotation, body_radius, shape_kind, shape_params,
                          shape_rotation, shape_offset, grid_index, grid_values, grid_start,
                          grid_shape, grid_origin, grid_cell, plane_point, plane_normal, margin,
                          out_a, out_b, out_p, out_n, out_gap):
@@ -281,7 +281,9 @@ def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_k
                 c += 1
         for b in range(len(body_radius)):
             dx, dy, dz = px - position[b, 0], py - position[b, 1], pz - position[b, 2]
-            reach = body_radius[b] + margin + sweep[k]
+            # how far the point and the body may close in together this step
+            ahead = margin + sweep[k] + body_sweep[b]
+            reach = body_radius[b] + ahead
             if dx * dx + dy * dy + dz * dz > reach * reach:
                 continue
             Rb, Sb = rotation[b], shape_rotation[b]
@@ -290,7 +292,7 @@ def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_k
             phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b], grid_values,
                                         grid_start, grid_shape, grid_origin, grid_cell, sx, sy, sz,
                                         sx, sy, sz)
-            if phi >= margin + sweep[k]:
+            if phi >= ahead:
                 continue
             nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
             if c < cap:
@@ -302,8 +304,11 @@ def _points_narrow_phase(points, sweep, position, rotation, body_radius, shape_k
     return c
 
 
-def detect_points(model, position, rotation, points, sweep, margin, friction, restitution):
-    """Contacts of free points (FEM surface nodes) with planes and rigid bodies.
+def detect_points(model, position, rotation, points, sweep, body_sweep, margin, friction, restitution):
+    """Contacts of free points (FEM surface nodes) with planes and rigid bodies: gap below
+    ``margin`` plus how far the point (``sweep`` (k,) m) and the body (``body_sweep`` (b,) m) may
+    move this step, so a fast body is met before it passes the points (a ball at 30 m/s, met only
+    within the points' own reach, ended its step 1 cm inside a block).
 
     body_a is the point's index; body_b a rigid body index or -1 for a plane. ``friction`` and
     ``restitution`` (k,) are the points' own coefficients, combined with the other side's.
@@ -315,7 +320,7 @@ def detect_points(model, position, rotation, points, sweep, margin, friction, re
         out_p = np.empty((capacity, 3))
         out_n = np.empty((capacity, 3))
         out_gap = np.empty(capacity)
-        count = _points_narrow_phase(points, sweep, position, rotation, model.body_radius,
+        count = _points_narrow_phase(points, sweep, body_sweep, position, rotation, model.body_radius,
                                      model.shape_kind, model.shape_params, model.shape_rotation,
                                      model.shape_offset, model.grid_index, model.grid_values,
                                      model.grid_start, model.grid_shape, model.grid_origin,

@@ -196,6 +196,57 @@ integrator = "{integrator}"
     assert max(spin) < 0.05                                    # rad/s
 
 
+def ball_falls_on(thickness, speed, resolution):
+    """A steel ball (radius 0.05 m) falling at ``speed`` m/s onto a stiff FEM plate (E = 1 GPa,
+    0.3 m square, ``thickness`` m) lying on the ground, 1 cm above it; dt = 1 ms, so the ball
+    moves further in a step than the plate is thick."""
+    return f"""
+[simulation]
+dt = 0.001
+[[planes]]
+[[bodies]]
+name = "plate"
+model = "fem"
+young = 1e9
+shape = {{ type = "box", size = [0.3, 0.3, {thickness}], resolution = {resolution} }}
+position = [0.0, 0.0, {thickness / 2}]
+[[bodies]]
+name = "ball"
+density = 7800
+shape = {{ type = "sphere", radius = 0.05 }}
+position = [0.0, 0.0, {thickness + 0.06}]
+velocity = [0.0, 0.0, {-speed}]
+"""
+
+
+@pytest.mark.parametrize("thickness,speed", [(0.1, 30.0), (0.02, 40.0)])
+def test_fast_ball_is_stopped_at_the_surface_of_a_plate_on_the_ground(sim, thickness, speed):
+    """The ball is met as soon as it can reach the plate within the step (its own sweep counts, not
+    only the nodes'), the plate's bottom nodes, with the ball behind their face, are not its
+    contacts, and its impact on the ground below waits while the plate stops it. Before, the ball
+    at 30 m/s ended its step 1 cm inside a 10 cm block; at 40 m/s it struck the ground through a
+    2 cm plate and bounced off both, and the plate, its bottom nodes pushed up by a 3 cm
+    'penetration', flew off at 15 m/s."""
+    s = sim(ball_falls_on(thickness, speed, 0.05 if thickness > 0.05 else 0.025))
+    ball = s.rigid_index("ball")
+    E0 = totals(s.model, s.state)[0]
+    inside, lowest, plate_speed, energy = [], [], [], []
+
+    def record(sim_):
+        st = sim_.state
+        x, centre = st.fem[0].x, st.rigid.position[ball]
+        inside.append(0.05 - np.linalg.norm(x - centre, axis=1).min())
+        lowest.append(centre[2] - 0.05)
+        plate_speed.append(np.abs(fem_com_velocity(sim_.model, st)[2]))
+        energy.append(totals(sim_.model, st)[0])
+
+    s.advance(0.02, record)
+    assert max(inside) < 2e-3                           # no node more than 2 mm inside the ball
+    assert min(lowest) > thickness - 5e-3               # it stops at the plate's top face
+    assert max(plate_speed) < 1.0                       # m/s: the plate stays on the ground
+    assert max(energy) <= E0 * (1 + 1e-6)
+
+
 def test_two_fem_bodies_collide_exchanging_momentum_without_passing_through(sim):
     s = sim("""
 [simulation]
