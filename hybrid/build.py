@@ -79,7 +79,9 @@ def build(scene):
     index = {b.name: i for i, b in enumerate(scene.bodies)}
     from . import deformable  # FEM bodies are built by their own module
     fem_models, fem_states = deformable.build_bodies(fem_bodies, sim.dt)
-    settings = ContactSettings(iterations=sim.solver.iterations, margin=sim.solver.contact_margin,
+    settings = ContactSettings(iterations=sim.solver.iterations,
+                               deformable_iterations=sim.solver.deformable_iterations,
+                               margin=sim.solver.contact_margin,
                                hold_resting=sim.solver.hold_resting)
     model = HybridModel(rigid=rigid_model, rigid_ids=np.array([index[b.name] for b in rigid_bodies], dtype=int),
                         fem=fem_models, fem_ids=[index[b.name] for b in fem_bodies],

@@ -102,6 +102,9 @@ def _unit_interval(name, default, doc, **kw):
 
 SOLVER = Section("simulation.solver", "[simulation.solver]", "Contact solver settings.", (
     Field("iterations", "integer", 20, "", "Contact solver iterations per step.", low=1),
+    Field("deformable_iterations", "integer", 100, "", "Contact solver iterations per step when "
+          "any contact is on a deformable body: those converge more slowly (a heavy box on a light "
+          "slab sank into it after 20). The sweeps stop early once converged.", low=1),
     _non_negative("contact_margin", 0.005, "m", "Distance at which contacts are detected before touching."),
     Field("hold_resting", "boolean", True, "", "Step a deformable body lying still on static ground "
           "with its resting nodes held, checked every step (see How it works: resting contact is "
@@ -356,6 +359,7 @@ Box = tuple[Vec3, Vec3]
 @dataclass(frozen=True)
 class Solver:
     iterations: int = _default(SOLVER, "iterations")
+    deformable_iterations: int = _default(SOLVER, "deformable_iterations")
     contact_margin: float = _default(SOLVER, "contact_margin")
     hold_resting: bool = _default(SOLVER, "hold_resting")
 

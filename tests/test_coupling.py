@@ -247,6 +247,52 @@ def test_fast_ball_is_stopped_at_the_surface_of_a_plate_on_the_ground(sim, thick
     assert max(energy) <= E0 * (1 + 1e-6)
 
 
+def test_heavy_box_on_a_light_soft_slab_settles_without_sinking_in(sim):
+    """1000:1: a 1,800 kg box on a 1.8 kg slab (E = 100 MPa) on the ground. The contact sweeps
+    over the deformable body's contacts go on until converged (deformable_iterations): after 20
+    the box sank into the slab's top face at 10 um/s (60 um in 1.5 s) and the slab's bottom
+    nodes lay 47 um inside the ground."""
+    s = sim("""
+[simulation]
+dt = 0.001
+[[planes]]
+[[bodies]]
+name = "slab"
+model = "fem"
+young = 1e8
+shape = { type = "box", size = [0.3, 0.3, 0.02], resolution = 0.025 }
+position = [0.0, 0.0, 0.01]
+[[bodies]]
+name = "heavy"
+density = 1.8e6
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0.0, 0.0, 0.07]
+""")
+    box, m = s.rigid_index("heavy"), s.model.fem[0]
+    R = m.rest_points
+    under = (np.abs(R[:, 0]) < 0.05 + 1e-9) & (np.abs(R[:, 1]) < 0.05 + 1e-9)
+    top, bottom = under & (R[:, 2] > 0.02 - 1e-9), under & (R[:, 2] < 1e-9)
+    t, z, into_box, into_ground = [], [], [], []
+
+    def record(sim_):
+        st = sim_.state
+        x, zb = st.fem[0].x, st.rigid.position[box, 2]
+        t.append(st.time), z.append(zb)
+        into_box.append(x[top, 2].max() - (zb - 0.05))
+        into_ground.append(-x[bottom, 2].min())
+
+    s.advance(1.0, record)
+    t, z = np.array(t), np.array(z)
+    late = t > 0.4
+    rate = np.polyfit(t[late], z[late], 1)[0]
+    print(f"sinking {rate:.3g} m/s, into box {max(into_box[200:]):.3g} m, into ground {max(into_ground[200:]):.3g} m")
+    assert abs(rate) < 2e-6                              # m/s
+    assert max(into_box[200:]) < 1e-5                    # m
+    assert max(into_ground[200:]) < 1e-5
+    # the slab carries the box: pressed, but less than its own thickness of 2 cm by far
+    assert 0.0699 > z[-1] > 0.0695
+
+
 def test_two_fem_bodies_collide_exchanging_momentum_without_passing_through(sim):
     s = sim("""
 [simulation]
