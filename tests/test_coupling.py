@@ -663,6 +663,36 @@ friction = 0.0
     assert measured == pytest.approx(expected, rel=0.2)
 
 
+@pytest.mark.parametrize("integrator", ["backward_euler", "newmark"])
+def test_soft_block_sliding_on_the_ground_decelerates_at_mu_g(sim, integrator):
+    """Coulomb friction opposes each node's sliding: the two tangents are solved together and
+    projected into the friction disk. One after the other, nodes of an undamped Newmark block,
+    whose lateral vibration asked more than the disk held, got friction at 45 degrees to their
+    motion or along it, and the block slowed at 0.90 mu g."""
+    s = sim(f"""
+[simulation]
+dt = 0.001
+[[planes]]
+friction = 0.3
+[[bodies]]
+name = "block"
+model = "fem"
+integrator = "{integrator}"
+shape = {{ type = "box", size = [0.1, 0.1, 0.1], resolution = 0.025 }}
+position = [0.0, 0.0, 0.0502]
+velocity = [2.5, 0.0, 0.0]
+young = 1e7
+friction = 0.3
+""")
+    t, vx = [], []
+    s.advance(0.4, lambda sim_: (t.append(sim_.state.time), vx.append(fem_com_velocity(sim_.model, sim_.state)[0])))
+    t, vx = np.array(t), np.array(vx)
+    late = t > 0.05                                  # landed and sliding
+    deceleration = -np.polyfit(t[late], vx[late], 1)[0]
+    print(f"{integrator}: {deceleration:.4f} m/s^2 against mu g = {0.3 * 9.81:.4f}")
+    assert deceleration == pytest.approx(0.3 * 9.81, rel=0.01)
+
+
 def test_box_sliding_on_an_elastic_slab_decelerates_at_mu_g_without_snags(sim):
     """A box sliding at 2 m/s on a soft slab (mu = 0.3) slows at mu g and stops at v0^2 / (2 mu g).
     The slab's nodes just ahead of the box, level with its bottom face, were met on the box's front
