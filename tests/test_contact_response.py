@@ -113,3 +113,30 @@ def test_a_place_between_nodes_moves_with_them_and_pushes_them_by_its_weights():
     expected = 0.5 * inverse[np.ix_(dofs, dofs)] @ np.kron(weights, impulse)
     np.testing.assert_allclose(v[:3].ravel(), expected, rtol=0, atol=1e-9 * np.abs(expected).max())
     assert np.isclose(weights @ v[:3] @ normal[0], 0.5, rtol=1e-9)
+
+
+def test_place_lying_on_an_anchored_node_is_held_and_takes_no_impulse():
+    """Crack faces at a grip: an anchored node meets a place of another fragment that lies on an
+    anchored node of its own (weight 1 there, round-off on its free corners). The place moves with
+    its held corner and answers nothing; with the round-off weights it met a response of 1e-30 and
+    took an impulse of 1e9 N s (the grip's anchor force read 1e13 N)."""
+    from hybrid.step import _Particles
+    from rigid.contacts import Contacts
+    from rigid.step import ContactSettings, SolverBodies, resolve_contacts
+    W = np.zeros((4, 4, 3, 3))
+    W[1, 1] = W[2, 2] = 10.0 * np.eye(3)               # nodes 0 and 3 anchored: no response
+    rows = [cr.sparse_rows(W)]
+    parts = _Particles(nodes=np.arange(4), corners=np.array([[0, 1, 2]]),
+                       weights=np.array([[1.0, 3e-17, 0.0]]), node_body=np.zeros(4, np.int64))
+    none = SolverBodies(*(np.zeros((0, 3, 3)) if name == "inv_inertia" else np.zeros(0, bool)
+                          if name == "static" else np.zeros(0) if name == "inv_mass" else np.zeros((0, 3))
+                          for name in ("inv_mass", "inv_inertia", "position", "velocity", "velocity_at_t",
+                                       "angular", "accel", "static")))
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0]])
+    v = np.array([[0.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, -1e-3]])      # node 3 closing on node 0
+    bodies = parts.solver_bodies(none, rows, [np.eye(3)], x, v)
+    assert bodies.static[3] and bodies.static[4]
+    contacts = Contacts(np.array([3]), np.array([4]), np.zeros((1, 3)), np.array([[0.0, 0, 1]]),
+                        np.array([0.0]), np.array([0.5]), np.array([0.0]))
+    res = resolve_contacts(bodies, contacts, 1e-3, np.zeros(3), ContactSettings())
+    assert np.abs(res.contact_impulse).max() < 1e-12
