@@ -42,7 +42,8 @@ def body_rows(model, state):
     """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy`` in scene order.
 
     Rigid: centre of mass, orientation of the body's own frame, velocity at the frame's time.
-    FEM: centre of mass, best-fit orientation (shape matching), momentum / mass, and the angular
+    FEM: centre of mass, its scene orientation turned by its best-fit rotation (shape matching),
+    momentum / mass, and the angular
     velocity I^-1 L of the node cloud about its centre of mass.
     """
     rows = {}
@@ -66,7 +67,9 @@ def body_rows(model, state):
         I = (m.node_mass[:, None, None] * (np.einsum("ni,ni->n", r, r)[:, None, None] * np.eye(3)
                                            - np.einsum("ni,nj->nij", r, r))).sum(axis=0)
         w = np.linalg.solve(I, L)
-        q = quat.from_matrix(s.R)
+        # the body was placed at its scene orientation, and the best-fit rotation turns it from there
+        placed = model.scene.bodies[model.fem_ids[j]].orientation
+        q = quat.from_matrix(s.R @ quat.to_matrix(np.asarray(placed, float)))
         ke = 0.5 * float(m.node_mass @ np.einsum("ni,ni->n", s.v, s.v))
         rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w, ke)
     return [tuple(float(x) if not isinstance(x, str) else x for x in rows[k]) for k in sorted(rows)]
