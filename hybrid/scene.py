@@ -236,8 +236,9 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
           "A mesh must be readable and closed; an FEM body's mesh must contain tetra or tetra10 "
           "cells: `order = 2` on a tetra mesh adds a node at the middle of every (straight) edge, "
-          "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are rejected, listed by index; inverted tets "
-          "(negative volume) are reoriented, with a warning listing them by index.",
+          "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "
+          "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
+          "listing them by index.",
           "`model = \"auto\"` is not implemented yet: a scene using it is rejected.",
           "Every anchor and load box must hold at least one node of the body's mesh (checked when "
           "the body is built, by `run` and `validate`).",

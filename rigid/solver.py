@@ -303,8 +303,9 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                 u[e] += K[j, e, 0] * delta[0]
             if mu[k] > 0.0:
                 # friction: both tangents at once, each stopped through the larger of the two
-                # tangential responses (never past the answer on either), and the pair projected radially into the Coulomb disk
-                # mu * lambda_n, so a sliding contact's friction opposes its sliding velocity.
+                # tangential responses (never past the answer on either), and the pair projected
+                # radially into the Coulomb disk mu * lambda_n, so a sliding contact's friction
+                # opposes its sliding velocity.
                 # Clamped one tangent after the other, a sliding node whose lateral vibration
                 # asked more than the disk held got friction at 45 degrees to its motion, or along
                 # it (a Newmark block slid at 0.90 mu g); through the full 2x2 response, a sliding

@@ -162,13 +162,12 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     # contacts on deformable bodies (particles) bounce through the body's own elasticity
     on_particle = particle[ia] | (particle[ib0] & (ib >= 0))
     hits = (tau <= h) & (approach > threshold)
-    impact = hits & ~on_particle
-    if (hits & on_particle).any():
+    impact, soft = hits & ~on_particle, hits & on_particle
+    if soft.any():
         # a rigid body that strikes a deformable body first this step is stopped by it in the
         # contact pass; its later impacts wait there too (a ball at 40 m/s above a plate lying on
         # the ground struck the ground through the plate, and bounced off both)
         first = np.full(n, np.inf)
-        soft = hits & on_particle
         np.minimum.at(first, ia[soft], tau[soft])
         np.minimum.at(first, ib0[soft & (ib >= 0)], tau[soft & (ib >= 0)])
         impact &= (tau < first[ia]) & ((ib < 0) | (tau < first[ib0]))
