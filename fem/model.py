@@ -63,6 +63,9 @@ class FemModel:
     reference_updates: number of reference-shape updates that led to this model.
     held_nodes: ``(k,)`` sorted nodes held by resting contact, or None: set only on the variants
         :func:`holding` makes, whose fixed DOFs are the anchors' and these nodes'.
+    anchor_labels, load_labels: the scene index (``anchorK``, ``loadK``) of each anchor and load
+        region, or None for 0, 1, ...: a fracture fragment keeps the indices of the regions it
+        took (see :attr:`region_names`).
     """
     rest_points: np.ndarray
     tets: np.ndarray
@@ -100,6 +103,8 @@ class FemModel:
     reference_peeq: np.ndarray | None = None
     reference_updates: int = 0
     held_nodes: np.ndarray | None = None
+    anchor_labels: tuple | None = None
+    load_labels: tuple | None = None
 
     @property
     def node_count(self):
@@ -136,8 +141,11 @@ class FemModel:
 
     @property
     def region_names(self):
-        return [f"anchor{i}" for i in range(len(self.anchor_nodes))] + \
-               [f"load{i}" for i in range(len(self.load_nodes))]
+        """``anchorK`` for each anchor region, then ``loadK`` for each load region, K its index in
+        the scene body's file order: a fracture fragment keeps the labels of the regions it took."""
+        anchors = range(len(self.anchor_nodes)) if self.anchor_labels is None else self.anchor_labels
+        loads = range(len(self.load_nodes)) if self.load_labels is None else self.load_labels
+        return [f"anchor{i}" for i in anchors] + [f"load{i}" for i in loads]
 
 
 @dataclass(frozen=True)

@@ -71,9 +71,7 @@ def region_table(model, state):
     ``x - X`` of the region's nodes (m), world frame.
     """
     u = state.x - model.rest_points
-    rows = []
-    for i, nodes in enumerate(model.anchor_nodes):
-        rows.append((f"anchor{i}", *state.node_reaction[nodes].sum(axis=0), *u[nodes].mean(axis=0)))
-    for i, nodes in enumerate(model.load_nodes):
-        rows.append((f"load{i}", *model.load_force[i], *u[nodes].mean(axis=0)))
-    return [(name, *map(float, values)) for name, *values in rows]
+    rows = [(*state.node_reaction[nodes].sum(axis=0), *u[nodes].mean(axis=0))
+            for nodes in model.anchor_nodes]
+    rows += [(*model.load_force[i], *u[nodes].mean(axis=0)) for i, nodes in enumerate(model.load_nodes)]
+    return [(name, *map(float, values)) for name, values in zip(model.region_names, rows)]

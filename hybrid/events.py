@@ -266,16 +266,18 @@ def _region_nodes(region_nodes, node_origin, node_index):
 
 
 def _build_fragment(parent, frag, node_origin, x, v, reaction, load_share, dt):
-    anchors = []
+    anchors, anchor_labels = [], []
     for a, nodes in enumerate(parent.anchor_nodes):
         local = _region_nodes(nodes, node_origin, frag.node_index)
         if local.size:
             anchors.append((local, parent.anchor_velocity[a]))
-    loads = []
+            anchor_labels.append(a)
+    loads, load_labels = [], []
     for i, nodes in enumerate(parent.load_nodes):
         local = _region_nodes(nodes, node_origin, frag.node_index)
         if local.size and load_share[i] > 0:
             loads.append((local, load_share[i] * parent.load_force[i]))
+            load_labels.append(i)
     model = build_fem_model(frag.points, frag.tets, order=parent.order, density=parent.density,
                             young=parent.young, poisson=parent.poisson,
                             damping_mass=parent.damping_mass,
@@ -283,6 +285,11 @@ def _build_fragment(parent, frag, node_origin, x, v, reaction, load_share, dt):
                             mass=parent.mass_kind, integrator=parent.integrator, anchors=anchors,
                             loads=loads, dt=dt, **_plastic_parameters(parent))
     model = _carry_model_fields(parent, model, frag.tet_index)
+    # the regions keep their scene names (regions.csv rows continue under the fragment's name)
+    labels = [parent.anchor_labels or range(len(parent.anchor_nodes)),
+              parent.load_labels or range(len(parent.load_nodes))]
+    model = replace(model, anchor_labels=tuple(labels[0][a] for a in anchor_labels),
+                    load_labels=tuple(labels[1][i] for i in load_labels))
     state = rest_state(model, x[frag.node_index], v[frag.node_index])
     state = state.replace(node_reaction=reaction[frag.node_index])
     return model, state
@@ -303,7 +310,7 @@ def _carry_model_fields(parent, model, tet_index=None):
         "rest_points", "tets", "mu", "lam", "node_mass", "K", "M", "elements", "rest_center",
         "rest_offsets", "anchor_nodes", "anchor_velocity", "node_anchor", "free_dofs",
         "fixed_dofs", "load_nodes", "load_force", "node_load", "surface", "surface_nodes",
-        "factor_cache", "mass_kind"}
+        "factor_cache", "mass_kind", "anchor_labels", "load_labels"}
     extra = {f.name: getattr(parent, f.name) for f in fields(parent)
              if f.name not in built and not isinstance(getattr(parent, f.name), np.ndarray)}
     # per-tet model arrays (e.g. reference_peeq (t, q)) follow their tets

@@ -7,7 +7,7 @@ import pytest
 
 from hybrid.build import build
 from hybrid.events import apply_fracture, between_steps, fragment_of
-from hybrid.observe import totals
+from hybrid.observe import region_rows, totals
 from hybrid.scene import parse_scene
 from hybrid.step import step
 
@@ -151,6 +151,13 @@ def test_bar_in_tension_breaks_at_strength_across_its_axis():
     # fragments are named after the original body and remember it
     assert model.names[0] == "bar" and all(n.startswith("bar.") for n in model.names[1:])
     assert fragment_of(model) == [0] * len(model.names)
+    # regions.csv rows keep the scene's region names on the pieces: the pulled grip is still
+    # anchor1 (mean displacement the pull's 0.05 m/s times t), the held one anchor0
+    rows = {(body, region): (fx, ux) for _, body, region, fx, _, _, ux, _, _ in region_rows(model, state)}
+    assert sorted(region for _, region in rows) == ["anchor0", "anchor1"]
+    assert {body for body, _ in rows} <= {model.names[j] for j in big}
+    (ux0,), (ux1,) = ([ux for (_, r), (_, ux) in rows.items() if r == name] for name in ("anchor0", "anchor1"))
+    assert abs(ux0) < 1e-12 and ux1 == pytest.approx(0.05 * state.time, rel=1e-9)
 
 
 def test_three_point_bending_cracks_from_bottom_of_mid_span_upward():
