@@ -287,6 +287,48 @@ def _inertia_and_moment(m, y, u):
     return inertia, moment
 
 
+def mass_weights(model):
+    """``(n,)`` kg: the mass each node's velocity carries into the body's momentum, ``M 1`` per node
+    (the lumped masses; the consistent matrix's row sums, negative at P2 corners). The body's
+    centre of mass is ``mass_weights @ x / total``."""
+    if model.mass_kind == "lumped":
+        return model.node_mass
+    last = getattr(model, "_mass_weights", None)
+    if last is None:
+        last = (model.M @ np.ones(3 * model.node_count))[::3]
+        object.__setattr__(model, "_mass_weights", last)
+    return last
+
+
+def mass_times(model, field):
+    """``M field`` ``(n, 3)`` for a node field ``(n, 3)`` (a velocity gives momenta, kg m/s)."""
+    if model.mass_kind == "lumped":
+        return model.node_mass[:, None] * field
+    return (model.M @ np.ascontiguousarray(field).ravel()).reshape(-1, 3)
+
+
+def mass_moments(model, y, u):
+    """Inertia tensor ``(3, 3)`` (kg m^2) of the body's mass at positions ``y`` ``(n, 3)`` about
+    their origin, and the angular momentum ``sum_i y_i x (M u)_i`` ``(3,)`` of velocities ``u``
+    ``(n, 3)``, both with the body's own mass matrix (lumped or consistent: with the lumped
+    masses, a consistent-mass body spinning off its axes lost 1.3% of its angular momentum in 2 s)."""
+    if model.mass_kind == "lumped":
+        return _inertia_and_moment(model.node_mass, y, u)
+    S = y.T @ mass_times(model, y)
+    return np.trace(S) * np.eye(3) - S, np.cross(y, mass_times(model, u)).sum(axis=0)
+
+
+def rigid_part(model, x, v):
+    """The rigid motion ``(n, 3)`` m/s in velocities ``v`` of a free body at ``x``: the velocity
+    field of its centre-of-mass velocity and angular velocity (``I^-1 L``), with the body's mass
+    matrix; ``v`` less it carries no momentum."""
+    weights = mass_weights(model)
+    total = weights.sum()
+    y = x - weights @ x / total
+    inertia, L = mass_moments(model, y, v)
+    return weights @ v / total + y @ _skew(np.linalg.solve(inertia, L)).T
+
+
 def _skew(a):
     """``(3, 3)`` matrix of ``a x``: rows ``y`` ``(n, 3)`` give ``a x y_i`` as ``y @ _skew(a).T``."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
@@ -315,12 +357,13 @@ def _predict_spin_frame(model, state, dt, gravity):
     """
     h, theta = dt, implicitness(model)
     a_M = system_coefficients(model, dt)[0]
-    m = model.node_mass
+    m = mass_weights(model)
     total = m.sum()
     force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
-    y = state.x - state.c                                   # about the centre of mass
+    c = m @ state.x / total                                 # the centre of mass (lumped: state.c)
+    y = state.x - c
     V = m @ state.v / total
-    inertia, L = _inertia_and_moment(m, y, state.v)         # about the centre of mass
+    inertia, L = mass_moments(model, y, state.v)            # about the centre of mass
     w = np.linalg.solve(inertia, L)
     u = state.v - V - y @ _skew(w).T                        # velocities relative to the spinning frame
     coriolis = _rotation(-h * w)                            # Coriolis over half the step
@@ -332,7 +375,7 @@ def _predict_spin_frame(model, state, dt, gravity):
     load = external - np.outer(m / total, net)              # the net force moves the centre
     y_mid = y + 0.5 * h * u                                 # centrifugal force at mid-step
     W = _skew(w)
-    force = force + (1.0 - theta) * load + theta * load @ turn - m[:, None] * (y_mid @ (W @ W).T)
+    force = force + (1.0 - theta) * load + theta * load @ turn - mass_times(model, y_mid @ (W @ W).T)
     rhs = _right_hand_side(model, dt, u, force, K, R)
     u_new = solve(rhs).reshape(-1, 3) @ R.T
     y_new = y + h * ((1.0 - theta) * u + theta * u_new)
@@ -340,7 +383,7 @@ def _predict_spin_frame(model, state, dt, gravity):
         # the rigid turn relative to the frame (the spin's change, e.g. a wobble) by the trapezoidal
         # rule: it meets no stiffness to damp, and with backward Euler's first-order turn a tumbling
         # steel box drifted 4.3 degrees from Euler's equations in 1 s (0.033 with this)
-        turn_rate = np.linalg.solve(inertia, _inertia_and_moment(m, y, u - u_new)[1])
+        turn_rate = np.linalg.solve(inertia, mass_moments(model, y, u - u_new)[1])
         y_new += (theta - 0.5) * h * y @ _skew(turn_rate).T
     u_new = u_new @ coriolis.T                              # and over the other half
     slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
@@ -350,13 +393,13 @@ def _predict_spin_frame(model, state, dt, gravity):
     # force of a frame carries a small torque (second order in the strain); the balance takes it
     # out as a rigid turn over the step (trapezoidal rule), so the positions keep second order too
     L_new = (slow * L + h * torque) @ turn
-    inertia, moment = _inertia_and_moment(m, y_new, u_new)
+    inertia, moment = mass_moments(model, y_new, u_new)
     spin_change = np.linalg.solve(inertia, L_new - moment) - w
     u_new = u_new + y_new @ _skew(spin_change).T
     y_new = y_new + 0.5 * h * y_new @ _skew(spin_change).T
-    inertia, moment = _inertia_and_moment(m, y_new, u_new)
+    inertia, moment = mass_moments(model, y_new, u_new)
     w_new = np.linalg.solve(inertia, L_new - moment)
-    x_new = state.c + h * ((1.0 - theta) * V + theta * V_new) + y_new @ turn.T
+    x_new = c + h * ((1.0 - theta) * V + theta * V_new) + y_new @ turn.T
     v_new = V_new + (u_new + y_new @ _skew(w_new).T) @ turn.T
     return StepData(v=v_new, x_base=x_new - theta * h * v_new, x_rate=theta * h, rhs=rhs,
                     impulse=np.zeros_like(state.v), R=R, matrix=_LazyMatrix(model, dt) if A is None else A,
@@ -496,10 +539,7 @@ def _cap_energy(model, state, step, end, dt):
         rigid = np.zeros_like(v)
         rigid[model.fixed_nodes] = v[model.fixed_nodes]
     else:
-        m = model.node_mass
-        y = end.x - m @ end.x / m.sum()
-        inertia, L = _inertia_and_moment(m, y, v)
-        rigid = m @ v / m.sum() + y @ _skew(np.linalg.solve(inertia, L)).T
+        rigid = rigid_part(model, end.x, v)
     u = (v - rigid).ravel()
     Mu = model.M @ u
     # kinetic energy with the deformation's velocities scaled by s is a + b s + c s^2: take out
@@ -552,8 +592,9 @@ def angular_momentum(model, state):
 
 
 def center_of_mass(model, state):
-    """Mass-weighted centre of the nodes ``(3,)`` (m), lumped masses."""
-    return model.node_mass @ state.x / model.node_mass.sum()
+    """Centre of mass ``(3,)`` (m) of the body's mass matrix (:func:`mass_weights`)."""
+    weights = mass_weights(model)
+    return weights @ state.x / weights.sum()
 
 
 def best_fit_rotation(model, state):

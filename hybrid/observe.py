@@ -59,18 +59,16 @@ def body_rows(model, state):
             rows[int(model.rigid_ids[i])] = (t, model.names[model.rigid_ids[i]], *rs.position[i], *q[i],
                                              *v[i], *w[i], float(ke[i]))
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
-        mass = m.node_mass.sum()
-        com = m.node_mass @ s.x / mass
-        p = m.node_mass @ s.v
-        r = s.x - com
-        L = np.cross(r, m.node_mass[:, None] * s.v).sum(axis=0)
-        I = (m.node_mass[:, None, None] * (np.einsum("ni,ni->n", r, r)[:, None, None] * np.eye(3)
-                                           - np.einsum("ni,nj->nij", r, r))).sum(axis=0)
+        weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix
+        mass = weights.sum()
+        com = weights @ s.x / mass
+        p = weights @ s.v
+        I, L = fem_dyn.mass_moments(m, s.x - com, s.v)
         w = np.linalg.solve(I, L)
         # the body was placed at its scene orientation, and the best-fit rotation turns it from there
         placed = model.scene.bodies[model.fem_ids[j]].orientation
         q = quat.from_matrix(s.R @ quat.to_matrix(np.asarray(placed, float)))
-        ke = 0.5 * float(m.node_mass @ np.einsum("ni,ni->n", s.v, s.v))
+        ke = fem_dyn.kinetic_energy(m, s)
         rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w, ke)
     return [tuple(float(x) if not isinstance(x, str) else x for x in rows[k]) for k in sorted(rows)]
 
