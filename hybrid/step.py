@@ -44,6 +44,13 @@ def _reporter(name):
     return lambda message: log.info("%s: %s", name, message)
 
 
+# coupling rounds of a step with corotated bodies in contact: at most MAX_ROUNDS, done when no
+# touched node's velocity differs from the solver's by more than COUPLING_TOL of the step's
+# velocity scale (gravity's gain over the step plus the fastest touched node). Two rounds let a
+# box resting on the tip of a corotated cantilever bent by 10 degrees sink into it at 0.3 mm/s
+MAX_ROUNDS = 10
+COUPLING_TOL = 1e-4
+
 # above these the run is declared unstable (no scene of everyday objects gets near them)
 MAX_SPEED = 1.0e4       # m/s
 MAX_DISTANCE = 1.0e6    # m
@@ -162,8 +169,10 @@ def _coupled_step(model, state):
     # 5. one contact resolution for everything; each deformable body then takes the impulses on
     #    its nodes (a place's shared among its triangle's nodes by its weights) through its own
     #    implicit system (apply_contact_impulses). The blocks are exact for floating and anchored
-    #    bodies; for corotated ones a second round corrects the difference.
-    rounds = 2 if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
+    #    bodies; corotated ones answer through their rest system, so their contacts are solved
+    #    again from the velocities the nodes really took until those are the ones the solver
+    #    expected (to COUPLING_TOL), in at most MAX_ROUNDS rounds
+    rounds = MAX_ROUNDS if any(model.fem[j].frame == "corotated" for j in bodies_touched) else 1
     warm = state.contact_memory.recall(keys) if state.contact_memory is not None else None
     res, applied = None, np.zeros((contacts.count, 3))
     for _ in range(rounds):
@@ -171,6 +180,10 @@ def _coupled_step(model, state):
             for j in bodies_touched:
                 at = parts.nodes_of(j)
                 node_v[at] = _moving(predicted[j], state.fem[j], node_local[at], h)
+            expected = res.velocity[nb:nb + len(touched)]
+            miss = np.abs(node_v[touched] - expected).max(initial=0.0)
+            if miss <= COUPLING_TOL * (h * np.linalg.norm(g) + np.abs(expected).max(initial=0.0)):
+                break
             bodies.velocity = np.concatenate([res.velocity[:nb], parts.mean(node_v)])
             bodies.velocity_at_t = bodies.velocity
             bodies.angular = res.angular
