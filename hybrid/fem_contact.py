@@ -66,11 +66,13 @@ def _nearest_nodes(m, Y):
 def _rest_triangles(m, Y, close):
     """The rest surface triangle of body m holding each rest surface point Y (p, 3) (the closest one
     among the triangles around ``close``, its nearest surface nodes, :func:`_nearest_nodes`):
-    ``(corners (p, 3), weights (p, 3))``, corners indices into ``surface_nodes`` with Y's
-    barycentric weights."""
+    ``(corners (p, 3), weights (p, 3), ties)``, corners indices into ``surface_nodes`` with Y's
+    barycentric weights. A point on an edge or a vertex lies in every triangle around it:
+    ``ties = (row, corners)`` lists the other triangles (q,) and (q, 3) that hold point ``row`` as
+    closely (to 1e-6 of its triangle's size)."""
     _, tri, around = _surface_index(m)
     if len(Y) == 0:
-        return np.zeros((0, 3), np.int64), np.zeros((0, 3))
+        return np.zeros((0, 3), np.int64), np.zeros((0, 3)), (np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
     candidates = around[close].reshape(len(Y), -1)
     row, slot = np.nonzero(candidates >= 0)
     face = candidates[row, slot]
@@ -78,10 +80,23 @@ def _rest_triangles(m, Y, close):
     a, b, c = P[tri[face, 0]], P[tri[face, 1]], P[tri[face, 2]]
     v, w = closest_point_weights(Y[row], a, b, c)
     off = Y[row] - a - v[:, None] * (b - a) - w[:, None] * (c - a)
-    order = np.lexsort((np.einsum("ij,ij->i", off, off), row))
+    distance = np.einsum("ij,ij->i", off, off)
+    order = np.lexsort((distance, row))
     best = order[np.searchsorted(row[order], np.arange(len(Y)))]        # each point's closest
     weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
-    return tri[face[best]], weights
+    size = np.einsum("ij,ij->i", b - a, b - a)[best]
+    tied = (distance <= (distance[best] + 1e-12 * size)[row]) & (face != face[best][row])
+    tied[np.nonzero(tied)[0][_repeats(row[tied], face[tied])]] = False   # a face around two nodes
+    return tri[face[best]], weights, (row[tied], tri[face[tied]])
+
+
+def _repeats(row, face):
+    """Which (row, face) pairs repeat an earlier one ``(q,)`` bool."""
+    pairs = np.column_stack([row, face])
+    first = np.unique(pairs, axis=0, return_index=True)[1]
+    out = np.ones(len(row), dtype=bool)
+    out[first] = False
+    return out
 
 
 # a node touching a rigid body whose surface there turns more than this from the node's own face
@@ -190,11 +205,18 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     # rest face was level: on the rest normal a frictionless ball stayed put on an 11 degree slope
     # of a sagging bridge), and the gap is measured along it to the place as it is now (a dent
     # in b moves its surface away)
-    corners, weights = _rest_triangles(mb, Y, close)
+    corners, weights, (tie_row, tie_corners) = _rest_triangles(mb, Y, close)
     nearest = close[:, 0]
     rest = mb.rest_points[mb.surface_nodes[corners]]                     # (p, 3, 3) b's frame
     now = rest + moved[corners]
     n = _turn(n_rest[near], _unit_normals(rest), _unit_normals(now))
+    if len(tie_row):
+        # on an edge or a vertex: turned with each triangle around it, averaged (with the first
+        # triangle found alone, two soft cubes meeting head-on node on node left spinning)
+        tie_rest = mb.rest_points[mb.surface_nodes[tie_corners]]
+        tie_now = tie_rest + moved[tie_corners]
+        np.add.at(n, tie_row, _turn(n_rest[near][tie_row], _unit_normals(tie_rest), _unit_normals(tie_now)))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
     place = np.einsum("pi,pij->pj", weights, now)
     gap = np.einsum("ij,ij->i", X[near] + local[near] - place, n) - radius[near]
     hit = gap < reach[near]
