@@ -72,7 +72,8 @@ def _rest_triangles(m, Y, close):
     closely (to 1e-6 of its triangle's size)."""
     _, tri, around = _surface_index(m)
     if len(Y) == 0:
-        return np.zeros((0, 3), np.int64), np.zeros((0, 3)), (np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
+        none = np.zeros((0, 3), np.int64)
+        return none, np.zeros((0, 3)), (np.zeros(0, np.int64), none)
     candidates = around[close].reshape(len(Y), -1)
     row, slot = np.nonzero(candidates >= 0)
     face = candidates[row, slot]
@@ -84,9 +85,11 @@ def _rest_triangles(m, Y, close):
     order = np.lexsort((distance, row))
     best = order[np.searchsorted(row[order], np.arange(len(Y)))]        # each point's closest
     weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
-    size = np.einsum("ij,ij->i", b - a, b - a)[best]
+    edge = b[best] - a[best]
+    size = np.einsum("ij,ij->i", edge, edge)                           # squared, as distance
     tied = (distance <= (distance[best] + 1e-12 * size)[row]) & (face != face[best][row])
-    tied[np.nonzero(tied)[0][_repeats(row[tied], face[tied])]] = False   # a face around two nodes
+    if tied.any():
+        tied[np.nonzero(tied)[0][_repeats(row[tied], face[tied])]] = False   # a face around two nodes
     return tri[face[best]], weights, (row[tied], tri[face[tied]])
 
 
