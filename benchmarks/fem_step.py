@@ -202,7 +202,8 @@ def measure(cells, frame, support, steps, warmup):
     state, in_step = in_step_solve_ms(model, state, steps)
     sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
     return model, state, dict(step_ms=step_ms, step_q1=q1, step_q3=q3, elastic_ms=elastic,
-                              floor_ms=floor, cold_floor_ms=cold, solve_in_step_ms=in_step, held_nodes=held, **sanity)
+                              floor_ms=floor, cold_floor_ms=cold, solve_in_step_ms=in_step,
+                              held_nodes=held, **sanity)
 
 
 def in_step_solve_ms(model, state, steps):

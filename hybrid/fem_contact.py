@@ -212,13 +212,15 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     nearest = close[:, 0]
     rest = mb.rest_points[mb.surface_nodes[corners]]                     # (p, 3, 3) b's frame
     now = rest + moved[corners]
-    n = _turn(n_rest[near], _unit_normals(rest), _unit_normals(now))
+    n_near = n_rest[near]
+    n = _turn(n_near, _unit_normals(rest), _unit_normals(now))
     if len(tie_row):
         # on an edge or a vertex: turned with each triangle around it, averaged (with the first
-        # triangle found alone, two soft cubes meeting head-on node on node left spinning)
+        # triangle found alone, mirror-image corners turned differently, and a soft cube hit face
+        # on by a rigid one left spinning about the impact axis)
         tie_rest = mb.rest_points[mb.surface_nodes[tie_corners]]
         tie_now = tie_rest + moved[tie_corners]
-        np.add.at(n, tie_row, _turn(n_rest[near][tie_row], _unit_normals(tie_rest), _unit_normals(tie_now)))
+        np.add.at(n, tie_row, _turn(n_near[tie_row], _unit_normals(tie_rest), _unit_normals(tie_now)))
         n /= np.linalg.norm(n, axis=1, keepdims=True)
     place = np.einsum("pi,pij->pj", weights, now)
     gap = np.einsum("ij,ij->i", X[near] + local[near] - place, n) - radius[near]
