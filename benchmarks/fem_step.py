@@ -1,6 +1,6 @@
 """FEM step cost: an elastic slab with a rigid box resting on it.
 
-Scene (built with hybrid.scene.parse_scene + hybrid.build.build, stepped with hybrid.step.step):
+Scene (built with hybrid.app.scene.parse_scene + hybrid.app.build.build, stepped with hybrid.coupling.step.step):
 a 1 m x 1 m x 0.2 m FEM slab (E = 1 MPa, nu = 0.3, 1000 kg/m^3, mass damping 1/s, P1 tets,
 lumped mass, backward Euler) and a rigid 0.3 m cube (2000 kg/m^3) resting on its top face;
 gravity -9.81 m/s^2, dt = 1 ms. Two ways to hold the slab up (``--supports``):
@@ -12,7 +12,7 @@ support and frame (floating, corotated), measured in the same run, side by side:
 
   step     the coupled step (contacts with the ground and the box, coupling rounds), after
            ``--warmup`` steps so the box has settled into contact and the slab's resting nodes
-           on the ground are held (hybrid.resting; floating frame only, ``held_nodes`` in the CSV
+           on the ground are held (hybrid.coupling.resting; floating frame only, ``held_nodes`` in the CSV
            counts them); median of ``--steps`` steps
   elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
            loaded state; median of ``--steps`` repetitions
@@ -65,9 +65,9 @@ from skfem.models.elasticity import lame_parameters, linear_elasticity
 
 from fem import dynamics as fem_dyn
 from fem import solver as fem_solver
-from hybrid.build import build
-from hybrid.scene import parse_scene
-from hybrid.step import step
+from hybrid.app.build import build
+from hybrid.app.scene import parse_scene
+from hybrid.coupling.step import step
 
 from _common import write_csv
 

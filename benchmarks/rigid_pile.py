@@ -27,9 +27,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from hybrid.build import build
-from hybrid.scene import parse_scene
-from hybrid.step import step
+from hybrid.app.build import build
+from hybrid.app.scene import parse_scene
+from hybrid.coupling.step import step
 
 from _common import write_csv
 

@@ -13,10 +13,10 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from hybrid.build import build  # noqa: E402
-from hybrid.events import apply_fracture  # noqa: E402
-from hybrid.scene import parse_scene  # noqa: E402
-from hybrid.step import step  # noqa: E402
+from hybrid.app.build import build  # noqa: E402
+from hybrid.coupling.events import apply_fracture  # noqa: E402
+from hybrid.app.scene import parse_scene  # noqa: E402
+from hybrid.coupling.step import step  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "tests" / "test_fracture_structures.py"
 

@@ -223,7 +223,7 @@ def with_rest_points(model, points, dt=None, **changes):
 def holding(model, nodes):
     """A variant of ``model`` whose ``nodes`` are also prescribed, as if anchored: a body resting
     on static ground is stepped with its resting nodes held at the velocities the contact asks of
-    them (hybrid.resting). It shares K, M and the rest data, keeps the body's frame (floating
+    them (hybrid.coupling.resting). It shares K, M and the rest data, keeps the body's frame (floating
     bodies still fit their best rotation) and has its own factorisation and contact response
     (solved on its first use). Kept on ``model`` for the last ``nodes`` asked for."""
     nodes = np.unique(np.asarray(nodes, dtype=np.int64))

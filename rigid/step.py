@@ -31,7 +31,7 @@ class ContactSettings:
     bounce, no jitter). shock_iterations: sweeps per level of shock propagation. max_substeps: cap
     on adaptive substeps, taken when a body would move more than half the thinnest body's
     thickness in one step. hold_resting: deformable bodies resting on static ground are stepped
-    with their resting nodes held (hybrid.resting).
+    with their resting nodes held (hybrid.coupling.resting).
     """
     iterations: int = 20
     deformable_iterations: int = 100

@@ -10,9 +10,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from hybrid.build import build
-from hybrid.scene import parse_scene
-from hybrid.step import step
+from hybrid.app.build import build
+from hybrid.app.scene import parse_scene
+from hybrid.coupling.step import step
 
 
 class Sim:

@@ -120,7 +120,7 @@ def test_place_lying_on_an_anchored_node_is_held_and_takes_no_impulse():
     anchored node of its own (weight 1 there, round-off on its free corners). The place moves with
     its held corner and answers nothing; with the round-off weights it met a response of 1e-30 and
     took an impulse of 1e9 N s (the grip's anchor force read 1e13 N)."""
-    from hybrid.step import _Particles
+    from hybrid.coupling.step import _Particles
     from rigid.contacts import Contacts
     from rigid.step import ContactSettings, SolverBodies, resolve_contacts
     W = np.zeros((4, 4, 3, 3))

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hybrid.observe import totals
+from hybrid.app.observe import totals
 from rigid import quaternion as quat
 
 
@@ -535,8 +535,8 @@ def test_warm_start_and_dropped_blocks_leave_the_contact_answer_unchanged(sim, m
     from dataclasses import replace
 
     import fem.contact_response as response
-    from hybrid import resting
-    from hybrid.step import step
+    from hybrid.coupling import resting
+    from hybrid.coupling.step import step
 
     monkeypatch.setattr(resting, "ENTER_AFTER", 10 ** 9)     # the patch stays with the solver
 
@@ -629,7 +629,7 @@ def test_contact_normal_on_a_deformed_body_turns_with_its_face(sim):
     body's face turns: a sphere over its top face meets that face along the face's turned normal,
     at the sphere's true distance from it (on the rest normal it was pushed straight up, whatever
     the face's slope)."""
-    from hybrid.fem_contact import detect_rigid_points
+    from hybrid.coupling.fem_contact import detect_rigid_points
     s = sim("""
 [[bodies]]
 name = "block"

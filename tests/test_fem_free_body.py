@@ -292,7 +292,7 @@ def test_spinning_vibrating_body_converges_at_the_integrators_order(spinning_vib
 def test_bodies_csv_orientation_of_a_placed_fem_body_starts_at_its_scene_orientation(sim):
     """A deformable body's reported orientation is its scene orientation turned by its best-fit
     rotation, as a rigid twin's is (it started at the identity whatever the scene said)."""
-    from hybrid.observe import body_rows
+    from hybrid.app.observe import body_rows
     half = np.sin(np.pi / 8)
     placed = [float(np.cos(np.pi / 8)), float(half), 0.0, 0.0]      # 45 degrees about x
     s = sim("".join(f"""

@@ -1,15 +1,15 @@
-"""Fracture at structure level: scenes stepped with hybrid.step and hybrid.events.apply_fracture."""
+"""Fracture at structure level: scenes stepped with hybrid.coupling.step and hybrid.coupling.events.apply_fracture."""
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hybrid.build import build
-from hybrid.events import apply_fracture, between_steps, fragment_of
-from hybrid.observe import region_rows, totals
-from hybrid.scene import parse_scene
-from hybrid.step import step
+from hybrid.app.build import build
+from hybrid.coupling.events import apply_fracture, between_steps, fragment_of
+from hybrid.app.observe import region_rows, totals
+from hybrid.app.scene import parse_scene
+from hybrid.coupling.step import step
 
 STRENGTH = 1.0e6   # Pa
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hybrid.step import InstabilityError, MAX_SPEED, check_finite
+from hybrid.coupling.step import InstabilityError, MAX_SPEED, check_finite
 
 SCENE = """
 [simulation]

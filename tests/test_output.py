@@ -8,7 +8,7 @@ import meshio
 import numpy as np
 import pytest
 
-from hybrid.output import BODY_COLUMNS, REGION_COLUMNS, FramePiece, RunWriter, read_run
+from hybrid.app.output import BODY_COLUMNS, REGION_COLUMNS, FramePiece, RunWriter, read_run
 
 BOX_POINTS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
 BOX_TRIANGLES = np.array([
@@ -176,7 +176,7 @@ def test_run_of_another_scene_into_the_same_directory_leaves_one_index(tmp_path)
 
 
 def test_drift_figures_stay_meaningful_when_a_quantity_starts_at_zero():
-    from hybrid.run import _drift
+    from hybrid.app.run import _drift
     assert _drift([0.0, 5.0, 3.0], 0.0) == pytest.approx(1.0)          # was 5 / 1e-300
     assert _drift([2.0, 2.02, 1.99], 2.0) == pytest.approx(0.02 / 2.02)
     assert _drift(np.zeros((4, 3)), np.zeros(3)) == 0.0

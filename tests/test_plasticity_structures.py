@@ -336,7 +336,7 @@ DENT_YIELD = 35e6
 
 
 def test_steel_ball_leaves_a_dent_in_plastic_plate_and_none_in_elastic_plate(sim):
-    from hybrid.observe import frame_pieces, plastic_dissipation
+    from hybrid.app.observe import frame_pieces, plastic_dissipation
     s, early, dent, updates = drop_ball(sim, f"yield_stress = {DENT_YIELD}")
     assert dent > 2e-5                                       # 0.02 mm on a 1 cm plate (measured 0.055)
     assert dent == pytest.approx(early, rel=0.01)            # and it stays

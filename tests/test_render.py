@@ -5,9 +5,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from hybrid import render
-from hybrid.output import FramePiece, RunWriter
-from hybrid.render import BODY_PALETTE, movie_fps, probe_backend, render_run
+from hybrid.app import render
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.render import BODY_PALETTE, movie_fps, probe_backend, render_run
 
 WIDTH, HEIGHT = 320, 240
 CUBE_POINTS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]) - 0.5

@@ -1,4 +1,4 @@
-"""Resting contact held as a constraint (hybrid.resting): a deformable body lying on static
+"""Resting contact held as a constraint (hybrid.coupling.resting): a deformable body lying on static
 ground steps with its resting nodes held, and must move exactly as the contact solver would
 move it, let go when the ground stops pushing, and hold on a slope within its friction cone."""
 import math
@@ -90,7 +90,7 @@ def test_ground_carries_the_weight_of_a_held_slab_and_its_load(sim):
     h, g = s.model.dt, 9.81
     weight = (1000.0 * 0.3 * 0.3 * 0.06 + 2000.0 * 0.1 ** 3) * g
     memory = s.state.contact_memory
-    # the ground's contacts among the remembered ones (hybrid.step.contact_keys: b = -1)
+    # the ground's contacts among the remembered ones (hybrid.coupling.step.contact_keys: b = -1)
     nodes, bodies = len(s.model.fem[0].surface_nodes), s.model.rigid.body_count
     ground = (memory.keys % (nodes + bodies + 1) == nodes) & (memory.keys < nodes * (nodes + bodies + 1))
     total = memory.impulse[ground].sum(axis=0) / h

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hybrid.observe import totals
-from hybrid.run import overlapping_bodies
+from hybrid.app.observe import totals
+from hybrid.app.run import overlapping_bodies
 from rigid import quaternion as quat
 from rigid.model import angular_velocity, kinetic_energy, reported_velocity
 

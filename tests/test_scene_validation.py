@@ -8,8 +8,8 @@ import meshio
 import numpy as np
 import pytest
 
-from hybrid import geometry
-from hybrid.scene import (SceneError, load_scene, parse_scene, reference_markdown, validate_command)
+from hybrid.app import geometry
+from hybrid.app.scene import (SceneError, load_scene, parse_scene, reference_markdown, validate_command)
 
 HERE = Path(__file__).parent
 ROOT = HERE.parent
@@ -438,7 +438,7 @@ def test_degenerate_tets_are_named_by_index(tmp_path):
 
 
 def test_validate_and_run_print_the_reoriented_tets_as_a_warning(tmp_path, capsys):
-    from hybrid.cli import main
+    from hybrid.app.cli import main
     write_tet_cube(tmp_path / "cube.vtu")
     path = write_scene(tmp_path, '[simulation]\nduration = 0.002\ndt = 0.001\n[[bodies]]\nname = "m"\n'
                                  'model = "fem"\nyoung = 1e6\nmesh = "cube.vtu"\n')
@@ -466,4 +466,4 @@ def test_mesh_errors_name_the_file(tmp_path):
 
 def test_committed_scene_reference_matches_the_schema():
     committed = (ROOT / "docs" / "scene_reference.md").read_text()
-    assert committed == reference_markdown(), "run: python -m hybrid.scene > docs/scene_reference.md"
+    assert committed == reference_markdown(), "run: python -m hybrid.app.scene > docs/scene_reference.md"

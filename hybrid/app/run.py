@@ -14,9 +14,9 @@ from . import geometry, observe
 from .build import build
 from .output import RunWriter
 from .scene import SceneError
-from .events import between_steps
-from .step import InstabilityError, step
-from .step import log as step_log
+from hybrid.coupling.events import between_steps
+from hybrid.coupling.step import InstabilityError, step
+from hybrid.coupling.step import log as step_log
 
 
 class Progress:

@@ -3,7 +3,7 @@
 A scene is a TOML file (SI units throughout) with a ``[simulation]`` table, ``[[planes]]`` and
 ``[[bodies]]``. The schema below is data: one :class:`Section` per table, one :class:`Field` per key
 (type, default, allowed values, unit, doc). The loader, the error messages, the dataclass docstrings
-and ``docs/scene_reference.md`` (``python -m hybrid.scene > docs/scene_reference.md``) are all
+and ``docs/scene_reference.md`` (``python -m hybrid.app.scene > docs/scene_reference.md``) are all
 derived from it, so they cannot drift apart. Nothing from a scene file is ever evaluated.
 
     scene = load_scene("scenes/drop.toml")     # raises SceneError listing every problem
@@ -15,7 +15,7 @@ import tomllib
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
-from hybrid import geometry
+from hybrid.app import geometry
 
 # Models whose bodies may carry FEM fields (young, anchors, ...). "auto" switches to FEM when
 # stress demands it, so it needs the same material data.
@@ -884,7 +884,7 @@ def _valid(*values):
 def reference_markdown():
     """The scene file reference (every table and field, unit, default, allowed values) as Markdown."""
     out = ["# Scene file reference", "",
-           "Generated from the schema in `hybrid/scene.py` by `python -m hybrid.scene > "
+           "Generated from the schema in `hybrid/app/scene.py` by `python -m hybrid.app.scene > "
            "docs/scene_reference.md`; do not edit by hand.", "",
            "Scene files are TOML, in SI units. Unknown keys are errors. Integers are accepted where "
            "numbers are expected; booleans are not numbers. Vectors are lists of 3 numbers. Mesh paths "

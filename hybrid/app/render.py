@@ -1,7 +1,7 @@
 """Off-screen rendering of a finished run, reading only its saved files.
 
 ``render_run(run_dir)`` reads the ``.pvd`` index, the frame files and ``summary.json`` that
-``hybrid.output.RunWriter`` wrote, and writes ``run_dir/render/frame_NNNNN.png`` for every frame
+``hybrid.app.output.RunWriter`` wrote, and writes ``run_dir/render/frame_NNNNN.png`` for every frame
 plus a movie (``<scene>.mp4`` with libx264, or ``<scene>.gif`` when ffmpeg is unavailable).
 
 Rendering needs an off-screen OpenGL: EGL (``libegl1 libegl-mesa0 libgl1-mesa-dri``) or OSMesa
@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from hybrid.output import find_pvd, read_run
+from hybrid.app.output import find_pvd, read_run
 
 INSTALL_HINT = ("install an off-screen OpenGL library: "
                 "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri (or libosmesa6)")
@@ -310,7 +310,7 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
                progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Render every saved frame of a run to PNG and assemble a movie.
 
-    run_dir: a directory written by ``hybrid.output.RunWriter``.
+    run_dir: a directory written by ``hybrid.app.output.RunWriter``.
     out: output folder (default ``run_dir/render``).
     size: (width, height) of the images in pixels.
     fps: movie frame rate; default the scene's output_fps, else from the frame times.

@@ -30,7 +30,7 @@ def _run(args):
         return _rejected(path, err)
     from .geometry import MeshError
     from .run import run_scene
-    from .step import InstabilityError
+    from hybrid.coupling.step import InstabilityError
     out = Path(args.out) if args.out else Path("outputs") / scene.name
     if out.exists() and not out.is_dir():
         print(f"{path}: --out {out} is a file; give a folder (it is created if missing)", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""FEM bodies of a scene: building them from scene fields (the coupling lives in hybrid.step)."""
+"""FEM bodies of a scene: building them from scene fields (the coupling lives in hybrid.coupling.step)."""
 import numpy as np
 
 from fem.mesh import (box_tet_mesh, cylinder_tet_mesh, quadratic_tets, select_nodes_in_box,

@@ -1,7 +1,7 @@
 """Regenerate the scene-file reference in docs/scene_reference.md and in README.md.
 
-    python -m hybrid.docs          # rewrite both from the schema in hybrid/scene.py
-    python -m hybrid.docs --check  # exit 1 if either is out of date
+    python -m hybrid.app.docs          # rewrite both from the schema in hybrid/app/scene.py
+    python -m hybrid.app.docs --check  # exit 1 if either is out of date
 """
 import sys
 from pathlib import Path
@@ -9,7 +9,7 @@ from pathlib import Path
 from .scene import reference_markdown
 
 START, END = "<!-- scene-reference:start -->", "<!-- scene-reference:end -->"
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def readme_with_reference(readme_text):
@@ -30,7 +30,7 @@ def main(argv=None):
         stale = [p.name for p, want in ((readme, want_readme), (reference, want_reference))
                  if p.read_text() != want]
         if stale:
-            print(f"out of date: {', '.join(stale)}; run python -m hybrid.docs", file=sys.stderr)
+            print(f"out of date: {', '.join(stale)}; run python -m hybrid.app.docs", file=sys.stderr)
             return 1
         return 0
     readme.write_text(want_readme)

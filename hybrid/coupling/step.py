@@ -23,7 +23,7 @@ from rigid import step as rigid_step
 from rigid.contacts import Contacts, concatenate, detect, detect_points
 
 from . import resting
-from .build import HybridState
+from .model import HybridState
 from .fem_contact import detect_fem_pairs, detect_rigid_points, edge_normals
 
 
@@ -36,8 +36,8 @@ class InstabilityError(RuntimeError):
 
 
 # long computations inside a step (a large contact patch's first response columns) report here;
-# hybrid.run forwards these messages to the run log
-log = logging.getLogger("hybrid.step")
+# hybrid.app.run forwards these messages to the run log
+log = logging.getLogger("hybrid.coupling.step")
 
 
 def _reporter(name):
@@ -92,7 +92,7 @@ def _coupled_step(model, state):
     nb = rm.body_count
 
     # 1. deformable bodies: implicit step without contact (prefactored system); a body resting on
-    #    static ground steps with its resting nodes held (hybrid.resting)
+    #    static ground steps with its resting nodes held (hybrid.coupling.resting)
     records = _records(model, state)
     hold = [r if model.settings.hold_resting and r is not None and r.held and resting.eligible(m)
             else None for m, r in zip(model.fem, records)]
@@ -246,7 +246,7 @@ def _coupled_step(model, state):
 
 
 def _watch(model, state, records, contacts, static_b, impulse, in_others, node_body, node_local):
-    """Each deformable body's resting record after the step (hybrid.resting.observe) from its
+    """Each deformable body's resting record after the step (hybrid.coupling.resting.observe) from its
     node contacts with planes and rigid bodies (stacked nodes on side a, their ``impulse``) and
     the stacked nodes ``in_others`` in any other contact; None where bodies are not held."""
     if not model.settings.hold_resting:
