@@ -1,0 +1,216 @@
+"""Loading a scene file: read the TOML, check every table and field, return a Scene or raise
+SceneError listing every problem."""
+import math
+import tomllib
+from pathlib import Path
+
+from hybrid.app import geometry
+
+from .describe import describe, toml_text
+from .records import (Anchor, Body, Damping, Load, Plane, Scene, Shape, Simulation, Solver,
+                      Unbreakable)
+from .schema import (ANCHOR, BODY, DAMPING, FEM_MODELS, INVALID, LOAD, MAX_ELEMENTS, MAX_STEPS, PLANE,
+                     SHAPE, SIMULATION, SOLVER, TOP, UNBREAKABLE)
+from .tables import Where, read_table, table_entries, valid
+
+
+class SceneError(Exception):
+    """A scene file with problems; ``problems`` lists every one, each naming file, table and field."""
+
+    def __init__(self, problems):
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+def load_scene(path):
+    """Read, validate and return the scene in TOML file ``path``.
+
+    Raises SceneError listing every problem found (missing or unparsable file, unknown keys, wrong
+    types, values out of range, missing or unusable meshes), each naming the file, table and field.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as stream:
+            data = tomllib.load(stream)
+    except FileNotFoundError:
+        raise SceneError([f"{path}: scene file not found"]) from None
+    except tomllib.TOMLDecodeError as error:
+        raise SceneError([f"{path}: invalid TOML: {error}"]) from None
+    except UnicodeDecodeError as error:
+        raise SceneError([f"{path}: not UTF-8 text ({error.reason} at byte {error.start})"]) from None
+    except OSError as error:
+        raise SceneError([f"{path}: cannot read scene file ({error.strerror or error})"]) from None
+    return parse_scene(data, str(path), path.parent)
+
+
+def parse_scene(data, source, base_dir):
+    """Validate the parsed TOML ``data`` of scene file ``source`` (a name used in messages);
+    mesh paths resolve against ``base_dir``. Returns a Scene or raises SceneError."""
+    problems = []
+    base_dir = Path(base_dir)
+    top = read_table(data, TOP, Where(source, "top level"), problems)
+    simulation = _parse_simulation(top["simulation"], source, problems)
+    planes = tuple(_parse_plane(entry, source, i, problems)
+                   for i, entry in enumerate(table_entries(top["planes"], "planes", source, problems)))
+    bodies = []
+    first_index = {}
+    for i, entry in enumerate(table_entries(top["bodies"], "bodies", source, problems)):
+        body = _parse_body(entry, source, i, base_dir, problems)
+        if isinstance(body.name, str):
+            if body.name in first_index:
+                problems.append(_body_where(source, i, body.name).problem(
+                    "name", f"must be unique, got \"{body.name}\" again "
+                            f"(first used by bodies[{first_index[body.name]}])"))
+            first_index.setdefault(body.name, i)
+        bodies.append(body)
+    if not bodies and isinstance(top["bodies"], (list, tuple)):       # none given (a bad value is reported)
+        problems.append(Where(source, "top level").general("needs at least one [[bodies]] table"))
+    if problems:
+        raise SceneError(problems)
+    return Scene(simulation.name, Path(source), simulation, planes, tuple(bodies), data)
+
+
+def _parse_simulation(table, source, problems):
+    where = Where(source, "[simulation]")
+    values = read_table(table if isinstance(table, dict) else {}, SIMULATION, where, problems)
+    if values["name"] is None:
+        values["name"] = Path(source).stem
+    solver_table = values.pop("solver")
+    solver_where = Where(source, "[simulation.solver]")
+    solver_table = solver_table if isinstance(solver_table, dict) else {}
+    solver = Solver(**read_table(solver_table, SOLVER, solver_where, problems))
+    if valid(values["dt"], values["duration"]) and values["dt"] > values["duration"]:
+        problems.append(where.problem("dt", f"must be <= duration ({toml_text(values['duration'])} s), "
+                                            f"got {toml_text(values['dt'])}"))
+    elif valid(values["dt"], values["duration"]) and values["duration"] / values["dt"] > MAX_STEPS:
+        problems.append(where.problem("dt", f"gives {values['duration'] / values['dt']:.3g} steps over "
+                                            f"duration {toml_text(values['duration'])} s; at most "
+                                            f"{MAX_STEPS:.0e} steps are allowed"))
+    return Simulation(solver=solver, **values)
+
+
+def _parse_plane(table, source, index, problems):
+    values = read_table(table, PLANE, Where(source, f"[planes] (planes[{index}])"), problems)
+    if valid(values["normal"]):
+        length = math.sqrt(sum(c * c for c in values["normal"]))
+        values["normal"] = tuple(c / length for c in values["normal"])
+    return Plane(**values)
+
+
+def _body_where(source, index, name):
+    label = f"[bodies] \"{name}\" (bodies[{index}])" if isinstance(name, str) else f"[bodies] (bodies[{index}])"
+    return Where(source, label)
+
+
+def _parse_body(table, source, index, base_dir, problems):
+    name = table.get("name") if isinstance(table, dict) else None
+    where = _body_where(source, index, name)
+    values = read_table(table, BODY, where, problems, base_dir)
+    given = set(table) if isinstance(table, dict) else set()
+    model = values["model"]
+
+    # FEM fields: only for FEM models, and young is then required
+    fem_model = model in FEM_MODELS
+    if valid(model) and not fem_model:
+        for f in BODY.fields:
+            if f.fem and f.name in given:
+                problems.append(where.problem(f.name, f"needs model = \"fem\" or \"auto\" "
+                                                      f"(this body has model = \"{model}\")"))
+    if fem_model and values["young"] is None:
+        problems.append(where.problem("young", f"is required for model = \"{model}\": "
+                                               f"{describe(BODY.field('young'))} (Pa)"))
+    for key in ("plastic_update_strain", "max_plastic_strain"):
+        if fem_model and key in given and values["yield_stress"] is None:
+            problems.append(where.problem(key, "needs field 'yield_stress' (the body is elastic without it)"))
+    if fem_model and values["tearing_strain"] is not None and values.get("yield_stress") is None:
+        problems.append(where.problem("tearing_strain", "needs field 'yield_stress' (tearing is "
+                                                        "measured in plastic strain)"))
+
+    # exactly one of shape or mesh
+    has_shape, has_mesh = "shape" in given, "mesh" in given
+    if has_shape == has_mesh:
+        problems.append(where.general("needs exactly one of field 'shape' or field 'mesh', got "
+                                      + ("both" if has_shape else "neither")))
+    if has_shape and values["shape"] is not None:
+        values["shape"] = _parse_shape(values["shape"], where, problems)
+        if valid(model) and isinstance(values["shape"], Shape):
+            _check_element_count(values["shape"], fem_model, where, problems)
+    if model == "auto":
+        problems.append(where.problem("model", "= \"auto\" (switching between rigid and FEM) is not "
+                                               "implemented yet; use \"rigid\" or \"fem\""))
+    if has_mesh and valid(values["mesh"]) and valid(model):
+        _check_mesh(table["mesh"], values["mesh"], model, where, problems)
+
+    damping = values.pop("damping")
+    values["damping"] = Damping()
+    if fem_model and isinstance(damping, dict):
+        values["damping"] = Damping(**read_table(damping, DAMPING, where.nested("damping"), problems))
+    for key, section, kind in (("anchors", ANCHOR, Anchor), ("loads", LOAD, Load),
+                               ("unbreakable", UNBREAKABLE, Unbreakable)):
+        entries = values[key]
+        values[key] = ()
+        if fem_model and entries:
+            entries = table_entries(entries, key, source, problems, where=where)
+            named = f" \"{name}\"" if isinstance(name, str) else ""
+            values[key] = tuple(
+                kind(**read_table(entry, section, Where(
+                    source, f"[bodies.{key}]{named} (bodies[{index}].{key}[{i}])"), problems))
+                for i, entry in enumerate(entries))
+    return Body(**values)
+
+
+def _parse_shape(table, where, problems):
+    """Validate the shape table; fields a shape type does not use are errors."""
+    shape_where = where.nested("shape")
+    if not isinstance(table, dict):
+        return INVALID
+    kind = table.get("type")
+    if kind not in SHAPE.field("type").choices:
+        # without a valid type we cannot tell which other fields belong; report the type only
+        read_table(table, SHAPE, shape_where, problems, only=(SHAPE.field("type"),))
+        return INVALID
+    used = [f for f in SHAPE.fields if f.name == "type" or kind in f.shapes]
+    takes = ", ".join(f.name for f in used if f.name != "type")
+    for key in table:
+        if key in SHAPE.names() and key not in [f.name for f in used]:
+            problems.append(shape_where.problem(key, f"is not used by shape type \"{kind}\" "
+                                                     f"(it takes: {takes})"))
+    values = read_table(table, SHAPE, shape_where, problems, only=used)
+    height, radius = values.get("height"), values.get("radius")
+    if kind == "capsule" and valid(height, radius) and height < 2 * radius:
+        problems.append(shape_where.problem("height", f"must be >= 2 radius ({toml_text(2 * radius)} m) "
+                                                      f"for a capsule, got {toml_text(height)}"))
+    return Shape(**values)
+
+
+def _check_element_count(shape, fem_model, where, problems):
+    """Record a problem if meshing the shape at its ``resolution`` would make more elements than
+    MAX_ELEMENTS (tetrahedra for a deformable body, surface triangles for a rigid one)."""
+    h = shape.resolution
+    if not valid(h) or h is None:
+        return
+    r = shape.radius
+    if shape.type == "box":
+        cells = [math.ceil(a / h - 1e-9) for a in shape.size]
+        count = 6 * cells[0] * cells[1] * cells[2] if fem_model else \
+            4 * (cells[0] * cells[1] + cells[1] * cells[2] + cells[2] * cells[0])
+    else:
+        length = 2 * r if shape.type == "sphere" else shape.height
+        count = 6 * (2 * r / h) ** 2 * (length / h) if fem_model else \
+            2 * (2 * math.pi * r * length + 4 * math.pi * r * r) / h ** 2
+    if count > MAX_ELEMENTS:
+        kind = "tetrahedra" if fem_model else "surface triangles"
+        problems.append(where.nested("shape").problem(
+            "resolution", f"= {toml_text(h)} m would mesh the shape into about {count:.2g} {kind}; at "
+                          f"most {MAX_ELEMENTS:.0e} are allowed (use a coarser resolution)"))
+
+
+def _check_mesh(written, resolved, model, where, problems):
+    """Record a problem if the mesh file is missing, unreadable or unusable for ``model``."""
+    try:
+        mesh = geometry.read_mesh(resolved)
+        if model == "fem":
+            geometry.tets_from_mesh(mesh, resolved)
+        geometry.surface_from_mesh(mesh, resolved)
+    except geometry.MeshError as error:
+        problems.append(where.problem("mesh", f"= \"{written}\" (resolved to {resolved}): {error.reason}"))

@@ -1,0 +1,243 @@
+"""The scene schema as data: one :class:`Section` per TOML table, one :class:`Field` per key.
+
+The loader, its error messages, the record docstrings and ``docs/scene_reference.md`` are all
+derived from these tables, so they cannot drift apart.
+"""
+from dataclasses import dataclass
+
+# Models whose bodies may carry FEM fields (young, anchors, ...). "auto" switches to FEM when
+# stress demands it, so it needs the same material data.
+FEM_MODELS = ("fem", "auto")
+# A quaternion whose norm differs from 1 by more than this is a mistake, not round-off.
+QUATERNION_TOLERANCE = 1e-6
+# a scene of more steps than this is a typo (1e9 steps take days at 1e4 steps/s)
+MAX_STEPS = 1e9
+# most elements a shape may be meshed into (a mistyped resolution would otherwise exhaust memory
+# before any message: 1e-4 m on a 0.1 m box asked for 7.5 GiB in one array)
+MAX_ELEMENTS = 2e6
+
+
+class _Marker:
+    def __init__(self, name):
+        self.name = name
+
+    def __repr__(self):
+        return self.name
+
+
+REQUIRED = _Marker("REQUIRED")   # schema default of a field that must be given
+INVALID = _Marker("INVALID")     # value of a field that failed validation (a problem is recorded)
+
+
+@dataclass(frozen=True)
+class Field:
+    """One key of a scene table.
+
+    kind: "number" (float; ints accepted), "integer", "string", "boolean", "vector" (3 numbers),
+    "quaternion" (4 numbers w, x, y, z), "box" ([[min x, y, z], [max x, y, z]]), "choice" (one of
+    ``choices``), "path" (file path relative to the scene file), "table" (nested table described by
+    section ``table``), "tables" (array of such tables). Ranges (``low``/``high``, open or closed)
+    apply to numbers, integers and each component of a vector.
+    """
+    name: str
+    kind: str
+    default: object = REQUIRED
+    unit: str = ""
+    doc: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple = ()
+    nonzero: bool = False
+    table: str | None = None
+    fem: bool = False
+    shapes: tuple = ()
+    default_text: str | None = None
+
+
+@dataclass(frozen=True)
+class Section:
+    """One table of the scene file: its key in the schema, how it is written, a doc and its fields."""
+    key: str
+    heading: str
+    doc: str
+    fields: tuple
+    rules: tuple = ()
+
+    def field(self, name):
+        return next(f for f in self.fields if f.name == name)
+
+    def names(self):
+        return [f.name for f in self.fields]
+
+
+def _positive(name, default, unit, doc, **kw):
+    return Field(name, "number", default, unit, doc, low=0.0, low_open=True, **kw)
+
+
+def _non_negative(name, default, unit, doc, **kw):
+    return Field(name, "number", default, unit, doc, low=0.0, **kw)
+
+
+def _unit_interval(name, default, doc, **kw):
+    return Field(name, "number", default, "", doc, low=0.0, high=1.0, **kw)
+
+
+SOLVER = Section("simulation.solver", "[simulation.solver]", "Contact solver settings.", (
+    Field("iterations", "integer", 20, "", "Contact solver iterations per step.", low=1),
+    Field("deformable_iterations", "integer", 100, "", "Contact solver iterations per step when "
+          "any contact is on a deformable body: those converge more slowly (a heavy box on a light "
+          "slab sank into it after 20). The sweeps stop early once converged.", low=1),
+    _non_negative("contact_margin", 0.005, "m", "Distance at which contacts are detected before touching."),
+    Field("hold_resting", "boolean", True, "", "Step a deformable body lying still on static ground "
+          "with its resting nodes held, checked every step (see How it works: resting contact is "
+          "held); `false` leaves every contact to the solver."),
+))
+
+SIMULATION = Section("simulation", "[simulation]",
+                     "Time stepping and global settings. The table is optional.", (
+    Field("name", "string", None, "", "Scene name; output goes to `outputs/<name>/`.",
+          default_text="file name without extension"),
+    _positive("duration", 2.0, "s", "Simulated time."),
+    _positive("dt", 0.001, "s", "Time step."),
+    Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
+    _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
+    Field("solver", "table", None, "", "Contact solver settings.", table="simulation.solver",
+          default_text="see `[simulation.solver]`"),
+), rules=("`dt` must be <= `duration`.", "`duration / dt` (the number of steps) must be at most 1e9."))
+
+PLANE = Section("planes", "[[planes]]", "Static half-spaces: the solid side is opposite the normal.", (
+    Field("point", "vector", (0.0, 0.0, 0.0), "m", "A point on the plane."),
+    Field("normal", "vector", (0.0, 0.0, 1.0), "", "Outward normal; normalised by the loader.", nonzero=True),
+    _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
+    _unit_interval("restitution", 0.0, "Coefficient of restitution."),
+))
+
+SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, centred on its position. "
+                "An inline table, e.g. `shape = { type = \"sphere\", radius = 0.1 }`.", (
+    Field("type", "choice", REQUIRED, "", "Kind of shape.", choices=("box", "sphere", "cylinder", "capsule")),
+    Field("size", "vector", REQUIRED, "m", "Edge lengths along the body's x, y, z axes.",
+          low=0.0, low_open=True, shapes=("box",)),
+    _positive("radius", REQUIRED, "m", "Radius.", shapes=("sphere", "cylinder", "capsule")),
+    _positive("height", REQUIRED, "m", "Length along the body's z axis (capsule: total, caps included).",
+              shapes=("cylinder", "capsule")),
+    _positive("resolution", None, "m", "Target edge length when meshing the shape; optional.",
+              shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
+), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
+          "`capsule`; `height` with `cylinder`, `capsule`.",
+          "A capsule's `height` must be >= 2 `radius`.",
+          "A `resolution` that would mesh the shape into more than 2e6 elements (tetrahedra for a "
+          "deformable body, surface triangles for a rigid one) is rejected."))
+
+DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = mass M + stiffness K` "
+                  "(FEM only).", (
+    _non_negative("mass", 0.0, "1/s", "Mass-proportional coefficient."),
+    _non_negative("stiffness", 0.0, "s", "Stiffness-proportional coefficient."),
+))
+
+REGION_DOC = "Region `[[xmin, ymin, zmin], [xmax, ymax, zmax]]` in body coordinates (rest shape)."
+
+ANCHOR = Section("bodies.anchors", "[[bodies.anchors]]", "Nodes of an FEM body held at a prescribed "
+                 "velocity: those inside `box` (body coordinates, rest shape).", (
+    Field("box", "box", REQUIRED, "m", REGION_DOC),
+    Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Prescribed velocity (world frame)."),
+))
+
+LOAD = Section("bodies.loads", "[[bodies.loads]]", "Constant force on the nodes of an FEM body inside "
+               "`box` (body coordinates, rest shape).", (
+    Field("box", "box", REQUIRED, "m", REGION_DOC),
+    Field("force", "vector", REQUIRED, "N",
+          "Total force over the region, shared among its nodes (world frame)."),
+))
+
+UNBREAKABLE = Section("bodies.unbreakable", "[[bodies.unbreakable]]", "Region of an FEM body that never "
+                      "cracks: the elements whose centroid is inside `box` (body coordinates, rest shape).", (
+    Field("box", "box", REQUIRED, "m", REGION_DOC),
+))
+
+BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
+    Field("name", "string", REQUIRED, "", "Unique name."),
+    Field("model", "choice", "rigid", "", "`rigid`, `fem` (deformable) or `auto` (switches when stress "
+          "demands it).", choices=("rigid", "fem", "auto")),
+    Field("shape", "table", None, "", "Analytic shape, see `shape = { ... }`.", table="bodies.shape",
+          default_text="none"),
+    Field("mesh", "path", None, "", "Mesh file (any format meshio reads), relative to the scene file's folder.",
+          default_text="none"),
+    _positive("density", 1000.0, "kg/m^3", "Mass density."),
+    Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame)."),
+    Field("orientation", "quaternion", (1.0, 0.0, 0.0, 0.0), "", "Unit quaternion `[w, x, y, z]`; "
+          "renormalised if its norm is within 1e-6 of 1."),
+    Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Initial velocity (world frame)."),
+    Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world frame)."),
+    _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
+    _unit_interval("restitution", 0.0, "Coefficient of restitution."),
+    Field("fixed", "boolean", False, "", "Immovable (infinite mass)."),
+    _positive("young", None, "Pa", "Young's modulus.", fem=True, default_text="required for FEM"),
+    Field("poisson", "number", 0.3, "", "Poisson's ratio.", low=-1.0, high=0.5, low_open=True,
+          high_open=True, fem=True),
+    Field("damping", "table", None, "", "Rayleigh damping, see `damping = { ... }`.", table="bodies.damping",
+          fem=True, default_text="no damping"),
+    Field("frame", "choice", "floating", "", "`floating`: linear FEM in the shape-matched frame (fast); "
+          "`corotated`: per-element rotations (large bending).", choices=("floating", "corotated"), fem=True),
+    Field("order", "choice", 1, "", "Element order: 1 (linear tets) or 2 (quadratic tets).", choices=(1, 2),
+          fem=True),
+    Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
+    Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
+          "`newmark` (no numerical damping; a body's energy never exceeds its start energy plus the "
+          "work done on it). A free body is stepped in the frame spinning with it.",
+          choices=("backward_euler", "newmark"), fem=True),
+    Field("anchors", "tables", (), "", "Held regions, see `[[bodies.anchors]]`.", table="bodies.anchors",
+          fem=True, default_text="none"),
+    Field("loads", "tables", (), "", "Applied forces, see `[[bodies.loads]]`.", table="bodies.loads",
+          fem=True, default_text="none"),
+    _positive("yield_stress", None, "Pa", "Von Mises yield stress: von Mises perfect plasticity "
+              "(plastic strain per element, or per quadrature point for order 2). Absent: purely "
+              "elastic, no plasticity pass runs.", fem=True, default_text="none (elastic)"),
+    _positive("plastic_update_strain", 0.02, "", "Equivalent plastic strain, accumulated in some "
+              "element since the last update, at which the plastic deformation is baked into the rest "
+              "shape (one refactorisation of this body); needs `yield_stress`.", fem=True),
+    _positive("max_plastic_strain", None, "", "Cap on the equivalent plastic strain of an element "
+              "(further flow is elastic); needs `yield_stress`.", fem=True, default_text="none (no cap)"),
+    _positive("fracture_stress", None, "Pa", "Tensile strength: an element whose smoothed largest "
+              "principal stress exceeds it cracks. Absent: the body never breaks.", fem=True,
+              default_text="none (unbreakable)"),
+    _positive("tearing_strain", None, "", "Equivalent plastic strain at which an element tears "
+              "(ductile fracture); needs `yield_stress`.", fem=True, default_text="none"),
+    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid`, or `auto` "
+          "(fragments with fewer than `rigid_fragment_tets` elements become rigid).",
+          choices=("fem", "rigid", "auto"), fem=True),
+    Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
+          "becomes rigid.", low=1, fem=True),
+    Field("max_cracks_per_step", "integer", 16, "", "Most elements that crack in one step (the most "
+          "overstressed first).", low=1, fem=True),
+    Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
+          table="bodies.unbreakable", fem=True, default_text="none"),
+), rules=("Exactly one of `shape` or `mesh` is required.",
+          "Names must be unique.",
+          "FEM fields (marked FEM) need `model = \"fem\"` or `\"auto\"`; `young` is then required.",
+          "`tearing_strain` needs `yield_stress`.",
+          "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
+          "A mesh must be readable and closed; an FEM body's mesh must contain tetra or tetra10 "
+          "cells: `order = 2` on a tetra mesh adds a node at the middle of every (straight) edge, "
+          "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "
+          "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
+          "listing them by index.",
+          "`model = \"auto\"` is not implemented yet: a scene using it is rejected.",
+          "Every anchor and load box must hold at least one node of the body's mesh (checked when "
+          "the body is built, by `run` and `validate`).",
+          "A scene needs at least one body."))
+
+TOP = Section("", "top level", "The scene file.", (
+    Field("simulation", "table", None, "", "Time stepping.", table="simulation"),
+    Field("planes", "tables", (), "", "Static planes.", table="planes"),
+    Field("bodies", "tables", (), "", "Bodies.", table="bodies"),
+))
+
+SCHEMA = {s.key: s for s in (TOP, SIMULATION, SOLVER, PLANE, BODY, SHAPE, DAMPING, ANCHOR, LOAD,
+                                  UNBREAKABLE)}
+
+
+def field_default(section, name):
+    """The schema default of field ``name`` of ``section``."""
+    return section.field(name).default
