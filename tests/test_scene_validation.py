@@ -96,6 +96,24 @@ def test_missing_fields_take_their_defaults(tmp_path):
     assert body.shape.radius == 0.2 and body.shape.size is None
 
 
+def test_linear_and_corotated_solvers_default_to_cholmod_and_cg(tmp_path):
+    solver = load_scene(write_scene(tmp_path, BODY)).simulation.solver
+    assert (solver.linear_solver, solver.corotated_solver) == ("cholmod", "cg")
+    path = write_scene(tmp_path, '[simulation.solver]\nlinear_solver = "superlu"\n'
+                                 'corotated_solver = "lu"\n' + BODY)
+    solver = load_scene(path).simulation.solver
+    assert (solver.linear_solver, solver.corotated_solver) == ("superlu", "lu")
+
+
+@pytest.mark.parametrize("line, expected", [
+    ('linear_solver = "umfpack"', 'field \'linear_solver\' must be one of "cholmod", "superlu", got "umfpack"'),
+    ('corotated_solver = "gmres"', 'field \'corotated_solver\' must be one of "cg", "lu", got "gmres"'),
+])
+def test_unknown_solver_choice_is_named_with_the_allowed_ones(tmp_path, line, expected):
+    path = write_scene(tmp_path, f"[simulation.solver]\n{line}\n" + BODY)
+    assert only_problem(path) == f"{path}: [simulation.solver]: {expected}"
+
+
 def test_fem_scene_reads_every_field_and_normalises_vectors(tmp_path):
     path = tmp_path / "fem_full.toml"
     shutil.copy(HERE / "scenes" / "fem_full.toml", path)

@@ -16,6 +16,8 @@ class Solver:
     deformable_iterations: int = field_default(SOLVER, "deformable_iterations")
     contact_margin: float = field_default(SOLVER, "contact_margin")
     hold_resting: bool = field_default(SOLVER, "hold_resting")
+    linear_solver: str = field_default(SOLVER, "linear_solver")
+    corotated_solver: str = field_default(SOLVER, "corotated_solver")
 
 
 @dataclass(frozen=True)
@@ -133,7 +135,7 @@ def _attribute_doc(section, summary, extra=""):
     return "\n".join(lines) + extra
 
 
-Solver.__doc__ = _attribute_doc(SOLVER, "Contact solver settings (``[simulation.solver]``).")
+Solver.__doc__ = _attribute_doc(SOLVER, "Solver settings (``[simulation.solver]``).")
 Simulation.__doc__ = _attribute_doc(SIMULATION, "Time stepping settings (``[simulation]``).")
 Plane.__doc__ = _attribute_doc(PLANE, "A static half-space (``[[planes]]``); ``normal`` is a unit vector.")
 Shape.__doc__ = _attribute_doc(SHAPE, "An analytic body shape; fields a type does not use are None.")

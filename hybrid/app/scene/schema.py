@@ -84,7 +84,8 @@ def _unit_interval(name, default, doc, **kw):
     return Field(name, "number", default, "", doc, low=0.0, high=1.0, **kw)
 
 
-SOLVER = Section("simulation.solver", "[simulation.solver]", "Contact solver settings.", (
+SOLVER = Section("simulation.solver", "[simulation.solver]", "Solver settings: the contact solver "
+                 "and the linear systems of FEM bodies.", (
     Field("iterations", "integer", 20, "", "Contact solver iterations per step.", low=1),
     Field("deformable_iterations", "integer", 100, "", "Contact solver iterations per step when "
           "any contact is on a deformable body: those converge more slowly (a heavy box on a light "
@@ -93,6 +94,14 @@ SOLVER = Section("simulation.solver", "[simulation.solver]", "Contact solver set
     Field("hold_resting", "boolean", True, "", "Step a deformable body lying still on static ground "
           "with its resting nodes held, checked every step (see How it works: resting contact is "
           "held); `false` leaves every contact to the solver."),
+    Field("linear_solver", "choice", "cholmod", "", "Sparse factorisation of the FEM bodies' system "
+          "matrices: `cholmod` (supernodal Cholesky, SuiteSparse's CHOLMOD through cholespy; the "
+          "fastest) or `superlu` (scipy's SuperLU, needs nothing beyond scipy).",
+          choices=("cholmod", "superlu")),
+    Field("corotated_solver", "choice", "cg", "", "How bodies with `frame = \"corotated\"` solve their "
+          "system, which changes every step: `cg` (conjugate gradients, warm-started and "
+          "preconditioned by the rest factorisation turned into the body's frame) or `lu` "
+          "(factorise anew every step).", choices=("cg", "lu")),
 ))
 
 SIMULATION = Section("simulation", "[simulation]",
@@ -103,7 +112,7 @@ SIMULATION = Section("simulation", "[simulation]",
     _positive("dt", 0.001, "s", "Time step."),
     Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
     _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
-    Field("solver", "table", None, "", "Contact solver settings.", table="simulation.solver",
+    Field("solver", "table", None, "", "Contact and linear solver settings.", table="simulation.solver",
           default_text="see `[simulation.solver]`"),
 ), rules=("`dt` must be <= `duration`.", "`duration / dt` (the number of steps) must be at most 1e9."))
 
