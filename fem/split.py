@@ -5,7 +5,13 @@ cut face is duplicated once per connected group of its incident tets, two incide
 tets of a node being connected when they share a face that is not cut (the rule of
 Bridson's fracture notes; O'Brien and Hodgins 1999 duplicate nodes the same way).
 Tets keep their order and count, so per-tet state (stress, plastic strain) carries
-over unchanged; per-node state is carried over with `node_origin`.
+over unchanged; per-node state is carried over with `node_origin`
+(`transfer_node_state`), and node masses are summed again over each copy's own tets
+(`lumped_mass_p1`), which conserves mass and momentum. `components` and `split_bodies`
+then give the connected pieces, each a body of its own.
+
+Faces waiting to open are named by (tet, local face) pairs (`face_tet_slots`), which
+survive splitting and map to the pieces (`fragment_tet_slots`).
 
 Node order of a tet row: P1 `(4,)` vertices; P2 `(10,)` meshio/VTK tetra10, four
 vertices then edge nodes on edges 01, 12, 02, 03, 13, 23.
@@ -19,8 +25,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from fem.mesh import tet_signed_volumes
-
 # Local vertex slots of face j, the face opposite vertex j.
 FACE_VERTEX_SLOTS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
 
@@ -32,7 +36,6 @@ FACE_NODE_SLOTS = {
                  [0, 1, 3, 4, 7, 8],
                  [0, 1, 2, 4, 5, 6]]),
 }
-NODES_PER_TET = {1: 4, 2: 10}
 
 
 class TetFaces(NamedTuple):
@@ -158,24 +161,26 @@ def split_mesh(points: np.ndarray, tets: np.ndarray, cut_faces: np.ndarray,
     """
     points = np.asarray(points, dtype=float)
     tets = np.asarray(tets, dtype=np.int64)
-    order = infer_order(tets, order)
-    nodes_per_tet = NODES_PER_TET[order]
-    face_slots = FACE_NODE_SLOTS[order]
+    face_slots = FACE_NODE_SLOTS[infer_order(tets, order)]
     node_count = points.shape[0]
     faces = tet_faces(tets) if faces is None else faces
-
     cut = np.zeros(faces.face_vertices.shape[0], dtype=bool)
     cut[find_faces(faces, cut_faces)] = True
     cut &= faces.interior
     if not cut.any():
         return SplitMesh(points.copy(), tets.copy(), np.arange(node_count))
-
     # Nodes lying on a cut face: these are the only candidates for duplication.
-    cut_tet, cut_local = faces.face_tets[cut, 0], faces.face_local[cut, 0]
     on_cut = np.zeros(node_count, dtype=bool)
-    on_cut[tets[cut_tet[:, None], face_slots[cut_local]]] = True
+    on_cut[tets[faces.face_tets[cut, 0][:, None], face_slots[faces.face_local[cut, 0]]]] = True
+    group_count, group = _incidence_groups(tets, faces, cut, on_cut, face_slots)
+    new_tets, node_origin = _node_per_group(tets, on_cut, group, group_count, node_count)
+    return SplitMesh(points[node_origin], new_tets, node_origin)
 
-    # Incidence edges across uncut interior faces, restricted to nodes on the crack.
+
+def _incidence_groups(tets, faces, cut, on_cut, face_slots):
+    """Connected groups of the (tet, local node) incidences ``tets.size``: incidences of a node
+    on the crack in two tets joined by an uncut interior face are connected.
+    Returns (group_count, group (tets.size,) int)."""
     joined = faces.interior & ~cut
     tet_a, tet_b = faces.face_tets[joined, 0], faces.face_tets[joined, 1]
     slots_a = face_slots[faces.face_local[joined, 0]]
@@ -185,16 +190,19 @@ def split_mesh(points: np.ndarray, tets: np.ndarray, cut_faces: np.ndarray,
     nodes_b = tets[tet_b[:, None], slots_b]
     slots_a = np.take_along_axis(slots_a, np.argsort(nodes_a, axis=1), 1)
     slots_b = np.take_along_axis(slots_b, np.argsort(nodes_b, axis=1), 1)
-    shared_node = np.sort(nodes_a, axis=1)
-    keep = on_cut[shared_node]
+    keep = on_cut[np.sort(nodes_a, axis=1)]
+    nodes_per_tet = tets.shape[1]
     inc_a = (tet_a[:, None] * nodes_per_tet + slots_a)[keep]
     inc_b = (tet_b[:, None] * nodes_per_tet + slots_b)[keep]
-    incidence_count = tets.size
     graph = sp.coo_matrix((np.ones(inc_a.size, dtype=np.int8), (inc_a, inc_b)),
-                          shape=(incidence_count, incidence_count)).tocsr()
-    group_count, group = connected_components(graph, directed=False)
+                          shape=(tets.size, tets.size)).tocsr()
+    return connected_components(graph, directed=False)
 
-    # New node per (node, group); nodes off the crack keep one copy (group -1).
+
+def _node_per_group(tets, on_cut, group, group_count, node_count):
+    """One node per (node, incidence group) for nodes on the crack; nodes off it keep one copy.
+    The first copy keeps the node's id, later copies are appended.
+    Returns (new tets, node_origin (new_node_count,))."""
     incidence_node = tets.ravel()
     incidence_group = np.where(on_cut[incidence_node], group, -1)
     key = incidence_node * (group_count + 1) + (incidence_group + 1)
@@ -205,8 +213,7 @@ def split_mesh(points: np.ndarray, tets: np.ndarray, cut_faces: np.ndarray,
     new_id = np.where(first_copy, key_node,
                       node_count + np.cumsum(~first_copy) - 1)
     node_origin = np.concatenate([np.arange(node_count), key_node[~first_copy]])
-    new_tets = new_id[inverse].reshape(tets.shape)
-    return SplitMesh(points[node_origin], new_tets, node_origin)
+    return new_id[inverse].reshape(tets.shape), node_origin
 
 
 def components(tets: np.ndarray, node_count: int) -> tuple[np.ndarray, int]:
@@ -283,14 +290,16 @@ def lumped_mass_from_elements(tets: np.ndarray, tet_node_mass: np.ndarray,
                        minlength=node_count)
 
 
-def lumped_mass_p1(points: np.ndarray, tets: np.ndarray, density) -> np.ndarray:
-    """(n,) P1 lumped node masses, kg: each tet gives density*|V|/4 to each vertex.
+def lumped_mass_p1(tets: np.ndarray, tet_volume: np.ndarray, density,
+                   node_count: int) -> np.ndarray:
+    """(n,) P1 lumped node masses, kg: each tet gives density*|V|/4 to each of its vertices.
 
+    tets: (t, 4) or (t, 10) (the vertices are used); tet_volume: (t,) m^3, signed or not;
     density: scalar or (t,) kg/m^3.
     """
-    tet_mass = np.abs(tet_signed_volumes(points, tets)) * np.asarray(density, dtype=float)
-    return lumped_mass_from_elements(tets[:, :4], np.repeat(tet_mass[:, None] / 4.0, 4, 1),
-                                     np.asarray(points).shape[0])
+    tet_mass = np.abs(np.asarray(tet_volume, dtype=float)) * np.asarray(density, dtype=float)
+    return lumped_mass_from_elements(np.asarray(tets)[:, :4],
+                                     np.repeat(tet_mass[:, None] / 4.0, 4, 1), node_count)
 
 
 def transfer_node_state(node_origin: np.ndarray, *node_arrays: np.ndarray):
@@ -302,3 +311,34 @@ def transfer_node_state(node_origin: np.ndarray, *node_arrays: np.ndarray):
     """
     moved = tuple(np.asarray(a)[node_origin] for a in node_arrays)
     return moved[0] if len(moved) == 1 else moved
+
+
+def face_tet_slots(faces: TetFaces, face: np.ndarray) -> np.ndarray:
+    """(f, 2) int (tet, local face j) naming each face by a tet holding it: unlike a face
+    index, the pair survives `split_mesh` (tets keep their order) and maps to fragments
+    (`fragment_tet_slots`)."""
+    face = np.asarray(face, dtype=np.int64)
+    return np.stack([faces.face_tets[face, 0], faces.face_local[face, 0]], 1)
+
+
+def tet_slot_faces(faces: TetFaces, slots: np.ndarray) -> np.ndarray:
+    """(f,) face indices of (tet, local face) pairs, the inverse of `face_tet_slots`."""
+    slots = np.asarray(slots, dtype=np.int64).reshape(-1, 2)
+    return faces.tet_face[slots[:, 0], slots[:, 1]]
+
+
+def fragment_tet_slots(faces: TetFaces, face: np.ndarray, tet_index: np.ndarray,
+                       fragment_faces: TetFaces) -> np.ndarray:
+    """(p, 2) (fragment tet, local face) of the given faces of the parent mesh that are still
+    interior faces of a fragment (faces that did not open), one row per holding tet.
+
+    faces: the parent's `TetFaces`; face: (f,) face indices; tet_index: (ft,) ascending
+    parent tet of each fragment tet (`Fragment.tet_index`); fragment_faces: the fragment's.
+    """
+    holders = np.concatenate([np.stack([faces.face_tets[face, k], faces.face_local[face, k]], 1)
+                              for k in (0, 1)])
+    holders = holders[np.isin(holders[:, 0], tet_index)]
+    local_tet = np.searchsorted(tet_index, holders[:, 0])
+    still = fragment_faces.interior[fragment_faces.tet_face[local_tet, holders[:, 1]]]
+    result = np.stack([local_tet[still], holders[still, 1]], 1)
+    return result.reshape(-1, 2).astype(np.int64)
