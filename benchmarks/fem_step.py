@@ -19,7 +19,7 @@ support and frame (floating, corotated), measured in the same run, side by side:
   in-step  the same back-substitutions timed inside ``--steps`` more coupled steps (median): the
            floor as the step meets it, with the caches the rest of the step has used
   floor    one back-substitution of the slab's own prefactored system, no node held (the
-           row's sparse backend,
+           row's sparse backend, the scene's ``[simulation.solver] linear_solver``,
            ``--backends``: CHOLMOD, the project's default, and SuperLU),
            ``fem.dynamics.system_factorisation(model, dt).solve`` on a random right-hand side;
            median of 20 repetitions
@@ -78,7 +78,6 @@ DT = 1e-3
 FRAMES = ("floating", "corotated")
 SUPPORTS = ("ground", "anchored")   # slab lying on a ground plane, or its bottom face held
 BACKENDS = ("cholmod", "superlu")   # fem.solver backends (the floor is that of the row's backend)
-default_backend = fem_solver.BACKEND
 CSV_PATH = Path("outputs/bench/fem_step.csv")
 
 
@@ -89,7 +88,7 @@ def slab_cells(target_tets):
     return min(range(2, 200), key=lambda k: abs(tets(k) - target_tets))
 
 
-def scene_text(cells, frame, support="ground"):
+def scene_text(cells, frame, support="ground", backend="cholmod"):
     # a hair above 1/k so the scene mesher's ceil(size / resolution) gives exactly k cells
     resolution = SLAB[0] / cells * (1 + 1e-6)
     bottom = -SLAB[2] / 2
@@ -99,6 +98,8 @@ box = [[-1.0, -1.0, {bottom - 1e-3}], [1.0, 1.0, {bottom + 1e-3}]]
     return f"""
 [simulation]
 dt = {DT}
+[simulation.solver]
+linear_solver = "{backend}"
 {"[[planes]]" if support == "ground" else ""}
 [[bodies]]
 name = "slab"
@@ -178,9 +179,12 @@ def naive_step(points_rest, tets, x, v, gravity):
     return v_new[dofs].T
 
 
-def measure(cells, frame, support, steps, warmup):
-    scene = parse_scene(tomllib.loads(scene_text(cells, frame, support)), "fem_step", Path("."))
+def measure(cells, frame, support, backend, steps, warmup):
+    scene = parse_scene(tomllib.loads(scene_text(cells, frame, support, backend)), "fem_step", Path("."))
     model, state = build(scene)
+    if model.fem[0].linear_solver != backend:
+        raise RuntimeError(f"the slab was built with linear_solver {model.fem[0].linear_solver!r}, "
+                           f"not the scene's {backend!r}")
     for _ in range(warmup):
         state = step(model, state)
     fem_model = model.fem[0]
@@ -253,14 +257,12 @@ def main():
         cells = slab_cells(target)
         for support in args.supports:
             for backend in args.backends:
-                fem_solver.BACKEND = backend
                 for frame in FRAMES:
                     rows.append(measure_row(cells, frame, support, backend, naive, args))
                     print(f"  {rows[-1]['tets']} tets {support} {backend} {frame}: step "
                           f"{rows[-1]['step_ms']:.1f} ms (box z {rows[-1]['box_z']:.4f} m, slab min z "
                           f"{rows[-1]['slab_min_z']:.2e} m, {rows[-1]['held_nodes']} nodes held)",
                           flush=True)
-    fem_solver.BACKEND = default_backend
     report(rows, args)
     if not args.no_plastic:
         print("\nplastic pass (benchmarks/plastic_step.py): goal under 30% extra over the elastic step")
@@ -269,7 +271,7 @@ def main():
 
 
 def measure_row(cells, frame, support, backend, naive_by_size, args):
-    model, state, r = measure(cells, frame, support, args.steps, args.warmup)
+    model, state, r = measure(cells, frame, support, backend, args.steps, args.warmup)
     m = model.fem[0]
     s = state.fem[0]
     if (cells, support) not in naive_by_size:     # the naive step does not depend on the backend

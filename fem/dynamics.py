@@ -27,11 +27,6 @@ from fem.assembly import warped_assembly, warped_energy, warped_forces
 from fem.solver import Factorisation, cg_solve
 from rigid.shape_matching import best_fit_frame, rotation_of
 
-# corotated solves: "cg" (warm-started CG preconditioned by the rest factorisation rotated into the
-# best-fit frame) or "lu" (refactorise each step); see benchmarks/fem_solver.py for the timings
-COROTATED_SOLVER = "cg"
-
-
 @dataclass(frozen=True)
 class StepData:
     """One step in progress (between ``predict`` and ``finish``).
@@ -88,7 +83,8 @@ def system_matrix(model, dt, K=None):
 
 def system_factorisation(model, dt):
     """Cached factorisation of the rest system matrix on the free DOFs (factorised once per dt)."""
-    return model.factor_cache.get(dt, lambda h: _free_block(model, system_matrix(model, h)))
+    return model.factor_cache.get(dt, lambda h: _free_block(model, system_matrix(model, h)),
+                                  model.linear_solver)
 
 
 def body_frame(model, x):
@@ -184,7 +180,7 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0), held_velocity=None):
     """Contact-free end-of-step velocities. Returns :class:`StepData` with ``v`` ``(n, 3)`` m/s.
 
     dt s; gravity ``(3,)`` m/s^2. The floating frame reuses the factorisation cached in the model;
-    the corotated frame assembles the warped stiffness and solves (see ``COROTATED_SOLVER``).
+    the corotated frame assembles the warped stiffness and solves (``model.corotated_solver``).
     ``held_velocity``: ``(k, 3)`` m/s, the end-of-step velocities (world) of a variant's
     ``held_nodes`` (:func:`fem.model.holding`).
     """
@@ -421,8 +417,8 @@ def _corotated_solver(model, dt, A, state):
     where ``iterations`` is a one-element list counting CG iterations (stays 0 for LU)."""
     A_ff = _free_block(model, A)
     iterations = [0]
-    if COROTATED_SOLVER == "lu":
-        return Factorisation(A_ff).solve, iterations
+    if model.corotated_solver == "lu":
+        return Factorisation(A_ff, model.linear_solver).solve, iterations
     # precondition with the rest system rotated into the body's best-fit frame: exact for a rigid
     # rotation of the whole body, close while the elements rotate together (R = I when anchored)
     rest = system_factorisation(model, dt)

@@ -12,11 +12,12 @@ import scipy.sparse as sp
 
 from fem.assembly import ElementData, assemble
 from fem.mesh import check_tets, index_list, surface_triangles
-from fem.solver import FactorCache
+from fem.solver import FactorCache, available_linear_solver
 
 FRAMES = ("floating", "corotated")
 INTEGRATORS = ("backward_euler", "newmark")
 MASSES = ("lumped", "consistent")
+COROTATED_SOLVERS = ("cg", "lu")
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,12 @@ class FemModel:
     anchor_labels, load_labels: the scene index (``anchorK``, ``loadK``) of each anchor and load
         region, or None for 0, 1, ...: a fracture fragment keeps the indices of the regions it
         took (see :attr:`region_names`).
+    linear_solver: sparse backend of the model's factorisations, ``"cholmod"`` (CHOLMOD through
+        cholespy) or ``"superlu"`` (scipy's SuperLU); see ``fem.solver``.
+    corotated_solver: how a corotated body solves its warped system each step: ``"cg"``
+        (conjugate gradients warm-started from the last velocities and preconditioned by the rest
+        factorisation turned into the best-fit frame) or ``"lu"`` (a new factorisation every step);
+        timings in ``benchmarks/fem_solver.py``.
     """
     rest_points: np.ndarray
     tets: np.ndarray
@@ -105,6 +112,8 @@ class FemModel:
     held_nodes: np.ndarray | None = None
     anchor_labels: tuple | None = None
     load_labels: tuple | None = None
+    linear_solver: str = "cholmod"
+    corotated_solver: str = "cg"
 
     @property
     def node_count(self):
@@ -263,7 +272,8 @@ def _surface_node_area(points, surface):
 def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_mass=0.0,
                     damping_stiffness=0.0, frame="floating", mass="lumped",
                     integrator="backward_euler", anchors=(), loads=(), dt=None, yield_stress=None,
-                    plastic_update_strain=0.02, max_plastic_strain=None):
+                    plastic_update_strain=0.02, max_plastic_strain=None, linear_solver="cholmod",
+                    corotated_solver="cg"):
     """Build a deformable body.
 
     points ``(n, 3)`` m and tets ``(t, 4)``: a linear tet mesh (``order=1``), or with ``order=2``
@@ -281,11 +291,16 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
     yield_stress: von Mises yield stress (Pa); None (default) for a purely elastic body.
     plastic_update_strain: accumulated equivalent plastic strain between reference-shape updates.
     max_plastic_strain: cap on the equivalent plastic strain, or None.
+    linear_solver: "cholmod" | "superlu", the sparse backend of its factorisations ("superlu", with
+        a warning, when cholespy is not installed); corotated_solver: "cg" | "lu" (corotated frame).
     Returns a :class:`FemModel`. Note: with ``order=2`` from a linear mesh, select anchor/load
     nodes on ``fem.mesh.quadratic_tets(points, tets)[0]`` (same as ``model.rest_points``).
     """
-    if frame not in FRAMES or integrator not in INTEGRATORS or mass not in MASSES:
-        raise ValueError(f"frame in {FRAMES}, integrator in {INTEGRATORS}, mass in {MASSES}")
+    if frame not in FRAMES or integrator not in INTEGRATORS or mass not in MASSES \
+            or corotated_solver not in COROTATED_SOLVERS:
+        raise ValueError(f"frame in {FRAMES}, integrator in {INTEGRATORS}, mass in {MASSES}, "
+                         f"corotated_solver in {COROTATED_SOLVERS}")
+    linear_solver = available_linear_solver(linear_solver)
     points = np.asarray(points, dtype=float)
     tets = np.asarray(tets, dtype=np.int64)
     if order == 2 and tets.shape[1] == 4:
@@ -340,7 +355,8 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         yield_stress=None if yield_stress is None else float(yield_stress),
         plastic_update_strain=float(plastic_update_strain),
         max_plastic_strain=None if max_plastic_strain is None else float(max_plastic_strain),
-        reference_peeq=None if yield_stress is None else np.zeros(elements.tet_weights.shape))
+        reference_peeq=None if yield_stress is None else np.zeros(elements.tet_weights.shape),
+        linear_solver=linear_solver, corotated_solver=corotated_solver)
     if dt is not None and frame == "floating":
         from fem.dynamics import system_factorisation
         system_factorisation(model, dt)

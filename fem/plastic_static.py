@@ -17,7 +17,7 @@ def static_solver(model):
     if not model.anchored:
         raise ValueError("static plastic solves need an anchored body")
     free = model.free_dofs
-    return Factorisation(model.K[free][:, free])
+    return Factorisation(model.K[free][:, free], model.linear_solver)
 
 
 def static_plastic_solve(model, state, node_force, solver=None, max_iterations=400, rtol=1e-7):

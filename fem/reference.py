@@ -50,10 +50,10 @@ def plastic_displacement(model, eps_p):
     u = np.zeros_like(f)
     if model.anchored:
         free = model.free_dofs
-        u[free] = Factorisation(model.K[free][:, free]).solve(f[free])
+        u[free] = Factorisation(model.K[free][:, free], model.linear_solver).solve(f[free])
         return u.reshape(-1, 3)
     shift = _SHIFT * float(np.mean(model.K.diagonal() / model.M.diagonal()))
-    solve = Factorisation(model.K + shift * model.M).solve
+    solve = Factorisation(model.K + shift * model.M, model.linear_solver).solve
     remove_rigid = _rigid_projector(model)
     for _ in range(_REFINEMENTS):
         u = remove_rigid(u + solve(f - model.K @ u))

@@ -5,8 +5,9 @@ Two backends, measured in ``benchmarks/fem_solver.py``:
   ``cholespy`` wheel); on the 10k-tet slab it factors about 2x and solves about 3x faster than
   SuperLU, also for many right-hand sides at once (the contact response columns);
 - ``"superlu"``: scipy's SuperLU (``splu``), which needs nothing beyond scipy; used when cholespy is
-  not installed, when the matrix is not positive definite for CHOLMOD, or when chosen
-  (``BACKEND = "superlu"``).
+  not installed (:func:`available_linear_solver`), when the matrix is not positive definite for
+  CHOLMOD, or when chosen.
+A body's backend is a setting of its model (``fem.model.build_fem_model(..., linear_solver=...)``).
 """
 import warnings
 
@@ -19,8 +20,8 @@ try:
 except ImportError:            # pure-scipy fallback
     CholeskySolverD = None
 
-# the backend new factorisations use: "cholmod" (when cholespy is importable) or "superlu"
-BACKEND = "cholmod" if CholeskySolverD is not None else "superlu"
+# the sparse solver backends a model may name (FemModel.linear_solver)
+LINEAR_SOLVERS = ("cholmod", "superlu")
 # SuperLU column ordering; MMD on A^T+A suits symmetric matrices (measured in benchmarks/fem_solver.py)
 PERMC_SPEC = "MMD_AT_PLUS_A"
 # one CHOLMOD back-substitution takes as long as a dense product reading about this many entries
@@ -28,20 +29,34 @@ PERMC_SPEC = "MMD_AT_PLUS_A"
 CHOLMOD_SOLVE_COST_PER_NNZ = 30
 
 
+def available_linear_solver(name):
+    """The backend to use for the chosen ``name`` (one of :data:`LINEAR_SOLVERS`): ``name`` itself,
+    or ``"superlu"`` when ``name`` is ``"cholmod"`` and cholespy is not importable (with a
+    warning, shown once per calling line). Raises ValueError for an unknown name."""
+    if name not in LINEAR_SOLVERS:
+        raise ValueError(f"unknown sparse solver backend {name!r}: 'cholmod' or 'superlu'")
+    if name == "cholmod" and CholeskySolverD is None:
+        warnings.warn("linear_solver 'cholmod' needs the cholespy package (pip install cholespy); "
+                      "using 'superlu' (scipy's SuperLU) instead", RuntimeWarning, stacklevel=3)
+        return "superlu"
+    return name
+
+
 class Factorisation:
     """Factorisation of a sparse SPD matrix, reused for every solve until the matrix changes.
 
     matrix: the CSC matrix factorised ``(m, m)``. solve(rhs) accepts ``(m,)`` or ``(m, k)``.
-    backend: ``"cholmod"`` or ``"superlu"`` (default :data:`BACKEND`).
+    backend: ``"cholmod"`` or ``"superlu"`` (:data:`LINEAR_SOLVERS`); CHOLMOD falls back to SuperLU
+    for a matrix it finds not positive definite (``backend`` then reads ``"superlu"``).
     solve_cost: the time of one back-substitution, in entries of a dense matrix-vector product
     (SuperLU: the nonzeros of L and U it reads); callers compare it with products they could use
     instead.
     """
 
-    def __init__(self, matrix, backend=None):
+    def __init__(self, matrix, backend):
         self.matrix = sp.csc_matrix(matrix)
-        self.backend = BACKEND if backend is None else backend
-        if self.backend not in ("cholmod", "superlu"):
+        self.backend = backend
+        if self.backend not in LINEAR_SOLVERS:
             raise ValueError(f"unknown sparse solver backend {self.backend!r}: 'cholmod' or 'superlu'")
         if self.backend == "cholmod":
             if CholeskySolverD is None:
@@ -90,10 +105,11 @@ class FactorCache:
         self.matrix = None       # the whole system matrix for matrix_dt (anchored bodies use it)
         self._derived = {}       # parts of that matrix, see derived()
 
-    def get(self, dt, build_matrix):
-        """Factorisation for ``dt``; ``build_matrix(dt)`` returns the sparse matrix to factorise."""
+    def get(self, dt, build_matrix, backend):
+        """Factorisation for ``dt``; ``build_matrix(dt)`` returns the sparse matrix to factorise with
+        ``backend`` (the model's ``linear_solver``, the same for every call)."""
         if self.factorisation is None or self.dt != dt:
-            self.factorisation = Factorisation(build_matrix(dt))
+            self.factorisation = Factorisation(build_matrix(dt), backend)
             self.dt = dt
             self.factor_count += 1
         return self.factorisation
