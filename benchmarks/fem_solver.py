@@ -11,9 +11,10 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from fem import solver
-from fem.dynamics import predict, step, system_matrix, tet_rotations, warped_stiffness
+from fem.dynamics import predict, step, system_matrix, warped_stiffness
 from fem.mesh import box_tet_mesh
 from fem.model import build_fem_model, rest_state
+from fem.rotations import tet_rotations
 
 
 COLUMNS = 300

@@ -24,8 +24,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from fem.assembly import warped_assembly, warped_energy, warped_forces
+from fem.plastic_flow import elastic_energy as plastic_elastic_energy
+from fem.plastic_flow import plastic_force, plastic_update
+from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
-from rigid.shape_matching import best_fit_frame, rotation_of
+from rigid.shape_matching import best_fit_frame
 
 @dataclass(frozen=True)
 class StepData:
@@ -98,14 +101,6 @@ def body_frame(model, x):
     return best_fit_frame(model.rest_offsets, x, model.node_mass)
 
 
-def tet_rotations(model, x):
-    """Per-element rotations ``(t, 3, 3)`` from the polar decomposition of the vertex simplex's
-    deformation gradient ``F = Ds Dm^-1`` (stiffness warping, Mueller and Gross 2004)."""
-    xs = x[model.tets[:, :4]]
-    Ds = (xs[:, 1:] - xs[:, :1]).transpose(0, 2, 1)
-    return rotation_of(Ds @ model.elements.tet_rest_inverse)
-
-
 def warped_stiffness(model, tet_R):
     """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) (:func:`fem.assembly.warped_assembly`)."""
     return warped_assembly(model.elements, tet_R, 3 * model.node_count)
@@ -118,29 +113,6 @@ def elastic_force(model, state, tet_R=None):
         return warped_forces(model.elements, tet_R, state.x, model.rest_points, model.node_count)
     u = (state.x - state.c) @ state.R - model.rest_offsets
     return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
-
-
-def _plastic_force(model, state, tet_R=None):
-    from fem.plastic_flow import plastic_force   # fem.plastic_flow imports this module
-    return plastic_force(model, state, tet_R)
-
-
-def element_rotations(model, x):
-    """:func:`tet_rotations` of positions ``x`` (n, 3) m, kept for the last positions asked for.
-
-    A step's end (its energy under Newmark, a plastic body's return map) finds the rotations of
-    the end-of-step positions and the next ``predict`` asks for the same positions again (any
-    change of ``x`` in between computes them anew). Kept in ``model.elements.cache``; the returned
-    array is read-only.
-    """
-    cache = model.elements.cache
-    last = cache.get("rotations")
-    if last is not None and np.array_equal(last[0], x):
-        return last[1]
-    tet_R = tet_rotations(model, x)
-    tet_R.flags.writeable = False
-    cache["rotations"] = (np.array(x, dtype=float), tet_R)
-    return tet_R
 
 
 def gravity_force(model, gravity):
@@ -239,14 +211,14 @@ def _internal_forces_and_solver(model, dt, state):
         tet_R = element_rotations(model, state.x)
         force = elastic_force(model, state, tet_R)
         if model.plastic:
-            force += _plastic_force(model, state, tet_R)
+            force += plastic_force(model, state, tet_R)
         K = warped_stiffness(model, tet_R)
         A = (a_M * model.M + a_K * K).tocsr()
         solve, iterations = _corotated_solver(model, dt, A, state)
         return force, K, np.eye(3), A, solve, iterations
     force = elastic_force(model, state)
     if model.plastic:
-        force += _plastic_force(model, state)
+        force += plastic_force(model, state)
     return force, model.K, state.R, None, system_factorisation(model, dt).solve, [0]
 
 
@@ -476,7 +448,6 @@ def finish(model, state, step, dt):
     if step.allowance is not None:
         new = _cap_energy(model, state, step, new, dt)
     if model.plastic:
-        from fem.plastic_flow import plastic_update   # fem.plastic_flow imports this module
         new = plastic_update(model, new)
     return new
 
@@ -568,7 +539,6 @@ def kinetic_energy(model, state):
 def elastic_energy(model, state):
     """Strain energy of the linear model in its frame (J); plastic bodies: of ``eps - eps_p``."""
     if model.plastic and state.tet_plastic_strain is not None:
-        from fem.plastic_flow import elastic_energy as plastic_elastic_energy
         return plastic_elastic_energy(model, state)
     if model.frame == "corotated":
         return warped_energy(model.elements, element_rotations(model, state.x), state.x, model.rest_points)

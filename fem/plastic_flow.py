@@ -22,14 +22,14 @@ contiguous row, so the yield test and the return map are whole-array operations 
 (:func:`nodal_force`, a scatter), are compiled loops over the points. Their shape-function data
 (:class:`PointGradients`) is built once per ``ElementData`` and kept in its ``cache``; corotated
 bodies also keep there the element rotations of the end-of-step positions
-(:func:`fem.dynamics.element_rotations`), which the next ``predict`` reuses.
+(:func:`fem.rotations.element_rotations`), which the next ``predict`` reuses.
 """
 from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-from fem.dynamics import element_rotations
+from fem.rotations import element_rotations
 from fem.plasticity import (elastic_stress, equivalent_plastic_strain, isotropic_stress,
                             plastic_dissipation_increment, return_map)
 from fem.stress import quadrature_strain
@@ -186,7 +186,7 @@ def displacement_gradient(model, state):
     Floating and anchored bodies: the gradient of the body-frame displacement
     ``u = (x - c) R - (X - X_c)``. Corotated bodies: ``R_e^T F - I`` with ``F`` the world
     deformation gradient (the gradient of ``x - c``; ``c`` drops out since the shape gradients of
-    an element sum to zero) and ``R_e`` from :func:`fem.dynamics.element_rotations`.
+    an element sum to zero) and ``R_e`` from :func:`fem.rotations.element_rotations`.
     """
     if model.frame == "corotated":
         F = node_field_gradient(model, state.x - state.c)

@@ -7,7 +7,7 @@ world coordinates; the invariants (von Mises, principal values) do not depend on
 """
 import numpy as np
 
-from fem.dynamics import element_rotations
+from fem.rotations import element_rotations
 from fem.plasticity import elastic_stress, von_mises  # the project's one von Mises
 
 __all__ = ["quadrature_stress", "element_stress", "von_mises", "principal_stress_max",
