@@ -1,12 +1,17 @@
-"""Eigenvalue-threshold fracture: stress smoothing, crack criterion, crack faces.
+"""Eigenvalue-threshold fracture of one tet mesh: stress smoothing, crack criterion, crack faces.
 
 Algorithm (Bridson's fracture notes; O'Brien and Hodgins 1999; Mueller and Gross 2004):
 1. smooth each element's stress with its face neighbours (volume-weighted mean),
 2. take the largest principal stress sigma_1 of the smoothed stress (one batched eigh);
    where sigma_1 exceeds the tensile strength, a crack opens perpendicular to its
-   eigenvector (compression, sigma_1 <= 0, never cracks),
+   eigenvector (compression, sigma_1 <= 0, never cracks); ductile bodies also tear where
+   their equivalent plastic strain passes a tearing strain while they flow,
 3. the crack runs along the cracking element's interior mesh face most nearly parallel
-   to the crack plane; `fem.split.split_mesh` then opens the chosen faces.
+   to the crack plane, one plane per check (`planar_crack`); `fem.split.split_mesh` then
+   opens the chosen faces.
+
+`find_crack` is the whole check as the simulator runs it; `FractureModel` holds what it
+needs of a mesh (built once per mesh by `fracture_model`).
 
 Stress arrays are (tet_count, 3, 3) in Pa; `points` and stresses must share one frame
 (rest frame for the floating-frame model, world frame otherwise).
@@ -14,6 +19,7 @@ Stress arrays are (tet_count, 3, 3) in Pa; `points` and stresses must share one 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -48,16 +54,15 @@ def smoothing_operator(volume: np.ndarray, adjacency: sp.spmatrix) -> sp.csr_mat
     return (sp.diags(1.0 / row_total) @ weighted).tocsr()
 
 
-def smooth_stress(sigma: np.ndarray, volume: np.ndarray,
-                  adjacency: sp.spmatrix) -> np.ndarray:
+def smooth_stress(sigma: np.ndarray, smoothing: sp.spmatrix) -> np.ndarray:
     """(t, 3, 3) smoothed stress, Pa: sigma_s[e] = sum_k W[e, k] sigma[k].
 
-    W is `smoothing_operator(volume, adjacency)`: the volume-weighted mean over the
-    element and its face neighbours (Bridson's notes: smooth to avoid mesh artifacts).
+    smoothing: W, `smoothing_operator(volume, face_neighbours(tets))`, the volume-weighted
+    mean over the element and its face neighbours (Bridson's notes: smooth to avoid mesh
+    artifacts).
     """
     sigma = np.asarray(sigma, dtype=float)
-    flat = smoothing_operator(volume, adjacency) @ sigma.reshape(sigma.shape[0], 9)
-    return flat.reshape(sigma.shape)
+    return (smoothing @ sigma.reshape(sigma.shape[0], 9)).reshape(sigma.shape)
 
 
 class CrackCandidates(NamedTuple):
@@ -73,13 +78,35 @@ class CrackCandidates(NamedTuple):
     normal: np.ndarray
     principal_stress: np.ndarray
 
+    def take(self, index) -> CrackCandidates:
+        """The candidates at `index` (an index array or a slice), in that order."""
+        return CrackCandidates(*(a[index] for a in self))
+
+    def then(self, other: CrackCandidates) -> CrackCandidates:
+        """These candidates followed by `other`'s."""
+        return CrackCandidates(*(np.concatenate(pair) for pair in zip(self, other)))
+
+
+def principal_tension(sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Largest principal stress (k,) Pa and its unit direction (k, 3) of stresses (k, 3, 3).
+
+    One batched symmetric eigensolve of the symmetrised stress; the direction's sign is
+    canonical (largest-magnitude component positive; eigh's sign is arbitrary).
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    # Eigenvalues ascending, so column -1 is sigma_1.
+    eigenvalue, eigenvector = np.linalg.eigh(0.5 * (sigma + np.swapaxes(sigma, 1, 2)))
+    normal = eigenvector[:, :, -1]
+    lead = np.take_along_axis(normal, np.argmax(np.abs(normal), axis=1)[:, None], 1)
+    return eigenvalue[:, -1], normal * np.where(lead < 0.0, -1.0, 1.0)
+
 
 def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | None = None,
                         unbreakable: np.ndarray | None = None) -> CrackCandidates:
     """Elements whose largest principal stress exceeds the tensile strength.
 
     sigma: (t, 3, 3) Pa, usually smoothed (`smooth_stress`); symmetrised here.
-    fracture_stress: scalar or (t,) Pa, tensile strength, must be > 0.
+    fracture_stress: scalar or (t,) Pa, tensile strength, must be > 0 (inf: never).
     max_cracks: keep only this many elements per call (the most overstressed, ranked
         by (sigma_1 - s_f) / s_f), so one bad step cannot pulverise a body.
     unbreakable: optional (t,) bool mask of elements that never crack.
@@ -91,9 +118,7 @@ def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | No
     threshold = np.broadcast_to(np.asarray(fracture_stress, dtype=float), sigma.shape[:1])
     if np.any(~(threshold > 0.0)):
         raise ValueError("fracture_stress must be positive (tensile strength)")
-    # One batched symmetric eigensolve; eigenvalues ascending, so column -1 is sigma_1.
-    eigenvalue, eigenvector = np.linalg.eigh(0.5 * (sigma + np.swapaxes(sigma, 1, 2)))
-    sigma_1 = eigenvalue[:, -1]
+    sigma_1, normal = principal_tension(sigma)
     cracks = sigma_1 > threshold
     if unbreakable is not None:
         cracks &= ~np.asarray(unbreakable, dtype=bool)
@@ -102,25 +127,49 @@ def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | No
     element = element[np.argsort(-overstress, kind="stable")]
     if max_cracks is not None:
         element = element[:max(int(max_cracks), 0)]
-    normal = eigenvector[element, :, -1]
-    # Canonical sign: largest-magnitude component positive (eigh's sign is arbitrary).
-    lead = np.take_along_axis(normal, np.argmax(np.abs(normal), axis=1)[:, None], 1)
-    normal = normal * np.where(lead < 0.0, -1.0, 1.0)
-    return CrackCandidates(element, normal, sigma_1[element])
+    return CrackCandidates(element, normal[element], sigma_1[element])
+
+
+def tearing_candidates(sigma: np.ndarray, tet_peeq: np.ndarray, tet_yielded: np.ndarray,
+                       tearing_strain: float,
+                       unbreakable: np.ndarray | None = None) -> CrackCandidates:
+    """Ductile tearing: elements whose equivalent plastic strain passes the tearing strain while
+    they flow, most strained first; the crack normal is the largest principal stress direction.
+
+    sigma: (t, 3, 3) Pa, smoothed stress. tet_peeq: (t,) accumulated equivalent plastic strain
+    (-). tet_yielded: (t,) bool, the element flowed in the last step. Unloaded elements do not
+    tear: peeq never decreases, so otherwise the elements of a fresh tear surface would keep
+    cracking every step along the arbitrary principal directions of their residual stress.
+    """
+    torn = (tet_peeq > tearing_strain) & tet_yielded
+    if unbreakable is not None:
+        torn &= ~np.asarray(unbreakable, dtype=bool)
+    element = np.flatnonzero(torn)
+    element = element[np.argsort(-tet_peeq[element], kind="stable")]
+    sigma_1, normal = principal_tension(np.asarray(sigma)[element])
+    return CrackCandidates(element, normal, sigma_1)
+
+
+class CrackFaces(NamedTuple):
+    """Per cracking element, the interior mesh face the crack runs along.
+
+    face: (k,) int, face index in the mesh's `TetFaces` (-1: the element has no interior face).
+    centroid: (k, 3) m, centroid of that face.
+    """
+
+    face: np.ndarray
+    centroid: np.ndarray
 
 
 def crack_faces(points: np.ndarray, tets: np.ndarray, element: np.ndarray,
-                normal: np.ndarray, faces: TetFaces | None = None,
-                faces_per_element: int = 1) -> np.ndarray:
-    """(f, 3) vertex triples of the mesh faces to open for the given cracks.
+                normal: np.ndarray, faces: TetFaces | None = None) -> CrackFaces:
+    """The mesh face each cracking element opens.
 
-    The crack through element e is the plane through its centroid perpendicular to
-    normal[e]. Rule: among e's interior faces (shared with a neighbour; boundary faces
-    would open nothing), take the `faces_per_element` (1 or 2) whose unit normals n_f
-    are most nearly parallel to the crack normal, i.e. largest |n_f . normal|: the mesh
-    faces whose planes are closest in direction to the crack plane. Ties go to the
-    lower local face index. Elements without interior faces yield nothing. Faces chosen
-    by several elements appear once.
+    The crack through element e is perpendicular to its normal. Rule: among e's interior
+    faces (shared with a neighbour; boundary faces would open nothing), take the one whose
+    unit normal n_f is most nearly parallel to the crack normal, i.e. largest
+    |n_f . normal|: the mesh face closest in direction to the crack plane. Ties go to the
+    lower local face index.
 
     points: (n, 3) m; tets: (t, 4) or (t, 10); element: (k,); normal: (k, 3) unit.
     """
@@ -128,26 +177,7 @@ def crack_faces(points: np.ndarray, tets: np.ndarray, element: np.ndarray,
     element = np.asarray(element, dtype=np.int64)
     normal = np.asarray(normal, dtype=float).reshape(-1, 3)
     faces = tet_faces(tets) if faces is None else faces
-    if element.size == 0:
-        return np.zeros((0, 3), dtype=np.int64)
     # Unit normals of the 4 faces of each cracking element: (k, 4, 3).
-    corner = points[np.asarray(tets)[element][:, FACE_VERTEX_SLOTS]]
-    face_normal = np.cross(corner[:, :, 1] - corner[:, :, 0],
-                           corner[:, :, 2] - corner[:, :, 0])
-    face_normal /= np.linalg.norm(face_normal, axis=2, keepdims=True)
-    alignment = np.abs(np.einsum("kfi,ki->kf", face_normal, normal))
-    face_index = faces.tet_face[element]
-    interior = faces.interior[face_index]
-    alignment = np.where(interior, alignment, -np.inf)
-    best = np.argsort(-alignment, axis=1, kind="stable")[:, :faces_per_element]
-    chosen = np.take_along_axis(face_index, best, 1)
-    valid = np.isfinite(np.take_along_axis(alignment, best, 1))
-    return faces.face_vertices[np.unique(chosen[valid])]
-
-
-def chosen_faces(points, tets, element, normal, faces):
-    """Per cracking element, its interior face most parallel to the crack plane:
-    (face index (k,) with -1 where it has none, face centroid (k, 3))."""
     corner = points[np.asarray(tets)[element][:, FACE_VERTEX_SLOTS]]
     face_normal = np.cross(corner[:, :, 1] - corner[:, :, 0],
                            corner[:, :, 2] - corner[:, :, 0])
@@ -159,17 +189,17 @@ def chosen_faces(points, tets, element, normal, faces):
     chosen = np.where(np.isfinite(alignment.max(axis=1)),
                       np.take_along_axis(face_index, best[:, None], 1)[:, 0], -1)
     centroid = np.take_along_axis(corner, best[:, None, None, None], 1)[:, 0].mean(axis=1)
-    return chosen, centroid
+    return CrackFaces(chosen, centroid)
 
 
 def planar_crack(points: np.ndarray, tets: np.ndarray, candidates: CrackCandidates,
                  faces: TetFaces | None = None, tolerance: float = 0.35,
                  max_cracks: int | None = None) -> CrackCandidates:
     """The candidates that open one planar crack: the most overstressed element (the seed)
-    and every candidate whose chosen face lies on the seed's crack plane.
+    and every candidate whose crack face lies on the seed's crack plane.
 
-    The plane passes through the centroid of the seed's chosen face (see `crack_faces`) with
-    the seed's crack normal; a candidate joins when its chosen face's centroid is within
+    The plane passes through the centroid of the seed's crack face (see `crack_faces`) with
+    the seed's crack normal; a candidate joins when its crack face's centroid is within
     `tolerance` times the seed's mean edge length of that plane. One plane per call keeps a
     uniformly stressed body from opening many parallel cracks at once (it breaks where it is
     weakest, then unloads); the rest are re-examined at the next check. `max_cracks` then
@@ -179,10 +209,10 @@ def planar_crack(points: np.ndarray, tets: np.ndarray, candidates: CrackCandidat
     faces = tet_faces(tets) if faces is None else faces
     if candidates.element.size == 0:
         return candidates
-    chosen, centroid = chosen_faces(points, tets, candidates.element, candidates.normal, faces)
+    chosen, centroid = crack_faces(points, tets, candidates.element, candidates.normal, faces)
     valid = np.flatnonzero(chosen >= 0)
     if valid.size == 0:
-        return CrackCandidates(*(a[:0] for a in candidates))
+        return candidates.take(slice(0, 0))
     seed = valid[0]
     corner = points[np.asarray(tets)[candidates.element[seed], :4]]
     edge = np.linalg.norm(corner[:, None] - corner[None], axis=2).sum() / 12.0
@@ -190,21 +220,78 @@ def planar_crack(points: np.ndarray, tets: np.ndarray, candidates: CrackCandidat
     keep = np.flatnonzero((chosen >= 0) & (distance <= tolerance * edge))
     if max_cracks is not None:
         keep = keep[:max(int(max_cracks), 1)]
-    return CrackCandidates(*(a[keep] for a in candidates))
+    return candidates.take(keep)
 
 
-def find_crack_faces(points: np.ndarray, tets: np.ndarray, sigma: np.ndarray,
-                     volume: np.ndarray, fracture_stress, max_cracks: int | None = None,
-                     unbreakable: np.ndarray | None = None,
-                     faces: TetFaces | None = None,
-                     faces_per_element: int = 1) -> tuple[np.ndarray, CrackCandidates]:
-    """Whole fracture check: smooth, test, choose faces. Returns (cut_faces, candidates).
+@dataclass(frozen=True)
+class FractureModel:
+    """What the fracture check needs of one tet mesh (rebuilt when the mesh splits).
 
-    Pass `cut_faces` to `fem.split.split_mesh` when it is non-empty.
+    fracture_stress: tensile strength (Pa); inf when only tearing can break the mesh.
+    tearing_strain: equivalent plastic strain at which a flowing element tears (-), or None.
+    max_cracks: most elements cracking per check (None: no limit).
+    tet_unbreakable: (t,) bool, elements that never crack.
+    faces: `fem.split.TetFaces` of the mesh.
+    smoothing: (t, t) CSR volume-weighted neighbour-mean operator (`smoothing_operator`).
     """
-    faces = tet_faces(tets) if faces is None else faces
-    smoothed = smooth_stress(sigma, volume, face_neighbours(tets, faces))
-    candidates = fracture_candidates(smoothed, fracture_stress, max_cracks, unbreakable)
-    cut = crack_faces(points, tets, candidates.element, candidates.normal, faces,
-                      faces_per_element)
-    return cut, candidates
+
+    fracture_stress: float
+    tearing_strain: float | None
+    max_cracks: int | None
+    tet_unbreakable: np.ndarray
+    faces: TetFaces
+    smoothing: sp.csr_matrix
+
+
+def fracture_model(tets: np.ndarray, tet_volume: np.ndarray, fracture_stress=None,
+                   tearing_strain: float | None = None, max_cracks: int | None = None,
+                   tet_unbreakable: np.ndarray | None = None) -> FractureModel:
+    """FractureModel of a mesh: its faces and smoothing operator, with the material's strength.
+
+    tets: (t, 4) or (t, 10); tet_volume: (t,) m^3; fracture_stress: Pa, None or inf for a
+    body that only tears; tet_unbreakable: (t,) bool, default none.
+    """
+    faces = tet_faces(tets)
+    tet_count = np.asarray(tets).shape[0]
+    unbreakable = np.zeros(tet_count, dtype=bool) if tet_unbreakable is None else \
+        np.asarray(tet_unbreakable, dtype=bool)
+    return FractureModel(
+        fracture_stress=np.inf if fracture_stress is None else float(fracture_stress),
+        tearing_strain=tearing_strain, max_cracks=max_cracks, tet_unbreakable=unbreakable,
+        faces=faces, smoothing=smoothing_operator(tet_volume, face_neighbours(tets, faces)))
+
+
+def find_crack(fracture: FractureModel, points: np.ndarray, tets: np.ndarray,
+               sigma: np.ndarray, tet_peeq: np.ndarray | None = None,
+               tet_yielded: np.ndarray | None = None,
+               pending: np.ndarray | None = None) -> tuple[np.ndarray, CrackCandidates]:
+    """The whole fracture check of one mesh: smooth, test, take one crack plane, choose faces.
+
+    sigma: (t, 3, 3) Pa, element stress. tet_peeq, tet_yielded: (t,) plastic strain and
+    flowing flags (tearing only). pending: (p,) face indices chosen by earlier checks that
+    have not opened yet (a face opens by node duplication only once the crack surface through
+    its nodes reaches the boundary or an open crack).
+
+    Returns (cut, candidates): cut (f,) face indices in `fracture.faces`, the pending faces and
+    the new ones, empty when no new face was chosen; pass
+    `fracture.faces.face_vertices[cut]` to `fem.split.split_mesh`.
+    """
+    smoothed = smooth_stress(sigma, fracture.smoothing)
+    found = fracture_candidates(smoothed, fracture.fracture_stress, None,
+                                fracture.tet_unbreakable)
+    if fracture.tearing_strain is not None and tet_peeq is not None:
+        # planar_crack seeds the plane at the first candidate and applies max_cracks itself, so
+        # every torn element stays a candidate (a uniformly flowing bar tears across one whole
+        # section instead of chipping at the first max_cracks by index)
+        brittle = np.zeros(len(fracture.tet_unbreakable), dtype=bool)
+        brittle[found.element] = True
+        found = found.then(tearing_candidates(smoothed, tet_peeq, tet_yielded,
+                                              fracture.tearing_strain,
+                                              fracture.tet_unbreakable | brittle))
+    found = planar_crack(points, tets, found, fracture.faces, max_cracks=fracture.max_cracks)
+    chosen = crack_faces(points, tets, found.element, found.normal, fracture.faces).face
+    chosen = np.unique(chosen[chosen >= 0])
+    pending = np.zeros(0, dtype=np.int64) if pending is None else np.asarray(pending)
+    if np.all(np.isin(chosen, pending)):
+        return np.zeros(0, dtype=np.int64), found
+    return np.union1d(pending, chosen), found
