@@ -1,0 +1,223 @@
+"""Fracture pieces becoming bodies of the hybrid model.
+
+A piece of a split FEM body (a :class:`fem.split.Fragment` of the split mesh) becomes either
+
+- an FEM body of its own (:func:`fem_fragment`): its mesh is rebuilt and refactorised
+  (``fem.model.build_fem_model``), anchors and loads go with the nodes they hold (a load shared by
+  pieces is split between them in proportion to the mass of its nodes in each), the regions keep
+  their scene names, and the parent's per-node and per-element state is carried over; or
+- a rigid body (:func:`rigid_fragments`, then :func:`append_rigid`): its current surface
+  (``rigid.trimesh.tet_boundary``) with the piece's mass, linear and angular momentum.
+"""
+from __future__ import annotations
+
+import inspect
+from dataclasses import fields, replace
+from typing import NamedTuple
+
+import numpy as np
+
+from fem.model import build_fem_model, rest_state
+from fem.plastic_flow import rest_frame_plastic_force
+from fem.split import Fragment
+from rigid.build import RigidBodyDesc, build_rigid
+from rigid.model import RigidState
+from rigid.trimesh import compact, tet_boundary
+
+
+class RigidPiece(NamedTuple):
+    """A piece of a split FEM body that becomes a rigid body.
+
+    fragment: its :class:`fem.split.Fragment`. x, v: ``(n, 3)`` its node positions (m) and
+    velocities (m/s). node_mass: ``(n,)`` kg, P1-lumped from its own tets.
+    """
+    fragment: Fragment
+    x: np.ndarray
+    v: np.ndarray
+    node_mass: np.ndarray
+
+
+# --- FEM pieces ------------------------------------------------------------------------------
+
+def _region_nodes(region_nodes, node_origin, node_index):
+    """Fragment-local indices of the fragment nodes whose original node is in ``region_nodes``."""
+    return np.flatnonzero(np.isin(node_origin[node_index], region_nodes))
+
+
+def load_shares(parent, node_origin, vertex_mass, node_index):
+    """Share of each of the parent's loads that a piece takes: the mass of the piece's loaded
+    nodes over the load's total (``vertex_mass`` (n,) kg of the split mesh), by node count where
+    the region has no mass."""
+    mine = np.zeros(len(node_origin), dtype=bool)
+    mine[node_index] = True
+    share = []
+    for nodes in parent.load_nodes:
+        in_region = np.isin(node_origin, nodes)
+        total = vertex_mass[in_region].sum()
+        share.append(vertex_mass[in_region & mine].sum() / total if total > 0 else
+                     (in_region & mine).sum() / max(in_region.sum(), 1))
+    return share
+
+
+def _fragment_regions(parent, frag, node_origin, load_share):
+    """(anchors, anchor labels, loads, load labels) of the parent's regions the piece holds."""
+    anchors, anchor_labels = [], []
+    for a, nodes in enumerate(parent.anchor_nodes):
+        local = _region_nodes(nodes, node_origin, frag.node_index)
+        if local.size:
+            anchors.append((local, parent.anchor_velocity[a]))
+            anchor_labels.append(a)
+    loads, load_labels = [], []
+    for i, nodes in enumerate(parent.load_nodes):
+        local = _region_nodes(nodes, node_origin, frag.node_index)
+        if local.size and load_share[i] > 0:
+            loads.append((local, load_share[i] * parent.load_force[i]))
+            load_labels.append(i)
+    # the regions keep their scene names (regions.csv rows continue under the fragment's name)
+    labels = [parent.anchor_labels or range(len(parent.anchor_nodes)),
+              parent.load_labels or range(len(parent.load_nodes))]
+    return (anchors, tuple(labels[0][a] for a in anchor_labels),
+            loads, tuple(labels[1][i] for i in load_labels))
+
+
+def _fragment_model(parent, frag, node_origin, load_share, dt):
+    """FemModel of a piece: the parent's material and settings on the piece's mesh."""
+    anchors, anchor_labels, loads, load_labels = _fragment_regions(parent, frag, node_origin,
+                                                                   load_share)
+    model = build_fem_model(frag.points, frag.tets, order=parent.order, density=parent.density,
+                            young=parent.young, poisson=parent.poisson,
+                            damping_mass=parent.damping_mass,
+                            damping_stiffness=parent.damping_stiffness, frame=parent.frame,
+                            mass=parent.mass_kind, integrator=parent.integrator, anchors=anchors,
+                            loads=loads, dt=dt, **_plastic_parameters(parent))
+    model = _carry_model_fields(parent, model, frag.tet_index)
+    return replace(model, anchor_labels=anchor_labels, load_labels=load_labels)
+
+
+def fem_fragment(parent, parent_state, frag, node_origin, node_state, vertex_mass, dt):
+    """FemModel and FemState of a piece that stays deformable.
+
+    parent, parent_state: the split body's model and state. frag: the piece's Fragment of the
+    split mesh. node_origin: ``(n,)`` parent node of each split-mesh node. node_state: ``(x, v,
+    node_reaction)`` of the split mesh's nodes. vertex_mass: ``(n,)`` kg of the split mesh's
+    nodes (load shares). dt: s, the step the new matrix is factorised for.
+    """
+    x, v, reaction = node_state
+    share = load_shares(parent, node_origin, vertex_mass, frag.node_index)
+    model = _fragment_model(parent, frag, node_origin, share, dt)
+    state = rest_state(model, x[frag.node_index], v[frag.node_index])
+    state = state.replace(node_reaction=reaction[frag.node_index])
+    return model, _carry_state_fields(parent, parent_state, model, state, frag.tet_index,
+                                      node_origin, frag.node_index)
+
+
+def _plastic_parameters(parent):
+    """build_fem_model keywords of the parent's plasticity (none for an elastic-only build)."""
+    names = ("yield_stress", "plastic_update_strain", "max_plastic_strain")
+    accepted = inspect.signature(build_fem_model).parameters
+    return {k: getattr(parent, k) for k in names if k in accepted and hasattr(parent, k)}
+
+
+def _carry_model_fields(parent, model, tet_index=None):
+    """Copy scalar FemModel fields build_fem_model does not set (added by other features)."""
+    built = set(inspect.signature(build_fem_model).parameters) | {
+        "rest_points", "tets", "mu", "lam", "node_mass", "K", "M", "elements", "rest_center",
+        "rest_offsets", "anchor_nodes", "anchor_velocity", "node_anchor", "free_dofs",
+        "fixed_dofs", "load_nodes", "load_force", "node_load", "surface", "surface_nodes",
+        "factor_cache", "mass_kind", "anchor_labels", "load_labels"}
+    extra = {f.name: getattr(parent, f.name) for f in fields(parent)
+             if f.name not in built and not isinstance(getattr(parent, f.name), np.ndarray)}
+    # per-tet model arrays (e.g. reference_peeq (t, q)) follow their tets
+    for f in fields(parent):
+        value = getattr(parent, f.name)
+        if f.name not in built and isinstance(value, np.ndarray) and tet_index is not None \
+                and value.ndim and value.shape[0] == parent.tet_count:
+            extra[f.name] = value[tet_index]
+    return replace(model, **extra) if extra else model
+
+
+def _carry_state_fields(parent_model, parent_state, model, state, tet_index, node_origin,
+                        node_index):
+    """Copy per-tet / per-node FemState fields other features added (e.g. plastic strain)."""
+    known = {"x", "v", "R", "c", "node_reaction", "time"}
+    extra = {}
+    for f in fields(parent_state):
+        value = getattr(parent_state, f.name)
+        if f.name in known or not isinstance(value, np.ndarray) or value.ndim == 0:
+            continue
+        if value.shape[0] == parent_model.tet_count and not f.name.startswith("node"):
+            extra[f.name] = value[tet_index]
+        elif value.shape[0] == parent_model.node_count:
+            extra[f.name] = value[node_origin][node_index]
+    state = state.replace(time=parent_state.time, **extra)
+    if getattr(state, "node_plastic_force", None) is not None:
+        # a sum over elements: recompute it on the fragment's own elements (copying would give
+        # every duplicated node the whole force)
+        state = state.replace(node_plastic_force=rest_frame_plastic_force(
+            model, state.tet_plastic_strain))
+    return state
+
+
+# --- rigid pieces ----------------------------------------------------------------------------
+
+def rigid_fragments(pieces, gravity, last_dt):
+    """One RigidModel/RigidState for the pieces turned rigid, carrying their momentum.
+
+    pieces: list of ``(name, scene body, RigidPiece)``; the scene body gives density, friction
+    and restitution. gravity: ``(3,)`` m/s^2. last_dt: s, the rigid state's last step.
+    """
+    descs = []
+    for name, body, piece in pieces:
+        vertices, triangles, _ = compact(piece.x, tet_boundary(piece.fragment.tets[:, :4]))
+        descs.append(RigidBodyDesc(name=name, vertices=vertices, triangles=triangles,
+                                   density=body.density, friction=body.friction,
+                                   restitution=body.restitution))
+    model, state = build_rigid(descs, [])
+    for i, (_, _, piece) in enumerate(pieces):
+        momentum = piece.node_mass @ piece.v
+        # leapfrog stores the mid-step velocity; reported_velocity adds back half a gravity step
+        state.velocity[i] = momentum / model.body_mass[i] - 0.5 * np.asarray(gravity) * last_dt
+        r = piece.x - state.position[i]
+        state.angular_momentum[i] = np.cross(r, piece.node_mass[:, None] * piece.v).sum(axis=0)
+    return model, state
+
+
+def _grid_count(rm):
+    return int(rm.grid_index.max()) + 1 if rm.body_count and rm.grid_index.max() >= 0 else 0
+
+
+def _appended_grids(rm, new_model):
+    """RigidModel fields of the signed-distance grids of ``rm`` followed by ``new_model``'s."""
+    ga, gb = _grid_count(rm), _grid_count(new_model)
+    grid_index_b = np.where(new_model.grid_index >= 0, new_model.grid_index + ga, -1)
+    changes = {"grid_index": np.concatenate([rm.grid_index, grid_index_b])}
+    if gb:
+        src = (rm,) if ga else ()
+        offset = len(rm.grid_values) if ga else 0
+        changes["grid_values"] = np.concatenate([g.grid_values for g in src + (new_model,)])
+        changes["grid_start"] = np.concatenate([rm.grid_start] * bool(ga) +
+                                               [new_model.grid_start + offset]).astype(np.int64)
+        for key in ("grid_shape", "grid_origin", "grid_cell"):
+            changes[key] = np.concatenate([getattr(g, key) for g in src + (new_model,)])
+    return changes
+
+
+def append_rigid(rm, rs, new_model, new_state):
+    """RigidModel/RigidState with the bodies of ``new_model`` appended (planes of ``rm`` kept)."""
+    per_body = ("body_mass", "body_inv_mass", "body_inertia", "body_inv_inertia", "body_fixed",
+                "body_friction", "body_restitution", "body_radius", "shape_kind", "shape_params",
+                "shape_rotation", "shape_offset", "point_local", "point_radius", "point_kind",
+                "point_ring", "point_axis", "body_min_extent")
+    changes = {k: np.concatenate([getattr(rm, k), getattr(new_model, k)]) for k in per_body}
+    changes["names"] = list(rm.names) + list(new_model.names)
+    changes["surface_vertices"] = list(rm.surface_vertices) + list(new_model.surface_vertices)
+    changes["surface_triangles"] = list(rm.surface_triangles) + list(new_model.surface_triangles)
+    changes["point_body"] = np.concatenate([rm.point_body, new_model.point_body + rm.body_count])
+    model = replace(rm, **changes, **_appended_grids(rm, new_model))
+    count = np.bincount(changes["point_body"], minlength=model.body_count)
+    # point_start is not a RigidModel field (rigid.build sets it the same way on a new model)
+    model.point_start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+    state = RigidState(*(np.concatenate([getattr(rs, k), getattr(new_state, k)])
+                         for k in ("position", "orientation", "velocity", "angular_momentum",
+                                   "contact_dv")), time=rs.time, last_dt=rs.last_dt)
+    return model, state
