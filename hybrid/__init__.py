@@ -1,1 +1,12 @@
-"""Coupled rigid/FEM stepping, scene files, command line, VTK output and rendering."""
+"""Rigid bodies coupled with plastic, fracturing tetrahedral FEM.
+
+``from hybrid import Simulation`` is the Python API (see :mod:`hybrid.simulation`); ``hybrid`` on
+the command line runs, validates and renders scenes (:mod:`hybrid.app.cli`). Sub-packages:
+:mod:`hybrid.coupling` (the coupled step and the events between steps) and :mod:`hybrid.app`
+(scene files, building models, output, rendering, command line).
+"""
+from .app.scene import SceneError
+from .coupling.step import InstabilityError
+from .simulation import Body, Simulation
+
+__all__ = ["Simulation", "Body", "SceneError", "InstabilityError"]

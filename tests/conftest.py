@@ -1,4 +1,4 @@
-"""Shared test helpers: build and step scenes written inline as TOML text."""
+"""Shared test helpers: step scenes written inline as TOML text through the Simulation API."""
 import os
 import tomllib
 from pathlib import Path
@@ -10,22 +10,29 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from hybrid.app.build import build
+from hybrid import Simulation
 from hybrid.app.scene import parse_scene
-from hybrid.coupling.step import step
 
 
-class Sim:
-    """A scene being stepped in-process: ``sim.advance(seconds)``, ``sim.model``, ``sim.state``."""
+class Sim(Simulation):
+    """A scene written as TOML text, stepped in-process: ``sim.advance(seconds)``, ``sim.model``,
+    ``sim.state`` (the product's own step loop, events included)."""
 
-    def __init__(self, toml_text, base_dir=Path(".")):
-        self.scene = parse_scene(tomllib.loads(toml_text), "<test scene>", Path(base_dir))
-        self.model, self.state = build(self.scene)
+    def __init__(self, toml_text, base_dir=Path("."), keep_before_events=False):
+        super().__init__(parse_scene(tomllib.loads(toml_text), "<test scene>", Path(base_dir)))
+        self.keep_before_events = keep_before_events
+        self.before_events = None
+
+    def _between_steps(self):
+        # with keep_before_events, the model and state of the last step before its events
+        if self.keep_before_events:
+            self.before_events = (self.model, self.state)
+        return super()._between_steps()
 
     def advance(self, seconds, each=None):
         n = int(round(seconds / self.model.dt))
         for _ in range(n):
-            self.state = step(self.model, self.state)
+            self.step()
             if each is not None:
                 each(self)
         return self

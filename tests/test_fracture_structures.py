@@ -252,12 +252,14 @@ def pull_until(sim, tearing_line, seconds):
     """Pull the bar with events between steps; rows of (pulled-end displacement m, pull force N,
     body count), the crack events, and the first split: its row and the (before, after) total
     momentum and mass."""
-    s = sim(tearing_bar(tearing_line))
-    rows, events, split = [], [], {}
+    s = sim(tearing_bar(tearing_line), keep_before_events=True)
+    rows, events, split, events_seen = [], [], {}, []
 
     def each(s):
-        before_model, before_state = s.model, s.state
-        s.model, s.state, new = between_steps(s.model, s.state)
+        # the events of the step just taken, and the bodies as they were before them
+        new = s.events[len(events_seen):]
+        events_seen.extend(new)
+        before_model, before_state = s.before_events
         # the pull force: the reaction of the moving anchor, in whichever body now holds it
         force = sum(st.node_reaction[m.anchor_nodes[a]].sum(axis=0)[0]
                     for m, st in zip(s.model.fem, s.state.fem)

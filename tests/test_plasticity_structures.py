@@ -12,7 +12,8 @@ from fem.mesh import box_tet_mesh, select_nodes_in_box
 from fem.model import build_fem_model, rest_state
 from fem.plastic_static import static_plastic_solve, static_solver
 from fem.plasticity import deviatoric, von_mises
-from fem.reference import apply_reference_updates, reference_update_due, update_reference
+from fem.reference import reference_update_due, update_reference
+from hybrid.coupling.events import ReferenceUpdate
 from fem.stress import quadrature_stress
 
 # aluminium
@@ -317,8 +318,7 @@ def drop_ball(sim, plastic_lines):
     updates = []
 
     def events(s):
-        s.model.fem, s.state.fem, done = apply_reference_updates(s.model.fem, s.state.fem, s.model.dt)
-        updates.extend(done)
+        updates[:] = [e for e in s.events if isinstance(e, ReferenceUpdate)]
 
     ball = s.rigid_index("ball")
     s.advance(0.004, each=events)

@@ -23,28 +23,29 @@ def _rejected(path, err):
 
 
 def _run(args):
-    path = Path(args.scene) if args.scene else _default_scene_path()
+    from ..simulation import Simulation, scene_path
+    path = scene_path(args.scene) if args.scene else _default_scene_path()
     try:
         scene = load_scene(path)
     except SceneError as err:
         return _rejected(path, err)
     from .geometry import MeshError
-    from .run import run_scene
     from hybrid.coupling.step import InstabilityError
     out = Path(args.out) if args.out else Path("outputs") / scene.name
     if out.exists() and not out.is_dir():
         print(f"{path}: --out {out} is a file; give a folder (it is created if missing)", file=sys.stderr)
         return 2
-    print(f"running '{scene.name}' ({len(scene.bodies)} bodies, {scene.simulation.duration} s at "
-          f"dt = {scene.simulation.dt:g} s) -> {out}")
     try:
-        summary = run_scene(scene, out, progress=not args.quiet,
-                            log=lambda m: print(m, file=sys.stderr))
+        sim = Simulation(scene)
     except SceneError as err:           # problems only the built bodies show
         return _rejected(path, err)
     except (MeshError, ValueError) as err:
         print(f"{path}: {err}", file=sys.stderr)
         return 2
+    print(f"running '{scene.name}' ({len(scene.bodies)} bodies, {scene.simulation.duration} s at "
+          f"dt = {scene.simulation.dt:g} s) -> {out}")
+    try:
+        summary = sim.run(out=out, progress=not args.quiet, log=lambda m: print(m, file=sys.stderr))
     except InstabilityError as err:
         print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
         return 3

@@ -10,6 +10,19 @@ from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_ener
 from .output import FramePiece
 
 
+def tet_fields(fem_model, fem_state):
+    """Per-tet fields of an FEM body: ``von_mises`` and ``principal_stress`` (largest principal
+    stress, Pa) of the element stress, ``plastic_strain`` (accumulated equivalent plastic strain,
+    the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1)."""
+    sigma = element_stress(fem_model, fem_state, fem_state.tet_plastic_strain)
+    fields = {"von_mises": von_mises(sigma), "principal_stress": principal_stress_max(sigma),
+              "plastic_strain": 0.0, "yielded": 0}
+    if fem_state.tet_peeq is not None:
+        fields["plastic_strain"] = fem_state.tet_peeq.max(axis=1)
+        fields["yielded"] = fem_state.tet_yielded.astype(np.int8)
+    return fields
+
+
 def frame_pieces(model, state):
     """One FramePiece per body: rigid surfaces and FEM tet meshes in world coordinates."""
     pieces = []
@@ -20,14 +33,8 @@ def frame_pieces(model, state):
             pts = rs.position[i] + rm.surface_vertices[i] @ R[i].T
             pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
-        sigma = element_stress(m, s, s.tet_plastic_strain)
         cell = "tetra10" if m.order == 2 else "tetra"
-        cell_data = {"von_mises": von_mises(sigma), "principal_stress": principal_stress_max(sigma),
-                     "plastic_strain": 0.0, "yielded": 0}
-        if s.tet_peeq is not None:
-            # accumulated equivalent plastic strain (the element's largest over its points)
-            cell_data["plastic_strain"] = s.tet_peeq.max(axis=1)
-            cell_data["yielded"] = s.tet_yielded.astype(np.int8)
+        cell_data = tet_fields(m, s)
         pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)], cell_data=cell_data,
                                  point_data={"displacement": s.x - m.rest_points, "velocity": s.v}))
     # the original scene body each piece came from (itself unless it is a fracture fragment)

@@ -1,22 +1,21 @@
-"""Run a scene: step it, write frames at the output rate, report progress and a summary."""
+"""Recording a run: the progress bar, frames and tables at the output rate, and the summary.
+
+:class:`hybrid.simulation.Simulation` owns the step loop; a :class:`Recorder` watches it, writing
+through :class:`hybrid.app.output.RunWriter` when the run has an output folder and keeping the
+conserved quantities of every recorded frame for the summary either way.
+"""
 import logging
 import sys
 import time as clock
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 
 from rigid.contacts import detect
 from rigid import quaternion as quat
 
-from . import geometry, observe
-from .build import build
+from . import observe
 from .output import RunWriter
-from .scene import SceneError
-from hybrid.coupling.events import between_steps
-from hybrid.coupling.step import InstabilityError, step
-from hybrid.coupling.step import log as step_log
 
 
 class Progress:
@@ -65,24 +64,14 @@ def overlapping_bodies(model, state, tolerance=1e-4):
 def _drift(values, reference, scales=()):
     """max |q(t) - q(0)| over the largest |q| of the run, or the largest of ``scales`` (how much of
     q the bodies carry without cancellations, see observe.momentum_scales) when larger: a body
-    starting at rest (q(0) = 0) that is then loaded gets a figure of at most 2, not one over zero
-    (1e302 before), and two bodies meeting head-on, with no total angular momentum, get their
-    change of it against what they carry (it read 1.0 for a change of 1e-5)."""
+    starting at rest (q(0) = 0) that is then loaded gets a figure of at most 2, and two bodies
+    meeting head-on, with no total angular momentum, get their change of it against what they
+    carry."""
     values = np.asarray(values, float)
     change = float(np.max(np.abs(values - reference)))
     scale = max(float(np.max(np.abs(reference))), float(np.max(np.abs(values))),
                 max(scales, default=0.0))
     return change / scale if scale > 0 else 0.0
-
-
-def run_scene(scene, out_dir, progress=True, log=print):
-    """Simulate ``scene`` and write its results into ``out_dir``; returns the summary dict.
-
-    On instability the frames written so far are kept, the summary records the failure, and the
-    InstabilityError is raised again for the caller to report.
-    """
-    with _forwarded(step_log, log):
-        return _run(scene, out_dir, progress, log)
 
 
 class _Forward(logging.Handler):
@@ -95,7 +84,7 @@ class _Forward(logging.Handler):
 
 
 @contextmanager
-def _forwarded(logger, log):
+def forwarded(logger, log):
     """Messages of ``logger`` (long work inside a step) go to the run's ``log`` while it runs."""
     handler, level = _Forward(log), logger.level
     logger.addHandler(handler)
@@ -107,73 +96,61 @@ def _forwarded(logger, log):
         logger.setLevel(level)
 
 
-def _run(scene, out_dir, progress, log):
-    sim = scene.simulation
-    try:
-        with geometry.caught_mesh_warnings() as repaired:
-            model, state = build(scene)
-    except (ValueError, geometry.MeshError) as error:    # what only the built bodies show
-        raise SceneError([f"{scene.source_path}: {error}"]) from None
-    for message in repaired:
-        log(f"warning: {message}")
-    for a, b in overlapping_bodies(model, state):
-        log(f"warning: bodies '{a}' and '{b}' overlap at the start")
-    steps_total = int(round(sim.duration / sim.dt))
-    frame_every = 1.0 / sim.output_fps
-    bar = Progress(sim.duration, enabled=progress)
-    energies, momenta, angular, carried = [], [], [], []
-    events, timings = [], {}
-    failure = None
-    wall0 = clock.perf_counter()
-    out_dir = Path(out_dir)
-    with RunWriter(out_dir, scene.name) as writer:
-        next_frame = 0.0
+class Recorder:
+    """Frames of one run: written to ``out_dir`` (a :class:`RunWriter`) when it is given, and the
+    totals (energy, momenta, the momentum the bodies carry) of every recorded frame kept for the
+    summary. Use it as a context manager so the files are closed on error."""
 
-        def record(model, state):
-            writer.write_frame(state.time, observe.frame_pieces(model, state), observe.body_rows(model, state))
+    def __init__(self, out_dir, scene_name):
+        self.writer = RunWriter(out_dir, scene_name) if out_dir is not None else None
+        self.energies, self.momenta, self.angular, self.carried = [], [], [], []
+        self.frames = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.writer is not None:
+            self.writer.__exit__(*exc)
+
+    def record(self, model, state):
+        """One frame: the bodies' geometry and fields, their rows and the regions' rows."""
+        if self.writer is not None:
+            self.writer.write_frame(state.time, observe.frame_pieces(model, state),
+                                    observe.body_rows(model, state))
             regions = observe.region_rows(model, state)
             if regions:
-                writer.write_regions(regions)
-            e, p, l = observe.totals(model, state)
-            energies.append(e), momenta.append(p), angular.append(l)
-            carried.append(observe.momentum_scales(model, state))
+                self.writer.write_regions(regions)
+        e, p, l = observe.totals(model, state)
+        self.energies.append(e), self.momenta.append(p), self.angular.append(l)
+        self.carried.append(observe.momentum_scales(model, state))
+        self.frames += 1
 
-        record(model, state)
-        next_frame += frame_every
-        try:
-            for _ in range(steps_total):
-                state = step(model, state)
-                model, state, happened = between_steps(model, state, timings)
-                for event in happened:
-                    log(event.message)
-                events.extend(happened)
-                if state.time >= next_frame - 1e-9 * sim.dt:
-                    record(model, state)
-                    next_frame += frame_every
-                bar.update(state.time, state.steps)
-        except InstabilityError as err:
-            failure = err
-        bar.update(state.time, state.steps, force=True)
-        bar.done()
-        wall = clock.perf_counter() - wall0
-        summary = _summary(scene, model, state, wall, energies, momenta, angular, carried, writer.frames_written, failure)
-        summary["events"] = [e.as_dict() for e in events]
-        summary["fracture"] = {
-            "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
-            "bodies_at_end": len(model.names),
-            "fragments": len(model.names) - len(scene.bodies),
-            "timings": timings,
+    def close(self, summary):
+        """Write ``summary.json`` and close the tables (nothing without an output folder)."""
+        if self.writer is not None:
+            self.writer.close(summary)
+
+    def conservation(self, model):
+        """The summary's conservation section: drifts of energy and momenta over the frames."""
+        no_external = not np.any(model.gravity) and model.rigid.plane_point.shape[0] == 0 \
+            and not np.any(model.rigid.body_fixed) and not any(m.anchor_nodes or m.load_nodes for m in model.fem)
+        E, P, L = np.array(self.energies), np.array(self.momenta), np.array(self.angular)
+        return {
+            "momentum_conserved_expected": bool(no_external),
+            "energy_relative_drift": _drift(E, E[0]) if len(E) else None,
+            "linear_momentum_relative_drift": _drift(P, P[0], [c[0] for c in self.carried]) if len(P) else None,
+            "angular_momentum_relative_drift": _drift(L, L[0], [c[1] for c in self.carried]) if len(L) else None,
+            "note": "drifts are max |q(t) - q(0)| over written frames, relative to the largest |q|, or "
+                    "for momenta the largest sum of the bodies' and nodes' own |p| or |x x p| when "
+                    "larger (bodies meeting head-on carry momentum that sums to zero); energy includes "
+                    "gravity and elastic energy and is conserved only without friction, inelastic "
+                    "contact or damping; momenta only without gravity, planes, fixed bodies or anchors",
         }
-        writer.close(summary)
-    if failure is not None:
-        raise failure
-    return summary
 
 
-def _summary(scene, model, state, wall, energies, momenta, angular, carried, frames, failure):
-    no_external = not np.any(model.gravity) and model.rigid.plane_point.shape[0] == 0 \
-        and not np.any(model.rigid.body_fixed) and not any(m.anchor_nodes or m.load_nodes for m in model.fem)
-    E, P, L = np.array(energies), np.array(momenta), np.array(angular)
+def summary(scene, model, state, wall, recorder, failure, events, timings):
+    """The run's ``summary.json`` content."""
     return {
         "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
         "scene_file": str(scene.source_path),
@@ -182,21 +159,18 @@ def _summary(scene, model, state, wall, energies, momenta, angular, carried, fra
         "bodies": model.names,
         "simulated_time": state.time,
         "steps": state.steps,
-        "frames": frames,
+        "frames": recorder.frames,
         "wall_time": wall,
         "steps_per_second": state.steps / wall if wall > 0 else None,
         "plastic_dissipation": observe.plastic_dissipation(model, state),
         "plastic_dissipation_note": "plastic work (J) dissipated by von Mises flow in bodies with a "
                                     "yield_stress, since the start; 0 when no body has one",
-        "conservation": {
-            "momentum_conserved_expected": bool(no_external),
-            "energy_relative_drift": _drift(E, E[0]) if len(E) else None,
-            "linear_momentum_relative_drift": _drift(P, P[0], [c[0] for c in carried]) if len(P) else None,
-            "angular_momentum_relative_drift": _drift(L, L[0], [c[1] for c in carried]) if len(L) else None,
-            "note": "drifts are max |q(t) - q(0)| over written frames, relative to the largest |q|, or "
-                    "for momenta the largest sum of the bodies' and nodes' own |p| or |x x p| when "
-                    "larger (bodies meeting head-on carry momentum that sums to zero); energy includes "
-                    "gravity and elastic energy and is conserved only without friction, inelastic "
-                    "contact or damping; momenta only without gravity, planes, fixed bodies or anchors",
+        "conservation": recorder.conservation(model),
+        "events": [e.as_dict() for e in events],
+        "fracture": {
+            "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
+            "bodies_at_end": len(model.names),
+            "fragments": len(model.names) - len(scene.bodies),
+            "timings": timings,
         },
     }

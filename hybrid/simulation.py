@@ -1,0 +1,186 @@
+"""The one step loop: a scene built once, stepped with the events between steps, recorded.
+
+    from hybrid import Simulation
+    sim = Simulation.from_toml("dent")          # a built-in scene by name, or a path to a .toml
+    sim.run(until=0.2, out="outputs/dent")      # frames, bodies.csv, regions.csv, summary.json
+    print(sim.time, sim.body("ball").position)
+
+The command line (``hybrid run``), the tests and the benchmarks all step scenes through this
+class, so a scene gives the same numbers whichever of them runs it.
+"""
+import time as clock
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .app import geometry, observe
+from .app.build import build
+from .app.run import Progress, Recorder, forwarded, overlapping_bodies, summary
+from .app.scene import SceneError, load_scene
+from .coupling.events import between_steps
+from .coupling.step import InstabilityError, log as step_log, step
+
+
+@dataclass(frozen=True)
+class Body:
+    """One body as the simulation has it now (a copy: changing it changes nothing).
+
+    name: the body's name (fracture pieces: ``<name>.<k>``). kind: ``"rigid"`` or ``"fem"``.
+    position (3,) m: centre of mass. orientation (4,): unit quaternion (w, x, y, z) of the body's
+    frame (FEM: its scene orientation turned by its best-fit rotation). velocity (3,) m/s: of the
+    centre of mass. angular_velocity (3,) rad/s. kinetic_energy J.
+    FEM bodies only (None for rigid ones): points (n, 3) m, node positions; tets (t, 4 or 10)
+    node indices; von_mises (t,) Pa and principal_stress (t,) Pa, of each element's stress;
+    plastic_strain (t,) accumulated equivalent plastic strain (0 without a yield_stress).
+    """
+    name: str
+    kind: str
+    position: np.ndarray
+    orientation: np.ndarray
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+    kinetic_energy: float
+    points: np.ndarray = None
+    tets: np.ndarray = None
+    von_mises: np.ndarray = None
+    principal_stress: np.ndarray = None
+    plastic_strain: np.ndarray = None
+
+
+class Simulation:
+    """A scene being simulated: ``Simulation(scene)`` builds its bodies (raises
+    :class:`hybrid.app.scene.SceneError` for problems only the built bodies show, such as an anchor
+    box that holds no node); :meth:`step` and :meth:`run` advance it.
+
+    model: the coupled model (:class:`hybrid.coupling.model.HybridModel`, constant between events;
+    events such as fracture replace it). state: the coupled state (everything that changes).
+    events: every event so far (fracture, reference-shape updates), each with ``.message`` and
+    ``.as_dict()``. warnings: what building the scene found worth saying (repaired meshes, bodies
+    overlapping at the start). timings: wall time (s) of event work by kind.
+    """
+
+    def __init__(self, scene):
+        self.scene = scene
+        try:
+            with geometry.caught_mesh_warnings() as repaired:
+                self.model, self.state = build(scene)
+        except (ValueError, geometry.MeshError) as error:
+            raise SceneError([f"{scene.source_path}: {error}"]) from None
+        self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
+                                          for a, b in overlapping_bodies(self.model, self.state)]
+        self.events, self.timings = [], {}
+
+    @classmethod
+    def from_toml(cls, path):
+        """Load, validate and build a scene file, or a built-in scene given by name (``hybrid
+        scenes`` lists them). Raises SceneError listing every problem, FileNotFoundError for a
+        missing file."""
+        return cls(load_scene(scene_path(path)))
+
+    @property
+    def time(self):
+        """Simulated time (s)."""
+        return self.state.time
+
+    @property
+    def steps(self):
+        """Steps taken."""
+        return self.state.steps
+
+    @property
+    def dt(self):
+        """The scene's time step (s)."""
+        return self.model.dt
+
+    @property
+    def body_names(self):
+        """Every body's name, in scene order (fracture pieces appended as they appear)."""
+        return list(self.model.names)
+
+    def step(self):
+        """Advance every body by one time step, then apply the events due (reference-shape
+        updates, fracture). Returns this step's events. Raises InstabilityError (naming the body,
+        the time and the quantity) when a body's state diverges; the simulation is then left at
+        the last finite state."""
+        self.state = step(self.model, self.state)
+        return self._between_steps()
+
+    def _between_steps(self):
+        """Apply the events due after a step; returns them."""
+        self.model, self.state, happened = between_steps(self.model, self.state, self.timings)
+        self.events.extend(happened)
+        return happened
+
+    def run(self, until=None, out=None, progress=True, log=print):
+        """Step until simulated time ``until`` (s; default the scene's ``duration``), recording a
+        frame at the scene's ``output_fps`` (and one at the current time). With ``out`` (a
+        folder), write the frames (.vtu and a .pvd index), bodies.csv, regions.csv and
+        summary.json there, as ``hybrid run`` does. Messages (warnings, events) go to ``log``.
+        Returns the summary (a dict). On instability the frames so far and the summary are kept
+        and the InstabilityError is raised again."""
+        sim = self.scene.simulation
+        until = sim.duration if until is None else float(until)
+        steps_total = int(round((until - self.time) / sim.dt))
+        for message in self.warnings:
+            log(f"warning: {message}")
+        self.warnings = []
+        bar = Progress(until, enabled=progress)
+        failure, first_event, wall0 = None, len(self.events), clock.perf_counter()
+        with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder:
+            failure = self._steps(steps_total, recorder, bar, log)
+            bar.update(self.time, self.steps, force=True)
+            bar.done()
+            wall = clock.perf_counter() - wall0
+            result = summary(self.scene, self.model, self.state, wall, recorder, failure,
+                             self.events[first_event:], self.timings)
+            recorder.close(result)
+        if failure is not None:
+            raise failure
+        return result
+
+    def _steps(self, count, recorder, bar, log):
+        """Take ``count`` steps, recording frames at the output rate; the InstabilityError that
+        stopped them, or None."""
+        frame_every = 1.0 / self.scene.simulation.output_fps
+        recorder.record(self.model, self.state)
+        next_frame = self.time + frame_every
+        try:
+            for _ in range(count):
+                for event in self.step():
+                    log(event.message)
+                if self.time >= next_frame - 1e-9 * self.dt:
+                    recorder.record(self.model, self.state)
+                    next_frame += frame_every
+                bar.update(self.time, self.steps)
+        except InstabilityError as error:
+            return error
+        return None
+
+    def body(self, name):
+        """The body called ``name`` now (a :class:`Body`); KeyError naming the bodies there are."""
+        if name not in self.model.names:
+            raise KeyError(f"no body '{name}'; bodies: {', '.join(self.model.names)}")
+        index = self.model.names.index(name)
+        row = next(r for r in observe.body_rows(self.model, self.state) if r[1] == name)
+        values = np.array(row[2:], float)
+        pose = dict(name=name, position=values[0:3], orientation=values[3:7], velocity=values[7:10],
+                    angular_velocity=values[10:13], kinetic_energy=float(values[13]))
+        if index not in self.model.fem_ids:
+            return Body(kind="rigid", **pose)
+        j = self.model.fem_ids.index(index)
+        m, s = self.model.fem[j], self.state.fem[j]
+        fields = observe.tet_fields(m, s)
+        plastic = np.broadcast_to(fields["plastic_strain"], (m.tet_count,)).copy()
+        return Body(kind="fem", points=s.x.copy(), tets=m.tets.copy(), von_mises=fields["von_mises"],
+                    principal_stress=fields["principal_stress"], plastic_strain=plastic, **pose)
+
+
+def scene_path(path_or_name):
+    """The scene file a user named: an existing path, else a built-in scene of that name."""
+    path = Path(path_or_name)
+    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+        return path
+    from . import scenes
+    builtin = Path(scenes.__file__).parent / f"{path_or_name}.toml"
+    return builtin if builtin.exists() else path
