@@ -105,6 +105,17 @@ def test_linear_and_corotated_solvers_default_to_cholmod_and_cg(tmp_path):
     assert (solver.linear_solver, solver.corotated_solver) == ("superlu", "lu")
 
 
+def test_solver_choices_reach_every_fem_body(tmp_path):
+    from hybrid.app.build import build
+    soft = ('[[bodies]]\nname = "{}"\nmodel = "fem"\nyoung = 1e5\nframe = "{}"\n'
+            'shape = {{ type = "box", size = [0.1, 0.1, 0.1] }}\nposition = [{}, 0, 0]\n')
+    bodies = soft.format("a", "floating", 0.0) + soft.format("b", "corotated", 0.5)
+    for choices in ('', 'linear_solver = "superlu"\ncorotated_solver = "lu"\n'):
+        model, _ = build(load_scene(write_scene(tmp_path, "[simulation.solver]\n" + choices + bodies)))
+        expected = ("superlu", "lu") if choices else ("cholmod", "cg")
+        assert [(m.linear_solver, m.corotated_solver) for m in model.fem] == [expected] * 2
+
+
 @pytest.mark.parametrize("line, expected", [
     ('linear_solver = "umfpack"', 'field \'linear_solver\' must be one of "cholmod", "superlu", got "umfpack"'),
     ('corotated_solver = "gmres"', 'field \'corotated_solver\' must be one of "cg", "lu", got "gmres"'),

@@ -40,7 +40,9 @@ def build(scene):
     rigid_model, rigid_state = build_rigid([rigid_desc(b) for b in rigid_bodies], planes)
     index = {b.name: i for i, b in enumerate(scene.bodies)}
     from . import deformable  # FEM bodies are built by their own module
-    fem_models, fem_states = deformable.build_bodies(fem_bodies, sim.dt)
+    fem_models, fem_states = deformable.build_bodies(
+        fem_bodies, sim.dt, linear_solver=sim.solver.linear_solver,
+        corotated_solver=sim.solver.corotated_solver)
     settings = ContactSettings(iterations=sim.solver.iterations,
                                deformable_iterations=sim.solver.deformable_iterations,
                                margin=sim.solver.contact_margin,

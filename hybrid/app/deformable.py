@@ -32,8 +32,11 @@ def _tet_mesh(body):
     return points, tets, 1
 
 
-def build_bodies(bodies, dt):
-    """FemModel and initial FemState of each FEM body (in scene order)."""
+def build_bodies(bodies, dt, *, linear_solver="cholmod", corotated_solver="cg"):
+    """FemModel and initial FemState of each FEM body (in scene order).
+
+    linear_solver ("cholmod" | "superlu") and corotated_solver ("cg" | "lu") are the scene's
+    ``[simulation.solver]`` choices, the same for every body."""
     models, states = [], []
     for body in bodies:
         points, tets, file_order = _tet_mesh(body)
@@ -64,7 +67,8 @@ def build_bodies(bodies, dt):
                                 frame=body.frame, mass=body.mass_matrix, integrator=body.integrator,
                                 anchors=anchors, loads=loads, dt=dt, yield_stress=body.yield_stress,
                                 plastic_update_strain=body.plastic_update_strain,
-                                max_plastic_strain=body.max_plastic_strain)
+                                max_plastic_strain=body.max_plastic_strain,
+                                linear_solver=linear_solver, corotated_solver=corotated_solver)
         x = model.rest_points
         w = np.asarray(body.angular_velocity, float)
         center = np.average(x, axis=0, weights=model.node_mass)
