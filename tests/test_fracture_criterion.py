@@ -9,7 +9,7 @@ import scipy.sparse as sp
 import skfem
 
 from fem.fracture import (crack_faces, face_neighbours, find_crack, fracture_candidates,
-                          fracture_model, smooth_stress, smoothing_operator)
+                          fracture_model, smooth_stress, smoothing_operator, tearing_candidates)
 from fem.mesh import quadratic_tets, tet_signed_volumes
 from fem.split import (components, lumped_mass_from_elements, lumped_mass_p1,
                        split_bodies, split_mesh, tet_faces, transfer_node_state)
@@ -123,6 +123,21 @@ def test_max_cracks_keeps_the_most_overstressed_and_unbreakable_never_cracks():
     per_element = np.full(5, STRENGTH)
     per_element[4] = 5 * STRENGTH
     assert np.array_equal(fracture_candidates(sigma, per_element).element, [1, 3, 0])
+
+
+def test_tearing_needs_plastic_strain_past_the_limit_while_the_element_flows():
+    axes = ([0, 0, 1], [1, 0, 0], [0, 1, 1], [0, 0, 1])
+    sigma = np.stack([uniaxial(0.5 * STRENGTH, a) for a in axes])
+    peeq = np.array([0.06, 0.04, 0.08, 0.07])
+    flowing = np.array([True, True, False, True])
+    # element 1 is below the tearing strain, element 2 has stopped flowing (unloaded): neither
+    # tears; the most strained first, across the largest principal stress
+    found = tearing_candidates(sigma, peeq, flowing, 0.05)
+    assert np.array_equal(found.element, [3, 0])
+    assert np.allclose(np.abs(found.normal[:, 2]), 1.0)
+    assert np.allclose(found.principal_stress, 0.5 * STRENGTH)
+    unbreakable = np.array([False, False, False, True])
+    assert np.array_equal(tearing_candidates(sigma, peeq, flowing, 0.05, unbreakable).element, [0])
 
 
 # --- 2. smoothing -------------------------------------------------------------------
@@ -296,7 +311,8 @@ def test_tension_cracking_the_layer_at_mid_length_separates_the_bar():
     # A whole cell layer cracking cuts both of its planes: the ends come apart.
     centroid = points[tets].mean(axis=1)[:, 0]
     layer = (centroid > 2.0) & (centroid < 2.0 + 4.0 / 6)
-    chosen = opened_faces(points, tets, np.flatnonzero(layer), np.tile([1.0, 0, 0], (layer.sum(), 1)))
+    chosen = opened_faces(points, tets, np.flatnonzero(layer),
+                          np.tile([1.0, 0, 0], (layer.sum(), 1)))
     new_points, new_tets, _ = split_mesh(points, tets, chosen)
     labels, count = components(new_tets, new_points.shape[0])
     assert count >= 2

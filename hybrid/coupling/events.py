@@ -30,7 +30,8 @@ class ReferenceUpdate:
     @property
     def message(self):
         """One line for the run log."""
-        return f"t = {self.time:.4f} s: '{self.body}' took its plastic deformation into its rest shape"
+        return (f"t = {self.time:.4f} s: '{self.body}' took its plastic deformation into its "
+                "rest shape")
 
     def as_dict(self):
         """JSON-ready summary row: time, body, event kind."""
@@ -46,7 +47,15 @@ def between_steps(model, state, timings=None):
     fem, fem_states, updated = apply_reference_updates(model.fem, state.fem, model.dt)
     if updated:
         model = replace(model, fem=fem)
-        state = replace(state, fem=fem_states)
-        events += [ReferenceUpdate(float(state.time), model.names[model.fem_ids[j]]) for j in updated]
+        state = replace(state, fem=fem_states, contact_sets=_forget(state.contact_sets, updated))
+        events += [ReferenceUpdate(float(state.time), model.names[model.fem_ids[j]])
+                   for j in updated]
     model, state, cracks = apply_fracture(model, state, timings)
     return model, state, events + cracks
+
+
+def _forget(contact_sets, bodies):
+    """The contact sets with those of ``bodies`` dropped (their models changed)."""
+    if contact_sets is None:
+        return None
+    return tuple(None if j in bodies else s for j, s in enumerate(contact_sets))
