@@ -281,7 +281,7 @@ class _Bodies:
                             fem=self.fem, fem_ids=self.fem_ids, names=self.names, scene=scene,
                             fragment_of=self.origins, fracture=tuple(self.data))
         new_state = replace(state, rigid=rigid_state, fem=self.fem_states, contact_memory=None,
-                            resting=None)
+                            resting=None, contact_sets=None)
         return new_model, new_state
 
 

@@ -7,6 +7,17 @@ from rigid.step import ContactSettings
 
 
 @dataclass
+class CouplingCache:
+    """Memos of the coupled step that depend only on the model and give the same answer whatever
+    ran before (so they never change results), built on first use.
+
+    stacked_rows: the last ``(blocks, rigid_count)`` given to the contact problem's row stacking
+    and its answer (hybrid.coupling.problem); resting contact asks the same again every step.
+    """
+    stacked_rows: tuple = None
+
+
+@dataclass
 class HybridModel:
     """Everything constant during a run.
 
@@ -16,6 +27,7 @@ class HybridModel:
     gravity (3,) m/s^2. dt s. settings: ContactSettings. scene: the Scene it was built from.
     fragment_of: per name, the scene index of the body it came from (itself for scene bodies).
     fracture: per FEM body, its fracture data (hybrid.coupling.events), None until first used.
+    cache: CouplingCache, the coupled step's memos (a derived model starts with an empty one).
     """
     rigid: object
     rigid_ids: np.ndarray
@@ -28,17 +40,25 @@ class HybridModel:
     scene: object = None
     fragment_of: list = None
     fracture: list = None
+    cache: CouplingCache = field(default_factory=CouplingCache, init=False, compare=False, repr=False)
 
 
 @dataclass
 class HybridState:
-    """Everything that changes: rigid state, one FemState per deformable body, time (s), steps,
-    the last step's node-contact impulses (hybrid.coupling.step.ContactMemory, a warm start) and each
-    deformable body's resting nodes (hybrid.coupling.resting.Resting or None, one per body); both None
-    before the first step and after bodies change."""
+    """Everything that changes.
+
+    rigid: RigidState. fem: one FemState per deformable body. time (s), steps.
+    Step history, None before the first step and after the bodies change (an event):
+    contact_memory: the last step's node-contact impulses (hybrid.coupling.memory.ContactMemory,
+    the solver's warm start). resting: per deformable body, its resting nodes
+    (hybrid.coupling.resting.Resting or None). contact_sets: per deformable body, the node set
+    its contacts were solved on in its last step with contacts ((k,) int64 or None; see
+    fem.contact_response.contact_set).
+    """
     rigid: object
     fem: list = field(default_factory=list)
     time: float = 0.0
     steps: int = 0
     contact_memory: object = None
     resting: tuple = None
+    contact_sets: tuple = None

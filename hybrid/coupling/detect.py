@@ -1,0 +1,73 @@
+"""Contact detection of the coupled step: rigid bodies among themselves and with planes; surface
+nodes of deformable bodies against planes, rigid shapes and other deformable bodies' faces; rigid
+corners and edges against deformable faces."""
+from dataclasses import dataclass
+
+import numpy as np
+
+from rigid import quaternion as quat
+from rigid import step as rigid_step
+from rigid.contacts import Contacts, detect, detect_points
+
+from .fem_contact import SurfaceContacts, detect_fem_pairs, detect_rigid_points, edge_normals
+
+
+@dataclass
+class Found:
+    """Every contact of a step, in the index space of its kind.
+
+    rigid: rigid bodies against rigid bodies and planes (rigid body indices).
+    nodes: stacked surface nodes (side a) against planes (-1) and rigid bodies (side b).
+    nodes_static (nodes.count,) bool: side b is static (a plane or a fixed rigid body).
+    pairs: stacked surface nodes against places on other deformable bodies' surface triangles.
+    on_faces: rigid sample points (side a, rigid bodies) against places on deformable faces.
+    corners (q, 3) stacked nodes and weights (q, 3): the places of pairs then on_faces.
+    in_others: stacked nodes in a contact with another deformable body or a rigid point.
+    """
+    rigid: Contacts
+    nodes: Contacts
+    nodes_static: np.ndarray
+    pairs: SurfaceContacts
+    on_faces: SurfaceContacts
+    corners: np.ndarray
+    weights: np.ndarray
+    in_others: np.ndarray
+
+
+def fem_bodies(model):
+    """The scene bodies of the FEM bodies, in FEM body order."""
+    return [model.scene.bodies[i] for i in model.fem_ids]
+
+
+def detect_all(model, state, nodes, rigid_bodies, h):
+    """Every contact of the step (:class:`Found`): ``nodes`` are the stacked surface nodes
+    (:class:`hybrid.coupling.nodes.SurfaceNodes`), ``rigid_bodies`` the rigid solver bodies after
+    the kick."""
+    rm, rs, margin = model.rigid, state.rigid, model.settings.margin
+    R = quat.to_matrix(rs.orientation)
+    rigid_sweep = rigid_step.reach(rm, rigid_bodies, h)
+    c_rigid = detect(rm, rs.position, R, rigid_sweep, margin)
+    bodies = fem_bodies(model)
+    mu = np.array([b.friction for b in bodies])[nodes.body]
+    e = np.array([b.restitution for b in bodies])[nodes.body]
+    sweep = np.linalg.norm(nodes.v, axis=1) * h
+    c_nodes = detect_points(rm, rs.position, R, nodes.x, sweep, rigid_sweep, margin, mu, e)
+    c_nodes.normal, c_nodes.gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
+    c_nodes = c_nodes.take(front)
+    # surface nodes against other deformable bodies' faces; rigid corners and edges against them
+    # (the rigid body is side a); side b is a place in a surface triangle
+    pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
+    on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, bodies,
+                                   nodes.offset, sweep, margin)
+    corners = np.concatenate([pairs.corners, on_faces.corners])
+    weights = np.concatenate([pairs.weights, on_faces.weights])
+    return Found(rigid=c_rigid, nodes=c_nodes, nodes_static=static_side(rm, c_nodes.body_b),
+                 pairs=pairs, on_faces=on_faces, corners=corners, weights=weights,
+                 in_others=np.concatenate([pairs.a, corners[weights > 0]]))
+
+
+def static_side(rigid_model, body_b):
+    """``(c,)`` bool: side b is static (a plane, or a fixed rigid body)."""
+    if rigid_model.body_count == 0:
+        return body_b < 0
+    return (body_b < 0) | rigid_model.body_fixed[np.maximum(body_b, 0)]

@@ -1,0 +1,95 @@
+"""The coupled step's side of resting contact (hybrid.coupling.resting): which deformable bodies
+step with their resting nodes held to static ground, the held nodes' contact rows, the impulses
+the hold gave them, and each body's resting record after the step.
+
+A held node in any contact but its hold with static ground, or a hold whose impulses stop pushing
+and sticking, lets go: the step answers :class:`LetGo` and is taken again with that body free.
+"""
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import resting
+
+
+@dataclass(frozen=True)
+class LetGo:
+    """The resting nodes held in deformable body ``body`` (an index into model.fem) let go."""
+    body: int
+
+
+def records(model, state):
+    """Each FEM body's resting record (None where there is none yet)."""
+    return state.resting if state.resting is not None else (None,) * len(model.fem)
+
+
+def hold_sets(model, state):
+    """Per FEM body, its resting record when the body steps with its resting nodes held, else None."""
+    return [r if model.settings.hold_resting and r is not None and r.held and resting.eligible(m)
+            else None for m, r in zip(model.fem, records(model, state))]
+
+
+def held_rows(hold, nodes, found):
+    """Which node contacts of ``found`` (stacked nodes on side a) are held nodes' contacts with
+    static ground, ``(c,)`` bool; and the LetGo of the first body with a held node in any other
+    contact (None when there is none)."""
+    held = np.zeros(nodes.count, dtype=bool)
+    for j, r in enumerate(hold):
+        if r is not None:
+            held[nodes.stacked(j, r.nodes)] = True
+    contacts = found.nodes
+    rows = held[contacts.body_a]
+    for at in (contacts.body_a[rows & ~found.nodes_static], found.in_others[held[found.in_others]]):
+        if len(at):
+            return rows, LetGo(int(nodes.body[at[0]]))
+    return rows, None
+
+
+def hold_impulses(hold, nodes, found, rows, new_fem, solved_impulse, h):
+    """The impulse (N s, on side a) each node contact took: ``solved_impulse`` for the rows the
+    solver had, the hold's push (the held nodes' reactions, shared among a node's rows) for held
+    rows; ``new_fem`` loses those reactions (the ground's push is a contact's, not an anchor's).
+    Returns (row impulses (c, 3), the LetGo of a hold that stopped pushing or sticking, or None)."""
+    contacts = found.nodes
+    row_impulse = np.zeros((contacts.count, 3))
+    row_impulse[~rows] = solved_impulse
+    for j, r in enumerate(hold):
+        if r is None:
+            continue
+        impulse = h * new_fem[j].node_reaction[r.nodes]
+        if resting.violations(r, impulse).any():
+            return row_impulse, LetGo(j)
+        mine = np.nonzero(rows & (nodes.body[contacts.body_a] == j))[0]
+        at = np.searchsorted(r.nodes, nodes.local[contacts.body_a[mine]])
+        share = np.bincount(at, minlength=len(r.nodes))[at]
+        row_impulse[mine] = impulse[at] / share[:, None]
+        reaction = new_fem[j].node_reaction.copy()
+        reaction[r.nodes] = 0.0
+        new_fem[j] = new_fem[j].replace(node_reaction=reaction)
+    return row_impulse, None
+
+
+def watch(model, state, nodes, found, row_impulse):
+    """Each deformable body's resting record after the step (hybrid.coupling.resting.observe) from
+    its node contacts with planes and rigid bodies and the stacked nodes in any other contact;
+    None where bodies are not held."""
+    if not model.settings.hold_resting:
+        return (None,) * len(model.fem)
+    contacts, others = found.nodes, found.in_others
+    body = nodes.body[contacts.body_a]
+    out = []
+    for j, (m, s, last) in enumerate(zip(model.fem, state.fem, records(model, state))):
+        on = body == j
+        out.append(resting.observe(
+            last, nodes.local[contacts.body_a[on]], nodes.local[others[nodes.body[others] == j]],
+            contacts.normal[on], contacts.gap[on], s.x, contacts.friction[on], row_impulse[on],
+            found.nodes_static[on], m.node_anchor >= 0, resting.stick_margin(m))
+            if resting.eligible(m) else None)
+    return tuple(out)
+
+
+def released(model, state, body):
+    """The state with deformable body ``body``'s held resting nodes let go."""
+    out = list(records(model, state))
+    out[body] = resting.released(out[body])
+    return replace(state, resting=tuple(out))

@@ -1,0 +1,92 @@
+"""Solving the contact problem: one contact resolution for every body, each deformable body then
+taking the impulses on its nodes through its own implicit system; and integrating to the step's end.
+"""
+import numpy as np
+
+from fem import dynamics as fem_dyn
+from fem.contact_response import apply_contact_impulses
+from rigid import step as rigid_step
+
+from .nodes import moving
+
+# coupling rounds of a step with corotated bodies in contact: at most MAX_ROUNDS, done when no
+# touched node's velocity differs from the solver's by more than COUPLING_TOL of the step's
+# velocity scale (gravity's gain over the step plus the fastest touched node). Two rounds let a
+# box resting on the tip of a corotated cantilever bent by 10 degrees sink into it at 0.3 mm/s
+MAX_ROUNDS = 10
+COUPLING_TOL = 1e-4
+
+
+def solve(model, state, fems, predicted, nodes, problem, h):
+    """Contact impulses of the step (rigid_step.Resolution over all solver bodies). Each touched
+    deformable body takes the impulses on its nodes (a place's shared among its triangle's nodes
+    by its weights) through its own implicit system: ``predicted[j]`` is replaced by the body's
+    step with them. The Delassus blocks are exact for floating and anchored bodies; corotated
+    ones answer through their rest system, so their contacts are solved again from the velocities
+    the nodes really took until those are the ones the solver expected (to COUPLING_TOL), in at
+    most MAX_ROUNDS rounds."""
+    nb = model.rigid.body_count
+    parts, bodies, contacts = problem.parts, problem.bodies, problem.contacts
+    rounds = MAX_ROUNDS if any(model.fem[j].frame == "corotated" for j in problem.touched_bodies) else 1
+    warm = state.contact_memory.recall(problem.keys) if state.contact_memory is not None else None
+    res, applied = None, np.zeros((contacts.count, 3))
+    for _ in range(rounds):
+        if res is not None and _settled(model, state, predicted, nodes, problem, res, h):
+            break
+        res = rigid_step.resolve_contacts(bodies, contacts, h, model.gravity, model.settings,
+                                          previous=res, warm=warm)
+        total = res.collision_impulse + res.contact_impulse
+        increment, applied = total - applied, total
+        on_a, on_b = contacts.body_a >= nb, contacts.body_b >= nb
+        if not (on_a.any() or on_b.any()):
+            break
+        impulse = np.zeros((parts.count, 3))
+        np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
+        np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
+        node_impulse = parts.spread(impulse, nodes.count)
+        for j in problem.touched_bodies:
+            at = parts.nodes_of(j)
+            predicted[j] = apply_contact_impulses(fems[j], state.fem[j], predicted[j], h,
+                                                  nodes.local[at], node_impulse[at])
+    return res
+
+
+def _settled(model, state, predicted, nodes, problem, res, h):
+    """Whether the touched nodes move as the last solve expected; if not, the solver bodies take
+    the velocities the bodies really took, to be solved again."""
+    nb, parts, bodies = model.rigid.body_count, problem.parts, problem.bodies
+    for j in problem.touched_bodies:
+        at = parts.nodes_of(j)
+        nodes.v[at] = moving(predicted[j], state.fem[j], nodes.local[at], h)
+    expected = res.velocity[nb:nb + len(parts.nodes)]
+    miss = np.abs(nodes.v[parts.nodes] - expected).max(initial=0.0)
+    if miss <= COUPLING_TOL * (h * np.linalg.norm(model.gravity) + np.abs(expected).max(initial=0.0)):
+        return True
+    bodies.velocity = np.concatenate([res.velocity[:nb], parts.mean(nodes.v)])
+    bodies.velocity_at_t = bodies.velocity
+    bodies.angular = res.angular
+    return False
+
+
+def integrate(model, state, fems, predicted, nodes, parts, res, v, h):
+    """The step's end: rigid bodies drift with their resolved velocities (``v``: the kicked ones);
+    deformable bodies finish their steps, touched nodes taking their share of penetration recovery
+    (positions only; a place's share reached its nodes in the solver). Returns (rigid state,
+    FEM states)."""
+    nb = model.rigid.body_count
+    rigid_res = rigid_step.Resolution(*(a[:nb] for a in (
+        res.velocity, res.angular, res.shift, res.shift_rotation, res.pseudo_velocity,
+        res.pseudo_angular, res.impact_dv, res.momentum_fix)))
+    new_rigid = rigid_step.drift(model.rigid, state.rigid, rigid_res, h, v)
+    new_fem = []
+    pseudo = res.pseudo_velocity[nb:nb + len(parts.nodes)]
+    for j, (m, s, pr) in enumerate(zip(fems, state.fem, predicted)):
+        s_new = fem_dyn.finish(m, s, pr, h)
+        sel = parts.body == j
+        if sel.any() and np.any(pseudo[sel]):
+            x = s_new.x.copy()
+            x[nodes.local[parts.nodes[sel]]] += h * pseudo[sel]
+            R_fit, c_fit = fem_dyn.body_frame(m, x)
+            s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
+        new_fem.append(s_new)
+    return new_rigid, new_fem

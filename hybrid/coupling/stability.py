@@ -1,0 +1,41 @@
+"""The check after every step: each body's state finite and physically plausible."""
+import numpy as np
+
+# above these the run is declared unstable (no scene of everyday objects gets near them)
+MAX_SPEED = 1.0e4       # m/s
+MAX_DISTANCE = 1.0e6    # m
+
+
+class InstabilityError(RuntimeError):
+    """A body's state stopped being finite or physically plausible: ``body`` (its name), ``time``
+    (s), ``quantity`` (what diverged, with its unit) and ``value``."""
+
+    def __init__(self, body, time, quantity, value):
+        self.body, self.time, self.quantity, self.value = body, time, quantity, value
+        super().__init__(f"unstable: body '{body}' at t = {time:.6g} s: {quantity} = {value:.3g}")
+
+
+def check_finite(model, state):
+    """Raise InstabilityError naming the first body whose state diverged."""
+    rs = state.rigid
+    if model.rigid.body_count:
+        for quantity, values, limit in (("speed (m/s)", rs.velocity, MAX_SPEED),
+                                        ("distance from origin (m)", rs.position, MAX_DISTANCE)):
+            size = _row_norms(values)
+            bad = ~np.isfinite(size) | (size > limit)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InstabilityError(model.names[model.rigid_ids[i]], state.time, quantity, float(size[i]))
+    for j, s in enumerate(state.fem):
+        for quantity, values, limit in (("node speed (m/s)", s.v, MAX_SPEED),
+                                        ("node distance from origin (m)", s.x, MAX_DISTANCE)):
+            # the largest row norm; NaN anywhere makes it NaN
+            worst = float(np.sqrt(_row_norms(values, squared=True).max(initial=0.0)))
+            if not np.isfinite(worst) or worst > limit:
+                raise InstabilityError(model.names[model.fem_ids[j]], state.time, quantity,
+                                       worst if np.isfinite(worst) else float("nan"))
+
+
+def _row_norms(a, squared=False):
+    sq = np.einsum("ij,ij->i", a, a)
+    return sq if squared else np.sqrt(sq)
