@@ -23,7 +23,9 @@ import numpy as np
 from fem import dynamics
 from fem.mesh import box_tet_mesh
 from fem.model import build_fem_model, rest_state
-from fem.reference import apply_reference_updates
+from hybrid import Simulation
+from hybrid.app.scene import parse_scene
+from hybrid.coupling.events import ReferenceUpdate
 
 
 def end_torsion(model, torque):
@@ -73,21 +75,17 @@ def step_cost(rows, frame, steps):
 
 def dent_updates(rows, strains):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from conftest import Sim
     from test_plasticity_structures import DENT_YIELD, plate_scene
     for strain in strains:
-        sim = Sim(plate_scene(f"yield_stress = {DENT_YIELD}\nplastic_update_strain = {strain}"))
-        count = [0]
-
-        def events(s):
-            s.model.fem, s.state.fem, done = apply_reference_updates(s.model.fem, s.state.fem, s.model.dt)
-            count[0] += len(done)
-
+        scene = plate_scene(f"yield_stress = {DENT_YIELD}\nplastic_update_strain = {strain}")
+        sim = Simulation(parse_scene(tomllib.loads(scene), "dent", Path(".")))
         t0 = time.perf_counter()
-        sim.advance(0.01, each=events)
+        for _ in range(int(round(0.01 / sim.dt))):
+            sim.step()
         wall = time.perf_counter() - t0
+        count = sum(isinstance(e, ReferenceUpdate) for e in sim.events)
         st = sim.state.fem[0]
-        rows.append(("dent 0.01 s", f"update strain {strain}", f"{wall:.2f} s wall", f"{count[0]} updates",
+        rows.append(("dent 0.01 s", f"update strain {strain}", f"{wall:.2f} s wall", f"{count} updates",
                      f"peeq max {st.tet_peeq.max():.4f}", f"{sim.model.fem[0].tet_count} tets, 100 steps"))
 
 

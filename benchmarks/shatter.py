@@ -13,39 +13,32 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from hybrid.app.build import build  # noqa: E402
-from hybrid.coupling.events import apply_fracture  # noqa: E402
+from hybrid import Simulation  # noqa: E402
 from hybrid.app.scene import parse_scene  # noqa: E402
-from hybrid.coupling.step import step  # noqa: E402
 
-SCENE = Path(__file__).resolve().parents[1] / "tests" / "test_fracture_structures.py"
+SCENE = Path(__file__).resolve().parents[1] / "tests" / "scenes" / "shatter.toml"
 
 
 def shatter_scene(resolution):
-    """The shatter scene of tests/test_fracture_structures.py at plate ``resolution`` (m)."""
-    namespace = {}
-    exec(compile(SCENE.read_text().split("def build_scene")[0], str(SCENE), "exec"), namespace)
-    text = namespace["SHATTER"].replace("resolution = 0.04", f"resolution = {resolution}")
+    """The shatter scene of tests/scenes/shatter.toml at plate ``resolution`` (m)."""
+    text = SCENE.read_text().replace("resolution = 0.04", f"resolution = {resolution}")
     return parse_scene(tomllib.loads(text), "shatter", Path("."))
 
 
 def measure(resolution, duration):
-    model, state = build(shatter_scene(resolution))
-    tets = model.fem[0].tet_count
-    timings = {}
-    stepping = 0.0
-    events = []
-    for _ in range(int(round(duration / model.dt))):
-        t0 = time.perf_counter()
-        state = step(model, state)
-        stepping += time.perf_counter() - t0
-        model, state, new = apply_fracture(model, state, timings)
-        events += new
-    return {"resolution_m": resolution, "plate_tets": tets, "steps": state.steps,
-            "step_s": stepping, "fracture_check_s": timings["fracture_check"],
-            "rebuild_s": timings["fracture_rebuild"], "crack_events": len(events),
-            "split_events": sum(bool(e.new_bodies) for e in events),
-            "fem_bodies": len(model.fem), "rigid_fragments": model.rigid.body_count - 3}
+    sim = Simulation(shatter_scene(resolution))
+    tets = sim.model.fem[0].tet_count
+    t0 = time.perf_counter()
+    for _ in range(int(round(duration / sim.dt))):
+        sim.step()
+    wall = time.perf_counter() - t0
+    check, rebuild = sim.timings["fracture_check"], sim.timings["fracture_rebuild"]
+    cracks = [e for e in sim.events if hasattr(e, "new_bodies")]
+    return {"resolution_m": resolution, "plate_tets": tets, "steps": sim.steps,
+            "step_s": wall - check - rebuild, "fracture_check_s": check,
+            "rebuild_s": rebuild, "crack_events": len(cracks),
+            "split_events": sum(bool(e.new_bodies) for e in cracks),
+            "fem_bodies": len(sim.model.fem), "rigid_fragments": sim.model.rigid.body_count - 3}
 
 
 def main():

@@ -63,41 +63,7 @@ box = [[0.26, -1, -1], [0.3, 1, 1]]
 box = [[-0.02, -1, 0.02], [0.02, 1, 0.04]]
 """
 
-SHATTER = """
-[simulation]
-dt = 0.001
-gravity = [0.0, 0.0, -9.81]
-[[planes]]
-friction = 0.6
-[[bodies]]
-name = "left"
-shape = { type = "box", size = [0.06, 0.5, 0.3] }
-position = [-0.22, 0.0, 0.15]
-fixed = true
-[[bodies]]
-name = "right"
-shape = { type = "box", size = [0.06, 0.5, 0.3] }
-position = [0.22, 0.0, 0.15]
-fixed = true
-[[bodies]]
-name = "ball"
-shape = { type = "sphere", radius = 0.04 }
-density = 7800.0
-position = [0.0, 0.0, 0.36]
-velocity = [0.0, 0.0, -20.0]
-[[bodies]]
-name = "plate"
-model = "fem"
-shape = { type = "box", size = [0.5, 0.3, 0.02], resolution = 0.04 }
-position = [0.0, 0.0, 0.31]
-young = 5.0e8
-poisson = 0.25
-density = 2500.0
-fracture_stress = 2.0e6
-fragment_model = "auto"
-rigid_fragment_tets = 4
-damping = { stiffness = 0.0002 }
-"""
+SHATTER = (Path(__file__).parent / "scenes" / "shatter.toml").read_text()
 
 
 def build_scene(text):
