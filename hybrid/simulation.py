@@ -20,6 +20,7 @@ from .app.run import Progress, Recorder, forwarded, overlapping_bodies, summary
 from .app.scene import SceneError, load_scene
 from .coupling.events import between_steps
 from .coupling.step import InstabilityError, log as step_log, step
+from .scenes import builtin_path
 
 
 @dataclass(frozen=True)
@@ -177,10 +178,12 @@ class Simulation:
 
 
 def scene_path(path_or_name):
-    """The scene file a user named: an existing path, else a built-in scene of that name."""
+    """The scene file a user named: an existing path, else the built-in scene of that name (a
+    name that is neither gives its path back, for the loader to report as missing)."""
     path = Path(path_or_name)
     if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
         return path
-    from . import scenes
-    builtin = Path(scenes.__file__).parent / f"{path_or_name}.toml"
-    return builtin if builtin.exists() else path
+    try:
+        return builtin_path(str(path_or_name))
+    except KeyError:
+        return path

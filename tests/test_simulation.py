@@ -119,3 +119,13 @@ def test_bodies_read_through_the_api_follow_free_fall_and_rest():
 def test_built_in_scene_runs_by_name():
     sim = Simulation.from_toml("default")
     assert sim.scene.name == "default" and "ball" in sim.body_names
+
+
+def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):
+    from hybrid.scenes import builtin_names
+    assert main(["scenes"]) == 0
+    listed = capsys.readouterr().out
+    assert all(f"  {name} " in listed for name in builtin_names())
+    assert {"dent", "pull", "shatter", "tear", "fragments", "pile"} <= set(builtin_names())
+    assert main(["run", "no_such_scene", "--quiet"]) == 2
+    assert "built-in scenes: " in capsys.readouterr().err

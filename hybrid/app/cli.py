@@ -1,4 +1,5 @@
-"""Command line: ``hybrid run [SCENE] [--out DIR]``, ``hybrid render DIR``, ``hybrid validate SCENE``.
+"""Command line: ``hybrid run [SCENE | NAME] [--out DIR]``, ``hybrid scenes``, ``hybrid render DIR``,
+``hybrid validate SCENE``.
 
 Exit codes: 0 success, 2 bad input (scene or mesh problems, missing run folder), 3 the
 simulation went unstable (frames written so far are kept), 4 rendering unavailable.
@@ -8,11 +9,25 @@ import sys
 from importlib import resources
 from pathlib import Path
 
+from ..scenes import builtin_names, builtin_path, builtin_summary
 from .scene import SceneError, load_scene, validate_command
 
 
 def _default_scene_path():
     return Path(str(resources.files("hybrid.scenes").joinpath("default.toml")))
+
+
+def _scenes_text():
+    names = builtin_names()
+    width = max(map(len, names))
+    return "\n".join(f"  {name:<{width}}  {builtin_summary(name)}" for name in names)
+
+
+def _scenes(args):
+    print("built-in scenes (hybrid run NAME; copy one from the path below to start your own):")
+    print(_scenes_text())
+    print(f"files: {builtin_path('default').parent}")
+    return 0
 
 
 def _rejected(path, err):
@@ -25,6 +40,10 @@ def _rejected(path, err):
 def _run(args):
     from ..simulation import Simulation, scene_path
     path = scene_path(args.scene) if args.scene else _default_scene_path()
+    if not path.exists() and path.suffix != ".toml" and len(path.parts) == 1:
+        print(f"{path}: no such scene file or built-in scene; built-in scenes: "
+              f"{', '.join(builtin_names())} (hybrid scenes lists them)", file=sys.stderr)
+        return 2
     try:
         scene = load_scene(path)
     except SceneError as err:
@@ -86,16 +105,23 @@ def _render(args):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="hybrid", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="hybrid", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Rigid bodies coupled with plastic, fracturing tetrahedral FEM: scene files in, "
+                    "VTK frames, tables and renders out.",
+        epilog=f"built-in scenes (hybrid run NAME):\n{_scenes_text()}\n\n"
+               "exit codes: 0 ok, 2 bad input, 3 unstable (frames so far kept), 4 rendering "
+               "unavailable, 130 interrupted")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="simulate a scene (the built-in default scene if none is given)")
-    p.add_argument("scene", nargs="?", help="scene file (TOML)")
+    p.add_argument("scene", nargs="?", help="scene file (TOML) or the name of a built-in scene")
     p.add_argument("--out", help="output folder (default outputs/<scene name>/)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p = sub.add_parser("render", help="render a finished run off-screen to PNG frames and a movie")
     p.add_argument("dir", help="run folder written by 'hybrid run'")
     p.add_argument("--size", type=int, nargs=2, default=[960, 540], metavar=("W", "H"))
     p.add_argument("--field", help="colour FEM bodies by a cell field (von_mises, principal_stress)")
+    sub.add_parser("scenes", help="list the built-in scenes")
     p = sub.add_parser("validate", help="check a scene file and report every problem")
     p.add_argument("scene")
     args = parser.parse_args(argv)
@@ -103,7 +129,7 @@ def main(argv=None):
         from .build import build     # meshes and regions are checked on the built bodies
         return validate_command(args.scene, check=build)
     try:
-        return {"run": _run, "render": _render}[args.command](args)
+        return {"run": _run, "render": _render, "scenes": _scenes}[args.command](args)
     except KeyboardInterrupt:
         print("\ninterrupted; whole frames written so far are kept", file=sys.stderr)
         return 130
