@@ -4,7 +4,7 @@ Degrees of freedom are node-major, ``dof = 3 * node + component``, matching ``(n
 flattened in C order. scikit-fem numbers its own DOFs (component-first within a node, vertices
 before edges); the permutation between the two is built once here and nowhere else.
 """
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -31,10 +31,6 @@ class ElementData:
     pattern_indptr: ``(3 n + 1,)`` CSR row pointer of that pattern.
     block_to_csr: ``(t * 9 b^2,)`` position in the CSR data of each entry of ``tet_stiffness``
         (flattened), so a warped stiffness is assembled with one ``np.bincount``.
-    cache: data derived from these arrays, built on first use by the modules that need it and
-        kept as long as the element data (``fem.plastic_flow``: the shape gradients per quadrature
-        point and the element rotations of the last positions); not an init argument, so
-        ``dataclasses.replace`` starts with an empty one.
     """
     tet_nodes: np.ndarray
     tet_gradients: np.ndarray
@@ -46,7 +42,6 @@ class ElementData:
     pattern_cols: np.ndarray
     pattern_indptr: np.ndarray
     block_to_csr: np.ndarray
-    cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
 
 def _skfem_mesh(points, tets):

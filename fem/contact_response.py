@@ -8,8 +8,10 @@ holds a box still, and nothing is created or lost between solver and body.
 
 In the body frame of a floating body (and for an anchored body, whose frame is the world) A is
 constant, so the columns ``A^-1 e`` of each node are solved once (one batched back-substitution
-with the prefactored matrix) and cached until the model changes; a corotated body uses its rest
-system in its best-fit frame, an approximation the coupling rounds correct.
+with the prefactored matrix) and kept in the model's cache (:class:`ResponseCache`,
+``model.cache.response``); a corotated body uses its rest system in its best-fit frame, an
+approximation the coupling rounds correct. The node set a body keeps across steps while contact
+rests is step history: the caller keeps it and passes it back (:func:`contact_set`).
 """
 import time
 from dataclasses import replace
@@ -34,14 +36,17 @@ REPORT_EVERY = 5.0
 DROP_TOL = 1e-7
 
 
-class _ResponseCache:
-    """What one model keeps of its contact response for a time step ``dt``.
+class ResponseCache:
+    """What one model keeps of its contact response for a time step ``dt`` (``model.cache.response``).
 
     ``known`` are the nodes it has met (in order) and ``W`` their dense Delassus matrix
     ``(3 len(known), 3 len(known))``, block [l, i] the velocity of known node l per unit impulse
     on known node i (body frame); it grows by the columns of new nodes only, so a contact patch
     that creeps by a few nodes costs a few solves. ``columns`` keeps full response columns
-    ``(3n, 3)`` per node while they fit in MAX_COLUMN_BYTES.
+    ``(3n, 3)`` per node while they fit in MAX_COLUMN_BYTES. ``block`` is the last
+    :func:`delassus_block` asked for, ``(nodes, scale, rows)``, and ``block_columns`` the last
+    nodes' columns side by side, ``(nodes, (3n, 3k))`` (:func:`impulse_response`): resting contact
+    asks for the same nodes step after step.
     """
 
     def __init__(self, dt, node_count):
@@ -50,10 +55,8 @@ class _ResponseCache:
         self.slot = -np.ones(node_count, dtype=np.int64)   # node -> index in known, -1 if unknown
         self._W = np.zeros((0, 0))     # room for more nodes than known (grows by a quarter)
         self.columns = {}
-        self.last_nodes = None     # the last touched set and its body-frame block (resting contact
-        self.last_block = None     # touches the same nodes step after step)
-        self.last_scale = 1.0
-        self.last_columns = None   # (3n, 3k) columns of the last set, when applying them is cheap
+        self.block = None
+        self.block_columns = None
 
     @property
     def W(self):
@@ -89,11 +92,11 @@ class _ResponseCache:
         W[3 * m:, :3 * m] = W[:3 * m, 3 * m:].T      # A^-1 is symmetric
 
 
-def _cache(model, dt):
-    cache = getattr(model, "_contact_columns", None)
+def response_cache(model, dt):
+    """The model's :class:`ResponseCache` for step ``dt`` s (a new, empty one for another ``dt``)."""
+    cache = model.cache.response
     if cache is None or cache.dt != dt:
-        cache = _ResponseCache(dt, model.node_count)
-        object.__setattr__(model, "_contact_columns", cache)
+        cache = model.cache.response = ResponseCache(dt, model.node_count)
     return cache
 
 
@@ -117,18 +120,21 @@ def _solve_columns(model, dt, nodes):
     return out
 
 
-def contact_set(model, dt, nodes):
-    """The nodes to give the solver: ``nodes`` (touched now), or the last set when it still holds
-    them and is not much larger. Resting contact flickers a few nodes in and out of the margin;
-    keeping the set lets the block be reused instead of rebuilt (the extra nodes carry no contact).
+def contact_set(model, dt, nodes, previous=None):
+    """The body's node set to give the contact solver this step, sorted ``(k,)``: ``nodes``
+    (touched now), or with ``previous`` (the set this returned for the body's last step with
+    contacts, None if none) when that set and ``nodes`` together are not much larger than
+    ``nodes``: ``previous`` itself if it holds them all, else their union. Resting contact
+    flickers a few nodes in and out of the margin; keeping the set lets the body's Delassus block
+    be reused instead of rebuilt (the extra nodes carry no contact). ``model`` and ``dt`` name the
+    body and step the sets belong to (the answer depends on the sets alone). Pure: the caller
+    keeps the returned set (in its state) and passes it as ``previous`` next step.
     """
-    cache = _cache(model, dt)
     nodes = np.unique(np.asarray(nodes, dtype=np.int64))
-    last = cache.last_nodes
-    if last is not None:
-        union = np.union1d(last, nodes)
+    if previous is not None:
+        union = np.union1d(previous, nodes)
         if len(union) <= 1.5 * len(nodes) + 8:
-            return union if len(union) > len(last) else last
+            return union if len(union) > len(previous) else np.asarray(previous, dtype=np.int64)
     return nodes
 
 
@@ -167,11 +173,10 @@ def delassus_block(model, dt, nodes, report=None, scale=1.0):
     Nodes met for the first time cost three back-substitutions each (solved in batches);
     ``report(message)``, when given, hears about the progress of a solve that takes long.
     """
-    cache = _cache(model, dt)
+    cache = response_cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
-    if cache.last_nodes is not None and np.array_equal(cache.last_nodes, nodes) \
-            and cache.last_scale == scale:
-        return cache.last_block
+    if cache.block is not None and np.array_equal(cache.block[0], nodes) and cache.block[1] == scale:
+        return cache.block[2]
     k = len(nodes)
     new = nodes[cache.slot[nodes] < 0]
     if len(new):
@@ -183,7 +188,7 @@ def delassus_block(model, dt, nodes, report=None, scale=1.0):
     # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
     W = cache.W[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
     W = sparse_rows(scale * np.ascontiguousarray(W))
-    cache.last_nodes, cache.last_block, cache.last_columns, cache.last_scale = nodes.copy(), W, None, scale
+    cache.block, cache.block_columns = (nodes.copy(), scale, W), None
     return W
 
 
@@ -218,18 +223,17 @@ def apply_contact_impulses(model, state, step, dt, nodes, impulse):
 
 
 def impulse_response(model, dt, nodes, impulse):
-    """Velocity change ``(n, 3)`` (body frame) for impulses ``(k, 3)`` N s (body frame) on the
-    ``nodes`` of the last :func:`delassus_block`, as one product with their cached columns; None
-    when that would read more numbers than one back-substitution (then solve instead). Exact for
-    the same system the blocks describe (floating and anchored bodies)."""
-    cache = _cache(model, dt)
+    """Velocity change ``(n, 3)`` (body frame) for impulses ``(k, 3)`` N s (body frame) on
+    ``nodes``, as one product with their response columns (kept since their
+    :func:`delassus_block`); None when that would read more numbers than one back-substitution or
+    some node's columns are not kept (then solve instead). Exact for the same system the blocks
+    describe (floating and anchored bodies)."""
+    cache = response_cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
-    if cache.last_nodes is None or not np.array_equal(cache.last_nodes, nodes):
-        return None
-    if cache.last_columns is None:
+    if cache.block_columns is None or not np.array_equal(cache.block_columns[0], nodes):
         if 9 * model.node_count * len(nodes) > system_factorisation(model, dt).solve_cost:
             return None
         if any(int(i) not in cache.columns for i in nodes):
             return None
-        cache.last_columns = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)
-    return (cache.last_columns @ np.asarray(impulse, dtype=float).ravel()).reshape(-1, 3)
+        cache.block_columns = (nodes.copy(), np.concatenate([cache.columns[int(i)] for i in nodes], axis=1))
+    return (cache.block_columns[1] @ np.asarray(impulse, dtype=float).ravel()).reshape(-1, 3)

@@ -80,13 +80,13 @@ def system_matrix(model, dt, K=None):
     unless a warped one is given)."""
     a_M, a_K = system_coefficients(model, dt)
     if K is None:
-        return model.factor_cache.system(dt, lambda h: (a_M * model.M + a_K * model.K).tocsr())
+        return model.cache.factor.system(dt, lambda h: (a_M * model.M + a_K * model.K).tocsr())
     return (a_M * model.M + a_K * K).tocsr()
 
 
 def system_factorisation(model, dt):
     """Cached factorisation of the rest system matrix on the free DOFs (factorised once per dt)."""
-    return model.factor_cache.get(dt, lambda h: _free_block(model, system_matrix(model, h)),
+    return model.cache.factor.get(dt, lambda h: _free_block(model, system_matrix(model, h)),
                                   model.linear_solver)
 
 
@@ -118,11 +118,10 @@ def elastic_force(model, state, tet_R=None):
 def gravity_force(model, gravity):
     """Node weights ``(n, 3)`` (N) for gravity ``(3,)`` m/s^2 (M applied to a uniform field)."""
     key = tuple(np.asarray(gravity, dtype=float).ravel())
-    last = getattr(model, "_gravity_force", None)      # the same gravity every step: kept
+    last = model.cache.gravity_force      # the same gravity every step: kept
     if last is None or last[0] != key:
         g = np.broadcast_to(np.asarray(key), (model.node_count, 3))
-        last = (key, (model.M @ g.ravel()).reshape(-1, 3))
-        object.__setattr__(model, "_gravity_force", last)
+        last = model.cache.gravity_force = (key, (model.M @ g.ravel()).reshape(-1, 3))
     return last[1].copy()
 
 
@@ -132,8 +131,8 @@ def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
         return step_solve(rhs_b)
     v = np.zeros_like(rhs_b)
     v[model.fixed_dofs] = v_fixed_b
-    if A is model.factor_cache.matrix:      # the rest system: its free-fixed block is kept
-        pull = model.factor_cache.derived("free_fixed", lambda: sp.csr_matrix(A)[model.free_dofs][
+    if A is model.cache.factor.matrix:      # the rest system: its free-fixed block is kept
+        pull = model.cache.factor.derived("free_fixed", lambda: sp.csr_matrix(A)[model.free_dofs][
             :, model.fixed_dofs].tocsr()) @ v_fixed_b
     else:
         pull = (A @ v)[model.free_dofs]
@@ -143,8 +142,8 @@ def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
 
 def _fixed_rows(model, A, v):
     """``(A v)[fixed]`` (the anchors' rows), with the rest system's rows kept."""
-    if A is model.factor_cache.matrix:
-        return model.factor_cache.derived("fixed_rows", lambda: sp.csr_matrix(A)[model.fixed_dofs]) @ v
+    if A is model.cache.factor.matrix:
+        return model.cache.factor.derived("fixed_rows", lambda: sp.csr_matrix(A)[model.fixed_dofs]) @ v
     return (A @ v)[model.fixed_dofs]
 
 
@@ -261,11 +260,9 @@ def mass_weights(model):
     centre of mass is ``mass_weights @ x / total``."""
     if model.mass_kind == "lumped":
         return model.node_mass
-    last = getattr(model, "_mass_weights", None)
-    if last is None:
-        last = (model.M @ np.ones(3 * model.node_count))[::3]
-        object.__setattr__(model, "_mass_weights", last)
-    return last
+    if model.cache.mass_weights is None:
+        model.cache.mass_weights = (model.M @ np.ones(3 * model.node_count))[::3]
+    return model.cache.mass_weights
 
 
 def mass_times(model, field):
@@ -453,15 +450,19 @@ def finish(model, state, step, dt):
 
 
 def energy(model, state):
-    """Kinetic and elastic energy (J). The elastic part of the last positions asked for is kept in
-    ``model.elements.cache`` (a Newmark step's end is the next one's start)."""
-    cache = model.elements.cache
-    last = cache.get("elastic_energy")
-    if last is not None and last[1] is state.tet_plastic_strain and np.array_equal(last[0], state.x):
+    """Kinetic and elastic energy (J). The elastic part of the last positions (and plastic strain)
+    asked for is kept in ``model.cache.elastic_energy`` (a Newmark step's end is the next one's
+    start)."""
+    last = model.cache.elastic_energy
+    eps_p = state.tet_plastic_strain
+    if last is not None and np.array_equal(last[0], state.x) and (
+            last[1] is None and eps_p is None
+            or last[1] is not None and eps_p is not None and np.array_equal(last[1], eps_p)):
         elastic = last[2]
     else:
         elastic = elastic_energy(model, state)
-        cache["elastic_energy"] = (np.array(state.x, dtype=float), state.tet_plastic_strain, elastic)
+        model.cache.elastic_energy = (np.array(state.x, dtype=float),
+                                      None if eps_p is None else np.array(eps_p, dtype=float), elastic)
     return kinetic_energy(model, state) + elastic
 
 

@@ -1,8 +1,9 @@
 """FEM body model (built once) and state (changes every step).
 
-A :class:`FemModel` holds the rest mesh, material, assembled matrices, anchors, loads and the
-cached factorisation of the system matrix; a :class:`FemState` holds node positions, velocities and
-the best-fit frame. Build both with :func:`build_fem_model` and :func:`rest_state`.
+A :class:`FemModel` holds the rest mesh, material, assembled matrices, anchors, loads and solver
+settings, and owns the cache of what is derived from them on first use (:class:`fem.cache.FemCache`:
+the factorised system matrix, contact response, ...); a :class:`FemState` holds node positions,
+velocities and the best-fit frame. Build both with :func:`build_fem_model` and :func:`rest_state`.
 """
 import warnings
 from dataclasses import dataclass, field, replace
@@ -11,8 +12,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from fem.assembly import ElementData, assemble
+from fem.cache import FemCache
 from fem.mesh import check_tets, index_list, surface_triangles
-from fem.solver import FactorCache, available_linear_solver
+from fem.solver import available_linear_solver
 
 FRAMES = ("floating", "corotated")
 INTEGRATORS = ("backward_euler", "newmark")
@@ -53,7 +55,6 @@ class FemModel:
     node_load: ``(n, 3)`` constant external node forces from all loads (N).
     surface: ``(f, 3)`` outward boundary triangles (P2: four per boundary face).
     surface_nodes: ``(s,)`` sorted indices of the nodes on the boundary.
-    factor_cache: :class:`fem.solver.FactorCache` of the system matrix (floating frame).
     yield_stress: von Mises yield stress Y (Pa), or None for a purely elastic body (then no
         plasticity pass runs and the state carries no plastic strain).
     plastic_update_strain: equivalent plastic strain (-) accumulated in some quadrature point since
@@ -73,6 +74,11 @@ class FemModel:
         (conjugate gradients warm-started from the last velocities and preconditioned by the rest
         factorisation turned into the best-fit frame) or ``"lu"`` (a new factorisation every step);
         timings in ``benchmarks/fem_solver.py``.
+    cache: :class:`fem.cache.FemCache`, what functions derive from this model on first use (its
+        factorised system matrix, contact response, ...). ``dataclasses.replace`` keeps it (a
+        relabelled region changes nothing it holds); a model whose shape, matrices or prescribed
+        DOFs differ is given an empty one, ``cache=FemCache()`` (:func:`with_rest_points`,
+        :func:`holding`).
     """
     rest_points: np.ndarray
     tets: np.ndarray
@@ -103,7 +109,6 @@ class FemModel:
     node_load: np.ndarray
     surface: np.ndarray
     surface_nodes: np.ndarray
-    factor_cache: FactorCache = field(default_factory=FactorCache, compare=False)
     yield_stress: float | None = None
     plastic_update_strain: float = 0.02
     max_plastic_strain: float | None = None
@@ -114,6 +119,7 @@ class FemModel:
     load_labels: tuple | None = None
     linear_solver: str = "cholmod"
     corotated_solver: str = "cg"
+    cache: FemCache = field(default_factory=FemCache, repr=False, compare=False)
 
     @property
     def node_count(self):
@@ -212,7 +218,7 @@ def with_rest_points(model, points, dt=None, **changes):
     """A new model with rest shape ``points`` ``(n, 3)`` m (same mesh, material, anchors, loads).
 
     K, M, element data, lumped masses and shape-matching offsets are rebuilt for the new shape; the
-    new model has its own (empty) factorisation cache, factorised now for ``dt`` s if given and the
+    new model has its own (empty) cache, its system factorised now for ``dt`` s if given and the
     frame is floating. Other models keep theirs. ``changes`` replace further fields. Loads keep
     their node forces. Used by events such as reference-shape updates (``fem.reference``).
     """
@@ -221,8 +227,8 @@ def with_rest_points(model, points, dt=None, **changes):
     node_mass, M = _mass_matrices(M_scalar, model.mass_kind)
     rest_center = node_mass @ points / node_mass.sum()
     new = replace(model, rest_points=points, K=K, M=M, elements=elements, node_mass=node_mass,
-                  rest_center=rest_center, rest_offsets=points - rest_center,
-                  factor_cache=FactorCache(), **changes)
+                  rest_center=rest_center, rest_offsets=points - rest_center, cache=FemCache(),
+                  **changes)
     if dt is not None and new.frame == "floating":
         from fem.dynamics import system_factorisation
         system_factorisation(new, dt)
@@ -233,18 +239,19 @@ def holding(model, nodes):
     """A variant of ``model`` whose ``nodes`` are also prescribed, as if anchored: a body resting
     on static ground is stepped with its resting nodes held at the velocities the contact asks of
     them (hybrid.coupling.resting). It shares K, M and the rest data, keeps the body's frame (floating
-    bodies still fit their best rotation) and has its own factorisation and contact response
-    (solved on its first use). Kept on ``model`` for the last ``nodes`` asked for."""
+    bodies still fit their best rotation) and has its own cache, so its own factorisation and
+    contact response (solved on its first use). The variant for the last ``nodes`` asked for is
+    kept in ``model.cache.held``."""
     nodes = np.unique(np.asarray(nodes, dtype=np.int64))
-    last = getattr(model, "_holding", None)
+    last = model.cache.held
     if last is not None and np.array_equal(last.held_nodes, nodes):
         return last
     fixed = np.zeros(3 * model.node_count, dtype=bool)
     fixed[model.fixed_dofs] = True
     fixed[(3 * nodes[:, None] + np.arange(3)).ravel()] = True
     variant = replace(model, free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0],
-                      factor_cache=FactorCache(), held_nodes=nodes)
-    object.__setattr__(model, "_holding", variant)
+                      held_nodes=nodes, cache=FemCache())
+    model.cache.held = variant
     return variant
 
 

@@ -20,8 +20,8 @@ contiguous row, so the yield test and the return map are whole-array operations 
 3 x 3 products. The two passes that touch the mesh, the gradient of a node field at every point
 (:func:`node_field_gradient`, a gather) and the node force of per-point tensors
 (:func:`nodal_force`, a scatter), are compiled loops over the points. Their shape-function data
-(:class:`PointGradients`) is built once per ``ElementData`` and kept in its ``cache``; corotated
-bodies also keep there the element rotations of the end-of-step positions
+(:class:`PointGradients`) is built once per model and kept in its ``cache``; corotated bodies also
+keep there the element rotations of the end-of-step positions
 (:func:`fem.rotations.element_rotations`), which the next ``predict`` reuses.
 """
 from dataclasses import dataclass
@@ -57,7 +57,7 @@ def _plastic_fields(model, state):
 
 
 # ---------------------------------------------------------------------------------------------
-# Shape-function data (built once per element data), gradients, forces and element rotations
+# Shape-function data (built once per model), gradients, forces and element rotations
 # ---------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -77,16 +77,16 @@ class PointGradients:
 
 
 def point_gradients(model):
-    """The model's :class:`PointGradients`, built on first use and kept in ``model.elements.cache``
-    (so every model sharing the element data shares them; a rebuilt model builds its own)."""
-    e = model.elements
-    if "point_gradients" not in e.cache:
+    """The model's :class:`PointGradients`, built on first use and kept in
+    ``model.cache.point_gradients``."""
+    if model.cache.point_gradients is None:
+        e = model.elements
         t, q, b, _ = e.tet_gradients.shape
-        e.cache["point_gradients"] = PointGradients(
+        model.cache.point_gradients = PointGradients(
             gradient=np.ascontiguousarray(e.tet_gradients.reshape(t * q, b, 3), dtype=float),
             nodes=np.ascontiguousarray(e.tet_nodes, dtype=np.intp),
             weight=np.ascontiguousarray(e.tet_weights.ravel(), dtype=float))
-    return e.cache["point_gradients"]
+    return model.cache.point_gradients
 
 
 @nb.njit(cache=True)

@@ -21,14 +21,13 @@ def element_rotations(model, x):
 
     A step's end (its energy under Newmark, a plastic body's return map) finds the rotations of
     the end-of-step positions and the next ``predict`` asks for the same positions again (any
-    change of ``x`` in between computes them anew). Kept in ``model.elements.cache``; the returned
-    array is read-only.
+    change of ``x`` in between computes them anew). Kept in ``model.cache.rotations`` with a copy
+    of the positions they belong to; the returned array is read-only.
     """
-    cache = model.elements.cache
-    last = cache.get("rotations")
+    last = model.cache.rotations
     if last is not None and np.array_equal(last[0], x):
         return last[1]
     tet_R = tet_rotations(model, x)
     tet_R.flags.writeable = False
-    cache["rotations"] = (np.array(x, dtype=float), tet_R)
+    model.cache.rotations = (np.array(x, dtype=float), tet_R)
     return tet_R

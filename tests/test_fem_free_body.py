@@ -40,7 +40,7 @@ def test_spinning_cube_keeps_volume_and_angular_momentum(frame, integrator):
     # the vector L is conserved too (the lumped cube is not exactly isotropic, so it may wobble)
     np.testing.assert_allclose(angular_momentum(model, state), L0, atol=0.01 * np.linalg.norm(L0))
     if frame == "floating":
-        assert model.factor_cache.factor_count == 1
+        assert model.cache.factor.factor_count == 1
 
 
 @pytest.mark.parametrize("frame", ["floating", "corotated"])
@@ -66,7 +66,7 @@ def test_floating_frame_factorises_once_while_tumbling():
     state = rest_state(model, v=np.cross([3.0, 5.0, 1.0], points) + [0.0, 0.0, 1.0])
     for _ in range(50):
         state = step(model, state, 0.01, gravity=(0, 0, -9.81))
-    assert model.factor_cache.factor_count == 1
+    assert model.cache.factor.factor_count == 1
     # gravity is the only external force: momentum changes by m g t
     np.testing.assert_allclose(linear_momentum(model, state),
                                model.node_mass.sum() * np.array([0, 0, 1.0 - 9.81 * 0.5]), rtol=1e-9,
@@ -176,7 +176,7 @@ def test_newmark_tumbling_body_under_gravity_gains_exactly_its_weight_in_momentu
     L0 = angular_momentum(model, state) - np.cross(center_of_mass(model, state), linear_momentum(model, state))
     for _ in range(50):
         state = step(model, state, 0.01, gravity=(0, 0, -9.81))
-    assert model.factor_cache.factor_count == 1
+    assert model.cache.factor.factor_count == 1
     mass = model.node_mass.sum()
     np.testing.assert_allclose(linear_momentum(model, state), mass * np.array([0, 0, 1.0 - 9.81 * 0.5]),
                                rtol=1e-9, atol=1e-9)

@@ -31,18 +31,17 @@ from rigid.sdf import SignedDistanceGrid, closest_point_weights
 
 
 def _grid(m):
-    grid = getattr(m, "_surface_grid", None)
-    if grid is None:
-        grid = SignedDistanceGrid.build(m.rest_points, m.surface)
-        object.__setattr__(m, "_surface_grid", grid)
-    return grid
+    """Signed-distance grid of body m's rest surface, built once (``m.cache.surface_grid``)."""
+    if m.cache.surface_grid is None:
+        m.cache.surface_grid = SignedDistanceGrid.build(m.rest_points, m.surface)
+    return m.cache.surface_grid
 
 
 def _surface_index(m):
     """The body's rest surface for lookups, built once: a k-d tree of its surface nodes at rest
     (body coordinates), its triangles as indices into ``surface_nodes`` (f, 3), and the triangles
-    around each surface node (s, d), padded with -1."""
-    found = getattr(m, "_surface_index", None)
+    around each surface node (s, d), padded with -1. Kept in ``m.cache.surface_index``."""
+    found = m.cache.surface_index
     if found is None:
         tri = np.searchsorted(m.surface_nodes, m.surface)
         owner = tri.ravel()
@@ -51,8 +50,7 @@ def _surface_index(m):
         count = np.bincount(owner, minlength=len(m.surface_nodes))
         around = -np.ones((len(m.surface_nodes), max(1, count.max(initial=0))), dtype=np.int64)
         around[owner, np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)] = face
-        found = (cKDTree(m.rest_points[m.surface_nodes]), tri, around)
-        object.__setattr__(m, "_surface_index", found)
+        found = m.cache.surface_index = (cKDTree(m.rest_points[m.surface_nodes]), tri, around)
     return found
 
 
@@ -169,13 +167,14 @@ def _moved(m, s):
 
 def _current_nearest(m, s, x):
     """The surface node of body m (index into ``surface_nodes``) nearest each world point x (p, 3)
-    in its current shape ``s.x``. The k-d tree of the current surface is kept for the positions
-    it was built from (a step's detection asks about the same positions more than once)."""
-    last = getattr(m, "_current_tree", None)
-    if last is None or last[0] is not s.x:
-        last = (s.x, cKDTree(s.x[m.surface_nodes], balanced_tree=False, compact_nodes=False))
-        object.__setattr__(m, "_current_tree", last)
-    return last[1].query(x)[1] if len(x) else np.zeros(0, np.int64)
+    in its current shape ``s.x``. The k-d tree of the current surface is kept in
+    ``m.cache.current_tree`` for the positions it was built from (its ``data``; a step's detection
+    asks about the same positions more than once)."""
+    surface = s.x[m.surface_nodes]
+    tree = m.cache.current_tree
+    if tree is None or not np.array_equal(tree.data, surface):
+        tree = m.cache.current_tree = cKDTree(surface, balanced_tree=False, compact_nodes=False)
+    return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
 def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):

@@ -89,7 +89,8 @@ def _fragment_model(parent, frag, node_origin, load_share, dt):
                             damping_mass=parent.damping_mass,
                             damping_stiffness=parent.damping_stiffness, frame=parent.frame,
                             mass=parent.mass_kind, integrator=parent.integrator, anchors=anchors,
-                            loads=loads, dt=dt, **_plastic_parameters(parent))
+                            loads=loads, dt=dt, linear_solver=parent.linear_solver,
+                            corotated_solver=parent.corotated_solver, **_plastic_parameters(parent))
     model = _carry_model_fields(parent, model, frag.tet_index)
     return replace(model, anchor_labels=anchor_labels, load_labels=load_labels)
 
@@ -124,7 +125,7 @@ def _carry_model_fields(parent, model, tet_index=None):
         "rest_points", "tets", "mu", "lam", "node_mass", "K", "M", "elements", "rest_center",
         "rest_offsets", "anchor_nodes", "anchor_velocity", "node_anchor", "free_dofs",
         "fixed_dofs", "load_nodes", "load_force", "node_load", "surface", "surface_nodes",
-        "factor_cache", "mass_kind", "anchor_labels", "load_labels"}
+        "cache", "mass_kind", "anchor_labels", "load_labels"}
     extra = {f.name: getattr(parent, f.name) for f in fields(parent)
              if f.name not in built and not isinstance(getattr(parent, f.name), np.ndarray)}
     # per-tet model arrays (e.g. reference_peeq (t, q)) follow their tets
