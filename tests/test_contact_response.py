@@ -56,7 +56,7 @@ def test_growing_and_moving_contact_sets_give_the_inverse_system_blocks(monkeypa
     _check(model, grown)                                     # a patch that creeps
     moved = np.sort(rng.choice(model.node_count, 9, replace=False))
     _check(model, moved)                                     # a patch elsewhere
-    cache = cr._cache(model, DT)
+    cache = model.cache.response
     if tight:
         assert set(cache.known.tolist()) == set(moved.tolist())
         assert not cache.columns
