@@ -18,6 +18,7 @@ per node, the matrix is ``R A R^T`` and one factorisation of A serves all steps)
 stiffness ``sum_e R_e K_e R_e^T`` (corotated, Mueller and Gross 2004), rebuilt every step.
 """
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -322,53 +323,84 @@ def _predict_spin_frame(model, state, dt, gravity):
     """
     h, theta = dt, implicitness(model)
     a_M = system_coefficients(model, dt)[0]
-    m = mass_weights(model)
-    total = m.sum()
     force, K, R, A, solve, iterations = _internal_forces_and_solver(model, dt, state)
-    c = m @ state.x / total                                 # the centre of mass (lumped: state.c)
-    y = state.x - c
-    V = m @ state.v / total
-    inertia, L = mass_moments(model, y, state.v)            # about the centre of mass
-    w = np.linalg.solve(inertia, L)
-    u = state.v - V - y @ _skew(w).T                        # velocities relative to the spinning frame
-    coriolis = _rotation(-h * w)                            # Coriolis over half the step
-    u = u @ coriolis.T
-    turn = _rotation(h * w)                                 # the frame's turn over the step
+    f = _spin_frame(model, state)
+    coriolis = _rotation(-h * f.w)                          # Coriolis over half the step
+    u = (state.v - f.V - f.y @ _skew(f.w).T) @ coriolis.T   # velocities relative to the spinning frame
+    turn = _rotation(h * f.w)                               # the frame's turn over the step
     external = gravity_force(model, gravity) + model.node_load
     net = external.sum(axis=0)
-    torque = _inertia_and_moment(np.ones(len(m)), y, external)[1]
-    load = external - np.outer(m / total, net)              # the net force moves the centre
+    torque = _inertia_and_moment(np.ones(len(f.m)), f.y, external)[1]
+    load = external - np.outer(f.m / f.total, net)          # the net force moves the centre
+    rhs, u_new, y_new = _relative_step(model, dt, f, u, force + (1.0 - theta) * load + theta * load @ turn,
+                                       K, R, solve)
+    u_new = u_new @ coriolis.T                              # and over the other half
+    slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
+    V_new = slow * f.V + h * net / (f.total * a_M)
+    u_new, y_new, w_new = _end_spin(model, h, (slow * f.L + h * torque) @ turn, f.w, u_new, y_new)
+    x_new = f.c + h * ((1.0 - theta) * f.V + theta * V_new) + y_new @ turn.T
+    v_new = V_new + (u_new + y_new @ _skew(w_new).T) @ turn.T
+    return StepData(v=v_new, x_base=x_new - theta * h * v_new, x_rate=theta * h, rhs=rhs,
+                    impulse=np.zeros_like(state.v), R=R, matrix=_LazyMatrix(model, dt) if A is None else A,
+                    solve=solve, iterations=iterations, load=external, allowance=_allowance(model, state))
+
+
+class _SpinFrame(NamedTuple):
+    """A free body's frame at the start of a step: mass weights ``m`` (n,) kg and their ``total``,
+    centre of mass ``c`` (3,) m, node offsets ``y`` (n, 3) m from it, its velocity ``V`` (3,) m/s,
+    ``inertia`` (3, 3) kg m^2 and angular momentum ``L`` (3,) kg m^2/s about it, and the angular
+    velocity ``w = I^-1 L`` (3,) rad/s."""
+    m: np.ndarray
+    total: float
+    c: np.ndarray
+    y: np.ndarray
+    V: np.ndarray
+    inertia: np.ndarray
+    L: np.ndarray
+    w: np.ndarray
+
+
+def _spin_frame(model, state):
+    """The :class:`_SpinFrame` of a free body's ``state``, with its own mass matrix."""
+    m = mass_weights(model)
+    total = m.sum()
+    c = m @ state.x / total                                 # the centre of mass (lumped: state.c)
+    y = state.x - c
+    inertia, L = mass_moments(model, y, state.v)            # about the centre of mass
+    return _SpinFrame(m, total, c, y, m @ state.v / total, inertia, L, np.linalg.solve(inertia, L))
+
+
+def _relative_step(model, dt, frame, u, applied, K, R, solve):
+    """The deformation's step in the spinning ``frame`` from relative velocities ``u`` (n, 3) m/s
+    under the ``applied`` forces (internal and external, n, 3) N: ``(rhs, u_new, y_new)``, the
+    system's right-hand side and the end-of-step relative velocities and offsets (m/s, m)."""
+    h, theta = dt, implicitness(model)
+    y, W = frame.y, _skew(frame.w)
     y_mid = y + 0.5 * h * u                                 # centrifugal force at mid-step
-    W = _skew(w)
-    force = force + (1.0 - theta) * load + theta * load @ turn - mass_times(model, y_mid @ (W @ W).T)
-    rhs = _right_hand_side(model, dt, u, force, K, R)
+    rhs = _right_hand_side(model, dt, u, applied - mass_times(model, y_mid @ (W @ W).T), K, R)
     u_new = solve(rhs).reshape(-1, 3) @ R.T
     y_new = y + h * ((1.0 - theta) * u + theta * u_new)
     if theta != 0.5:
         # the rigid turn relative to the frame (the spin's change, e.g. a wobble) by the trapezoidal
         # rule: it meets no stiffness to damp, and with backward Euler's first-order turn a tumbling
         # steel box drifted 4.3 degrees from Euler's equations in 1 s (0.033 with this)
-        turn_rate = np.linalg.solve(inertia, mass_moments(model, y, u - u_new)[1])
+        turn_rate = np.linalg.solve(frame.inertia, mass_moments(model, y, u - u_new)[1])
         y_new += (theta - 0.5) * h * y @ _skew(turn_rate).T
-    u_new = u_new @ coriolis.T                              # and over the other half
-    slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
-    V_new = slow * V + h * net / (total * a_M)
-    # the end spin from the angular momentum balance (in the frame's end axes): the body's spin
-    # slows as it stretches, and wobble (spin off a principal axis) keeps L exactly. The linear
-    # force of a frame carries a small torque (second order in the strain); the balance takes it
-    # out as a rigid turn over the step (trapezoidal rule), so the positions keep second order too
-    L_new = (slow * L + h * torque) @ turn
+    return rhs, u_new, y_new
+
+
+def _end_spin(model, h, L_new, w, u_new, y_new):
+    """The end spin from the angular momentum balance, ``L_new`` (3,) in the frame's end axes:
+    ``(u_new, y_new, w_new)`` with the relative motion's spin taken out of it. The body's spin
+    slows as it stretches, and wobble (spin off a principal axis) keeps L exactly. The linear
+    force of a frame carries a small torque (second order in the strain); the balance takes it
+    out as a rigid turn over the step (trapezoidal rule), so the positions keep second order too."""
     inertia, moment = mass_moments(model, y_new, u_new)
     spin_change = np.linalg.solve(inertia, L_new - moment) - w
     u_new = u_new + y_new @ _skew(spin_change).T
     y_new = y_new + 0.5 * h * y_new @ _skew(spin_change).T
     inertia, moment = mass_moments(model, y_new, u_new)
-    w_new = np.linalg.solve(inertia, L_new - moment)
-    x_new = c + h * ((1.0 - theta) * V + theta * V_new) + y_new @ turn.T
-    v_new = V_new + (u_new + y_new @ _skew(w_new).T) @ turn.T
-    return StepData(v=v_new, x_base=x_new - theta * h * v_new, x_rate=theta * h, rhs=rhs,
-                    impulse=np.zeros_like(state.v), R=R, matrix=_LazyMatrix(model, dt) if A is None else A,
-                    solve=solve, iterations=iterations, load=external, allowance=_allowance(model, state))
+    return u_new, y_new, np.linalg.solve(inertia, L_new - moment)
 
 
 class _LazyMatrix:

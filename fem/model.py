@@ -13,7 +13,9 @@ import scipy.sparse as sp
 
 from fem.assembly import ElementData, assemble
 from fem.cache import FemCache
-from fem.mesh import check_tets, index_list, surface_triangles
+from fem.dynamics import body_frame, system_factorisation
+from fem.mesh import check_tets, index_list, quadratic_tets, surface_triangles
+from fem.plastic_flow import initial_plastic_fields
 from fem.solver import available_linear_solver
 
 FRAMES = ("floating", "corotated")
@@ -230,7 +232,6 @@ def with_rest_points(model, points, dt=None, **changes):
                   rest_center=rest_center, rest_offsets=points - rest_center, cache=FemCache(),
                   **changes)
     if dt is not None and new.frame == "floating":
-        from fem.dynamics import system_factorisation
         system_factorisation(new, dt)
     return new
 
@@ -276,6 +277,65 @@ def _surface_node_area(points, surface):
     return np.bincount(surface.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
 
 
+def _checked_mesh(points, tets, order):
+    """``(points (n, 3), tets (t, 4 or 10))`` of the given order (midside nodes added to a linear
+    mesh for ``order=2``), inverted tets reoriented with a warning to build_fem_model's caller."""
+    points = np.asarray(points, dtype=float)
+    tets = np.asarray(tets, dtype=np.int64)
+    if order == 2 and tets.shape[1] == 4:
+        points, tets = quadratic_tets(points, tets)
+    if tets.shape[1] != (4 if order == 1 else 10):
+        raise ValueError(f"order {order} needs tets with {4 if order == 1 else 10} nodes")
+    tets, flipped = check_tets(points, tets)
+    if len(flipped):
+        warnings.warn(f"{len(flipped)} of {len(tets)} tets were inverted (negative volume) and have "
+                      f"been reoriented: {index_list(flipped)}", stacklevel=3)
+    return points, tets
+
+
+def _anchor_fields(anchors, n):
+    """FemModel fields of the anchor regions ``(selection, velocity)``: anchor_nodes,
+    anchor_velocity, node_anchor, free_dofs and fixed_dofs."""
+    anchor_nodes = tuple(_node_indices(sel, n) for sel, _ in anchors)
+    node_anchor = -np.ones(n, dtype=np.int64)
+    for i, nodes in enumerate(anchor_nodes):
+        node_anchor[nodes] = i
+    fixed = np.repeat(node_anchor >= 0, 3)
+    return dict(anchor_nodes=anchor_nodes, node_anchor=node_anchor,
+                anchor_velocity=np.array([np.asarray(vel, dtype=float) for _, vel in anchors]).reshape(-1, 3),
+                free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0])
+
+
+def _load_fields(loads, points, surface, node_mass):
+    """FemModel fields of the load regions ``(selection, total_force[, "area"])``: load_nodes,
+    load_force and node_load (each total spread by lumped mass, or by surface area)."""
+    n = len(points)
+    load_nodes, load_force = [], []
+    node_load = np.zeros((n, 3))
+    area = None
+    for load in loads:
+        nodes, total = _node_indices(load[0], n), np.asarray(load[1], dtype=float)
+        spread = load[2] if len(load) > 2 else "mass"
+        if spread == "area":
+            area = _surface_node_area(points, surface) if area is None else area
+            weights = area if area[nodes].sum() > 0 else node_mass
+        else:
+            weights = node_mass
+        node_load[nodes] += _spread_force(nodes, total, weights)
+        load_nodes.append(nodes)
+        load_force.append(total)
+    return dict(load_nodes=tuple(load_nodes), load_force=np.array(load_force).reshape(-1, 3),
+                node_load=node_load)
+
+
+def _plastic_fields(yield_stress, plastic_update_strain, max_plastic_strain, elements):
+    """FemModel fields of von Mises plasticity (a purely elastic body when yield_stress is None)."""
+    return dict(yield_stress=None if yield_stress is None else float(yield_stress),
+                plastic_update_strain=float(plastic_update_strain),
+                max_plastic_strain=None if max_plastic_strain is None else float(max_plastic_strain),
+                reference_peeq=None if yield_stress is None else np.zeros(elements.tet_weights.shape))
+
+
 def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_mass=0.0,
                     damping_stiffness=0.0, frame="floating", mass="lumped",
                     integrator="backward_euler", anchors=(), loads=(), dt=None, yield_stress=None,
@@ -308,64 +368,22 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         raise ValueError(f"frame in {FRAMES}, integrator in {INTEGRATORS}, mass in {MASSES}, "
                          f"corotated_solver in {COROTATED_SOLVERS}")
     linear_solver = available_linear_solver(linear_solver)
-    points = np.asarray(points, dtype=float)
-    tets = np.asarray(tets, dtype=np.int64)
-    if order == 2 and tets.shape[1] == 4:
-        from fem.mesh import quadratic_tets
-        points, tets = quadratic_tets(points, tets)
-    if tets.shape[1] != (4 if order == 1 else 10):
-        raise ValueError(f"order {order} needs tets with {4 if order == 1 else 10} nodes")
-    tets, flipped = check_tets(points, tets)
-    if len(flipped):
-        warnings.warn(f"{len(flipped)} of {len(tets)} tets were inverted (negative volume) and have "
-                      f"been reoriented: {index_list(flipped)}", stacklevel=2)
-    n = len(points)
+    points, tets = _checked_mesh(points, tets, order)
     K, M_scalar, elements = assemble(points, tets, young, poisson, density)
     node_mass, M = _mass_matrices(M_scalar, mass)
-    mu = young / (2 * (1 + poisson))
-    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
     rest_center = node_mass @ points / node_mass.sum()
-
-    anchor_nodes = tuple(_node_indices(sel, n) for sel, _ in anchors)
-    anchor_velocity = np.array([np.asarray(vel, dtype=float) for _, vel in anchors]).reshape(-1, 3)
-    node_anchor = -np.ones(n, dtype=np.int64)
-    for i, nodes in enumerate(anchor_nodes):
-        node_anchor[nodes] = i
-    fixed = np.repeat(node_anchor >= 0, 3)
     surface = surface_triangles(tets)
-
-    load_nodes, load_force = [], []
-    node_load = np.zeros((n, 3))
-    area = None
-    for load in loads:
-        nodes, total = _node_indices(load[0], n), np.asarray(load[1], dtype=float)
-        spread = load[2] if len(load) > 2 else "mass"
-        if spread == "area":
-            area = _surface_node_area(points, surface) if area is None else area
-            weights = area if area[nodes].sum() > 0 else node_mass
-        else:
-            weights = node_mass
-        node_load[nodes] += _spread_force(nodes, total, weights)
-        load_nodes.append(nodes)
-        load_force.append(total)
-
     model = FemModel(
         rest_points=points, tets=tets, order=order, density=float(density), young=float(young),
-        poisson=float(poisson), mu=mu, lam=lam, damping_mass=float(damping_mass),
+        poisson=float(poisson), mu=young / (2 * (1 + poisson)),
+        lam=young * poisson / ((1 + poisson) * (1 - 2 * poisson)), damping_mass=float(damping_mass),
         damping_stiffness=float(damping_stiffness), frame=frame, integrator=integrator,
         mass_kind=mass, node_mass=node_mass, K=K, M=M, elements=elements, rest_center=rest_center,
-        rest_offsets=points - rest_center, anchor_nodes=anchor_nodes,
-        anchor_velocity=anchor_velocity, node_anchor=node_anchor,
-        free_dofs=np.nonzero(~fixed)[0], fixed_dofs=np.nonzero(fixed)[0],
-        load_nodes=tuple(load_nodes), load_force=np.array(load_force).reshape(-1, 3),
-        node_load=node_load, surface=surface, surface_nodes=np.unique(surface),
-        yield_stress=None if yield_stress is None else float(yield_stress),
-        plastic_update_strain=float(plastic_update_strain),
-        max_plastic_strain=None if max_plastic_strain is None else float(max_plastic_strain),
-        reference_peeq=None if yield_stress is None else np.zeros(elements.tet_weights.shape),
+        rest_offsets=points - rest_center, surface=surface, surface_nodes=np.unique(surface),
+        **_anchor_fields(anchors, len(points)), **_load_fields(loads, points, surface, node_mass),
+        **_plastic_fields(yield_stress, plastic_update_strain, max_plastic_strain, elements),
         linear_solver=linear_solver, corotated_solver=corotated_solver)
     if dt is not None and frame == "floating":
-        from fem.dynamics import system_factorisation
         system_factorisation(model, dt)
     return model
 
@@ -373,12 +391,10 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
 def rest_state(model, x=None, v=None):
     """State at rest (or with given positions ``x`` (n, 3) m and velocities ``v`` (n, 3) m/s);
     the best-fit frame is computed from ``x``."""
-    from fem.dynamics import body_frame
     x = model.rest_points.copy() if x is None else np.array(x, dtype=float)
     v = np.zeros_like(x) if v is None else np.array(v, dtype=float)
     R, c = body_frame(model, x)
     state = FemState(x=x, v=v, R=R, c=c, node_reaction=np.zeros_like(x))
     if model.plastic:
-        from fem.plastic_flow import initial_plastic_fields
         state = state.replace(**initial_plastic_fields(model))
     return state

@@ -170,17 +170,26 @@ def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
         return eps_p.copy(), sigma_trial.copy(), np.zeros(lead), yielded
     # flow computed at the yielded elements only: all of them (no gather) or an index subset
     at = Ellipsis if yielded.all() else np.nonzero(yielded)
+    new, sigma, gamma = _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, max_plastic_strain, at)
+    if at is Ellipsis:
+        return new, sigma, gamma, yielded
+    eps_p_new, sigma_new, gamma_all = eps_p.copy(), sigma_trial.copy(), np.zeros(lead)
+    eps_p_new[at], sigma_new[at], gamma_all[at] = new, sigma, gamma
+    return eps_p_new, sigma_new, gamma_all, yielded
 
-    def selected(value):
-        """A scalar, or a per-element value broadcastable to ``lead`` at the yielded elements."""
-        value = np.asarray(value, dtype=float)
-        return value if value.ndim == 0 else np.broadcast_to(value, lead)[at]
 
-    def per_tensor(value):
-        """A scalar or per-element value ``(k,)`` broadcastable against tensors ``(k, 3, 3)``."""
-        return value if value.ndim == 0 else value[..., None, None]
+def _taken_at(value, lead, at):
+    """A scalar, or a per-element value broadcastable to ``lead`` taken at the elements ``at``."""
+    value = np.asarray(value, dtype=float)
+    return value if value.ndim == 0 else np.broadcast_to(value, lead)[at]
 
-    s, s_norm, Y, mu = s[at], s_norm[at], selected(Y), selected(mu)
+
+def _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, max_plastic_strain, at):
+    """The flow of :func:`return_map` at the yielded elements ``at`` (an index or Ellipsis):
+    ``(eps_p_new, sigma_new, gamma)`` there, from the trial stress, the old plastic strain and the
+    trial deviator ``s`` with its norm (all elements)."""
+    lead = sigma_trial.shape[:-2]
+    s, s_norm, Y, mu = s[at], s_norm[at], _taken_at(Y, lead, at), _taken_at(mu, lead, at)
     # Bridson's notes: gamma chosen so that f(sigma_new) = 0 (radial return for linear isotropy)
     gamma = (s_norm - _SQRT_2_3 * Y) / (2.0 * mu)
     # increment gamma n along the associative flow direction n = df/dsigma = s / |s| (|s| > 0
@@ -189,14 +198,10 @@ def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
     d_eps_p = (gamma / s_norm)[..., None, None] * s
     new = old + d_eps_p
     if max_plastic_strain is not None:
-        new = clamp_plastic_strain(new, selected(max_plastic_strain))
+        new = clamp_plastic_strain(new, _taken_at(max_plastic_strain, lead, at))
         d_eps_p = new - old
-    sigma = sigma_trial[at] - 2.0 * per_tensor(mu) * d_eps_p
-    if at is Ellipsis:
-        return new, sigma, gamma, yielded
-    eps_p_new, sigma_new, gamma_all = eps_p.copy(), sigma_trial.copy(), np.zeros(lead)
-    eps_p_new[at], sigma_new[at], gamma_all[at] = new, sigma, gamma
-    return eps_p_new, sigma_new, gamma_all, yielded
+    mu_per_tensor = mu if mu.ndim == 0 else mu[..., None, None]
+    return new, sigma_trial[at] - 2.0 * mu_per_tensor * d_eps_p, gamma
 
 
 def plastic_dissipation_increment(sigma_new, d_eps_p, volume):
