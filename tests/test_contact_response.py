@@ -140,3 +140,18 @@ def test_place_lying_on_an_anchored_node_is_held_and_takes_no_impulse():
                         np.array([0.0]), np.array([0.5]), np.array([0.0]))
     res = resolve_contacts(bodies, contacts, 1e-3, np.zeros(3), ContactSettings())
     assert np.abs(res.contact_impulse).max() < 1e-12
+
+
+def test_contact_set_keeps_the_previous_set_only_when_given_it():
+    """Resting contact flickers a node in and out of the margin: given the previous set, the
+    solver keeps it (or grows it by the new node); without one, the set is the touched nodes. The
+    answer depends on the arguments alone, whatever was asked before."""
+    model = _model()
+    touched = np.array([9, 3, 5, 3])
+    first = cr.contact_set(model, DT, touched)
+    np.testing.assert_array_equal(first, [3, 5, 9])
+    np.testing.assert_array_equal(cr.contact_set(model, DT, [3, 9], previous=first), [3, 5, 9])
+    np.testing.assert_array_equal(cr.contact_set(model, DT, [3, 9, 11], previous=first), [3, 5, 9, 11])
+    np.testing.assert_array_equal(cr.contact_set(model, DT, [3, 9]), [3, 9])
+    # a patch that has moved on: with the previous set it would be far larger (over 1.5 k + 8)
+    np.testing.assert_array_equal(cr.contact_set(model, DT, [40, 41], previous=np.arange(30)), [40, 41])
