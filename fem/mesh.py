@@ -91,7 +91,7 @@ def box_tet_mesh(size, resolution):
     return _finish(points, np.concatenate(tets))
 
 
-_AXIS_ORDERS = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
+_AXIS_ORDERS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
 
 
 def _disk_triangles(radius, resolution):
