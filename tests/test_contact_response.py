@@ -120,21 +120,21 @@ def test_place_lying_on_an_anchored_node_is_held_and_takes_no_impulse():
     anchored node of its own (weight 1 there, round-off on its free corners). The place moves with
     its held corner and answers nothing; with the round-off weights it met a response of 1e-30 and
     took an impulse of 1e9 N s (the grip's anchor force read 1e13 N)."""
-    from hybrid.coupling.step import _Particles
+    from hybrid.coupling.problem import Particles, stack_rows
     from rigid.contacts import Contacts
     from rigid.step import ContactSettings, SolverBodies, resolve_contacts
     W = np.zeros((4, 4, 3, 3))
     W[1, 1] = W[2, 2] = 10.0 * np.eye(3)               # nodes 0 and 3 anchored: no response
     rows = [cr.sparse_rows(W)]
-    parts = _Particles(nodes=np.arange(4), corners=np.array([[0, 1, 2]]),
-                       weights=np.array([[1.0, 3e-17, 0.0]]), node_body=np.zeros(4, np.int64))
+    parts = Particles(nodes=np.arange(4), corners=np.array([[0, 1, 2]]),
+                      weights=np.array([[1.0, 3e-17, 0.0]]), node_body=np.zeros(4, np.int64))
     none = SolverBodies(*(np.zeros((0, 3, 3)) if name == "inv_inertia" else np.zeros(0, bool)
                           if name == "static" else np.zeros(0) if name == "inv_mass" else np.zeros((0, 3))
                           for name in ("inv_mass", "inv_inertia", "position", "velocity", "velocity_at_t",
                                        "angular", "accel", "static")))
     x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0]])
     v = np.array([[0.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, -1e-3]])      # node 3 closing on node 0
-    bodies = parts.solver_bodies(none, rows, [np.eye(3)], x, v)
+    bodies = parts.solver_bodies(none, stack_rows(rows, 0), [np.eye(3)], x, v)
     assert bodies.static[3] and bodies.static[4]
     contacts = Contacts(np.array([3]), np.array([4]), np.zeros((1, 3)), np.array([[0.0, 0, 1]]),
                         np.array([0.0]), np.array([0.5]), np.array([0.0]))
