@@ -76,10 +76,11 @@ def _block(i, l, W, w_ptr, w_col):
     return np.zeros((3, 3))
 
 
-@nb.njit(cache=True)
-def _push_group(i, J0, J1, J2, v, group_of, group_R, w_ptr, w_col, W):
+@nb.njit(cache=True, inline="always")
+def _push_group(i, J0, J1, J2, v, groups):
     """Impulse J (world) on particle i: every particle l of its group moves by W[l, i] R^T J
     (group-frame velocities, see pgs). W is symmetric, so W[l, i] = W[i, l]^T is read from row i."""
+    group_of, group_R, w_ptr, w_col, W = groups[0], groups[1], groups[2], groups[3], groups[4]
     R = group_R[group_of[i]]
     j0 = R[0, 0] * J0 + R[1, 0] * J1 + R[2, 0] * J2
     j1 = R[0, 1] * J0 + R[1, 1] * J1 + R[2, 1] * J2
@@ -92,10 +93,11 @@ def _push_group(i, J0, J1, J2, v, group_of, group_R, w_ptr, w_col, W):
         v[l, 2] += B[0, 2] * j0 + B[1, 2] * j1 + B[2, 2] * j2
 
 
-@nb.njit(cache=True)
-def _point_velocity(i, r, v, w, group_of, group_R, corner, corner_w):
+@nb.njit(cache=True, inline="always")
+def _point_velocity(i, r, v, w, groups):
     """World velocity (x, y, z) of body i at arm r (particles: their group-frame velocity rotated
     out; places: the weighted sum of their corner particles')."""
+    group_of, group_R, corner, corner_w = groups[0], groups[1], groups[5], groups[6]
     if i < 0:
         return 0.0, 0.0, 0.0
     if group_of[i] >= 0:
@@ -117,11 +119,11 @@ def _point_velocity(i, r, v, w, group_of, group_R, corner, corner_w):
             v[i, 2] + w[i, 0] * r[1] - w[i, 1] * r[0])
 
 
-@nb.njit(cache=True)
-def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner,
-           corner_w):
+@nb.njit(cache=True, inline="always")
+def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, groups):
     """Impulse scale * (j0, j1, j2) (world) on body i at arm r (a place: shared among its corners
     by their weights)."""
+    group_of, corner, corner_w = groups[0], groups[5], groups[6]
     if i < 0 or scale == 0.0:
         return
     j0, j1, j2 = scale * j0, scale * j1, scale * j2
@@ -130,10 +132,9 @@ def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr,
             for c in range(3):
                 f = corner_w[i, c]
                 if f != 0.0:
-                    _push_group(corner[i, c], f * j0, f * j1, f * j2, v, group_of, group_R, w_ptr,
-                                w_col, W)
+                    _push_group(corner[i, c], f * j0, f * j1, f * j2, v, groups)
         else:
-            _push_group(i, j0, j1, j2, v, group_of, group_R, w_ptr, w_col, W)
+            _push_group(i, j0, j1, j2, v, groups)
         return
     m = inv_m[i]
     v[i, 0] += m * j0
@@ -146,23 +147,21 @@ def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, group_of, group_R, w_ptr,
     w[i, 2] += I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
 
 
-@nb.njit(cache=True)
-def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w,
-                group_of, group_R, w_ptr, w_col, W, corner, corner_w):
+@nb.njit(cache=True, inline="always")
+def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups):
     """Impulse l0 n + l1 t1 + l2 t2 (contact j's basis) on side a of contact k, its opposite on b."""
     J0 = l0 * basis[j, 0, 0] + l1 * basis[j, 1, 0] + l2 * basis[j, 2, 0]
     J1 = l0 * basis[j, 0, 1] + l1 * basis[j, 1, 1] + l2 * basis[j, 2, 1]
     J2 = l0 * basis[j, 0, 2] + l1 * basis[j, 1, 2] + l2 * basis[j, 2, 2]
-    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W,
-           corner, corner_w)
-    _apply(ib[k], rb[k], -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, group_of, group_R, w_ptr, w_col,
-           W, corner, corner_w)
+    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, groups)
+    _apply(ib[k], rb[k], -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, groups)
 
 
 @nb.njit(cache=True)
-def _add_pair_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out):
+def _add_pair_block(i, l, D, scale, groups, out):
     """:func:`_add_block` for particles or places i and l of one group (a place's block is the
     weighted sum of its corners')."""
+    corner, corner_w = groups[5], groups[6]
     ni = 3 if corner[i, 0] >= 0 else 1
     nl = 3 if corner[l, 0] >= 0 else 1
     for a in range(ni):
@@ -170,13 +169,14 @@ def _add_pair_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, corner, 
         for b in range(nl):
             q, fq = (corner[l, b], corner_w[l, b]) if nl == 3 else (l, 1.0)
             if fp != 0.0 and fq != 0.0:
-                _add_block(p, q, D, scale * fp * fq, group_of, group_R, w_ptr, w_col, W, out)
+                _add_block(p, q, D, scale * fp * fq, groups, out)
 
 
 @nb.njit(cache=True)
-def _add_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, out):
+def _add_block(i, l, D, scale, groups, out):
     """Add scale * D R W[i, l] R^T D^T to out (3, 3): block W[i, l] (group frame) seen along the
     rows of D (world directions)."""
+    group_of, group_R, w_ptr, w_col, W = groups[0], groups[1], groups[2], groups[3], groups[4]
     R = group_R[group_of[i]]
     Wb = _block(i, l, W, w_ptr, w_col)
     Db = np.zeros((3, 3))                               # directions in the group frame
@@ -193,13 +193,13 @@ def _add_block(i, l, D, scale, group_of, group_R, w_ptr, w_col, W, out):
 
 
 @nb.njit(cache=True)
-def _response(i, r, D, scale, inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out):
+def _response(i, r, D, scale, inv_m, invI, groups, out):
     """Add to out (3, 3) the velocity of body i at arm r along the rows of D per unit impulse along
     them, times scale."""
     if i < 0 or scale == 0.0:
         return
-    if group_of[i] >= 0:
-        _add_pair_block(i, i, D, scale, group_of, group_R, w_ptr, w_col, W, corner, corner_w, out)
+    if groups[0][i] >= 0:
+        _add_pair_block(i, i, D, scale, groups, out)
         return
     I = invI[i]
     for e in range(3):
@@ -228,6 +228,102 @@ def _rotate_particles(v, group_of, group_R, to_group):
 
 
 @nb.njit(cache=True)
+def _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups):
+    """(m, 3, 3) response of each active contact's relative velocity, in its basis, per unit
+    impulse along its basis (the Delassus block of the contact, both sides' scales applied)."""
+    group_of = groups[0]
+    K = np.zeros((len(idx), 3, 3))
+    for j in range(len(idx)):
+        k = idx[j]
+        a, b = ia[k], ib[k]
+        D = basis[j]
+        _response(a, ra[k], D, scale_a[k], inv_m, invI, groups, K[j])
+        _response(b, rb[k], D, scale_b[k], inv_m, invI, groups, K[j])
+        if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
+            # both sides in one deformable body: an impulse on one side moves the other too
+            _add_pair_block(a, b, D, -scale_b[k], groups, K[j])
+            _add_pair_block(b, a, D, -scale_a[k], groups, K[j])
+    return K
+
+
+@nb.njit(cache=True, inline="always")
+def _relative_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups, u):
+    """u (3,) = velocity of side a minus side b at contact k, in contact j's basis."""
+    x0, x1, x2 = _point_velocity(ia[k], ra[k], v, w, groups)
+    y0, y1, y2 = _point_velocity(ib[k], rb[k], v, w, groups)
+    x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
+    for d in range(3):
+        u[d] = basis[j, d, 0] * x0 + basis[j, d, 1] * x1 + basis[j, d, 2] * x2
+
+
+@nb.njit(cache=True, inline="always")
+def _solve_normal(K, j, target, lam, k, u, delta):
+    """Normal row of contact k (response K[j]): reach the target normal velocity, accumulated
+    impulse lam[k, 0] >= 0; u follows."""
+    new = max(lam[k, 0] + (target - u[0]) / K[j, 0, 0], 0.0)
+    delta[0] = new - lam[k, 0]
+    lam[k, 0] = new
+    for e in range(3):
+        u[e] += K[j, e, 0] * delta[0]
+
+
+@nb.njit(cache=True, inline="always")
+def _solve_friction(K, j, mu, lam, k, u, delta):
+    """Friction rows: both tangents at once, each stopped through the larger of the two
+    tangential responses (never past the answer on either), and the pair projected radially into
+    the Coulomb disk mu * lam[k, 0], so a sliding contact's friction opposes its sliding velocity.
+
+    Clamped one tangent after the other, a sliding node whose lateral vibration asked more than
+    the disk held got friction at 45 degrees to its motion, or along it (a Newmark block slid at
+    0.90 mu g); through the full 2x2 response, a sliding box's corners (whose response turns with
+    their lever arms) pulled askew and it slid 2% too far down a slope."""
+    limit = mu * lam[k, 0]
+    ktt = max(K[j, 1, 1], K[j, 2, 2])
+    f1 = lam[k, 1] - u[1] / ktt if ktt > 0.0 else lam[k, 1]
+    f2 = lam[k, 2] - u[2] / ktt if ktt > 0.0 else lam[k, 2]
+    norm = math.sqrt(f1 * f1 + f2 * f2)
+    if norm > limit:
+        scale = limit / norm if norm > 0.0 else 0.0
+        f1, f2 = f1 * scale, f2 * scale
+    step1, step2 = f1 - lam[k, 1], f2 - lam[k, 2]
+    lam[k, 1], lam[k, 2] = f1, f2
+    delta[1] += step1
+    delta[2] += step2
+    for e in range(3):
+        u[e] += K[j, e, 1] * step1 + K[j, e, 2] * step2
+
+
+@nb.njit(cache=True)
+def _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,
+            iterations, groups):
+    """Gauss-Seidel sweeps over the active contacts (see pgs), until no impulse changes by more
+    than 1e-7 of the largest."""
+    u = np.zeros(3)
+    delta = np.zeros(3)
+    for sweep in range(iterations):
+        largest_change = 0.0
+        largest = 0.0
+        for j in range(len(idx)):
+            if K[j, 0, 0] <= 0.0:
+                continue
+            k = idx[j]
+            _relative_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups, u)
+            delta[:] = 0.0
+            _solve_normal(K, j, target[k], lam, k, u, delta)
+            if mu[k] > 0.0:
+                _solve_friction(K, j, mu[k], lam, k, u, delta)
+            largest = max(largest, lam[k, 0])
+            change = max(abs(delta[0]), abs(delta[1]), abs(delta[2]))
+            if change == 0.0:
+                continue
+            largest_change = max(largest_change, change)
+            _apply_pair(j, k, delta[0], delta[1], delta[2], basis, ia, ib, ra, rb, scale_a, scale_b,
+                        inv_m, invI, v, w, groups)
+        if sweep > 0 and largest_change <= 1e-7 * largest:
+            break
+
+
+@nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
         iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w, apply_lam):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
@@ -253,90 +349,23 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
     impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
     """
+    groups = (group_of, group_R, w_ptr, w_col, W, corner, corner_w)
     idx = np.nonzero(active)[0]
-    m = len(idx)
     basis = contact_basis(normal[idx])
-    K = np.zeros((m, 3, 3))        # contact-basis response of the relative velocity per impulse
-    for j in range(m):
-        k = idx[j]
-        a, b = ia[k], ib[k]
-        D = basis[j]
-        _response(a, ra[k], D, scale_a[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner,
-                  corner_w, K[j])
-        _response(b, rb[k], D, scale_b[k], inv_m, invI, group_of, group_R, w_ptr, w_col, W, corner,
-                  corner_w, K[j])
-        if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
-            # both sides in one deformable body: an impulse on one side moves the other too
-            _add_pair_block(a, b, D, -scale_b[k], group_of, group_R, w_ptr, w_col, W, corner,
-                            corner_w, K[j])
-            _add_pair_block(b, a, D, -scale_a[k], group_of, group_R, w_ptr, w_col, W, corner,
-                            corner_w, K[j])
+    K = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
+    # particle velocities stay in their group's frame during the sweeps
     _rotate_particles(v, group_of, group_R, True)
-    if apply_lam:
-        for j in range(m):
+    if apply_lam:       # warm start: the impulses lam holds act first
+        for j in range(len(idx)):
             k = idx[j]
             if K[j, 0, 0] > 0.0:
                 _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
-                            scale_b, inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner,
-                            corner_w)
-    u = np.zeros(3)
-    delta = np.zeros(3)
-    for sweep in range(iterations):
-        largest_change = 0.0
-        largest = 0.0
-        for j in range(m):
-            if K[j, 0, 0] <= 0.0:
-                continue
-            k = idx[j]
-            a, b = ia[k], ib[k]
-            x0, x1, x2 = _point_velocity(a, ra[k], v, w, group_of, group_R, corner, corner_w)
-            y0, y1, y2 = _point_velocity(b, rb[k], v, w, group_of, group_R, corner, corner_w)
-            x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
-            for d in range(3):
-                u[d] = basis[j, d, 0] * x0 + basis[j, d, 1] * x1 + basis[j, d, 2] * x2
-            delta[:] = 0.0
-            # normal: reach the target normal velocity, accumulated impulse >= 0
-            new = max(lam[k, 0] + (target[k] - u[0]) / K[j, 0, 0], 0.0)
-            delta[0] = new - lam[k, 0]
-            lam[k, 0] = new
-            for e in range(3):
-                u[e] += K[j, e, 0] * delta[0]
-            if mu[k] > 0.0:
-                # friction: both tangents at once, each stopped through the larger of the two
-                # tangential responses (never past the answer on either), and the pair projected
-                # radially into the Coulomb disk mu * lambda_n, so a sliding contact's friction
-                # opposes its sliding velocity.
-                # Clamped one tangent after the other, a sliding node whose lateral vibration
-                # asked more than the disk held got friction at 45 degrees to its motion, or along
-                # it (a Newmark block slid at 0.90 mu g); through the full 2x2 response, a sliding
-                # box's corners (whose response turns with their lever arms) pulled askew and it
-                # slid 2% too far down a slope
-                limit = mu[k] * lam[k, 0]
-                ktt = max(K[j, 1, 1], K[j, 2, 2])
-                f1 = lam[k, 1] - u[1] / ktt if ktt > 0.0 else lam[k, 1]
-                f2 = lam[k, 2] - u[2] / ktt if ktt > 0.0 else lam[k, 2]
-                norm = math.sqrt(f1 * f1 + f2 * f2)
-                if norm > limit:
-                    scale = limit / norm if norm > 0.0 else 0.0
-                    f1, f2 = f1 * scale, f2 * scale
-                step1, step2 = f1 - lam[k, 1], f2 - lam[k, 2]
-                lam[k, 1], lam[k, 2] = f1, f2
-                delta[1] += step1
-                delta[2] += step2
-                for e in range(3):
-                    u[e] += K[j, e, 1] * step1 + K[j, e, 2] * step2
-            largest = max(largest, lam[k, 0])
-            change = max(abs(delta[0]), abs(delta[1]), abs(delta[2]))
-            if change == 0.0:
-                continue
-            largest_change = max(largest_change, change)
-            _apply_pair(j, k, delta[0], delta[1], delta[2], basis, ia, ib, ra, rb, scale_a, scale_b,
-                        inv_m, invI, v, w, group_of, group_R, w_ptr, w_col, W, corner, corner_w)
-        if sweep > 0 and largest_change <= 1e-7 * largest:
-            break
+                            scale_b, inv_m, invI, v, w, groups)
+    _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,
+            iterations, groups)
     _rotate_particles(v, group_of, group_R, False)
     out = np.full((len(ia), 3), np.nan)
-    for j in range(m):
+    for j in range(len(idx)):
         k = idx[j]
         out[k] = lam[k, 0] * basis[j, 0] + lam[k, 1] * basis[j, 1] + lam[k, 2] * basis[j, 2]
     return out
