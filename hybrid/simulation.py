@@ -2,7 +2,7 @@
 
     from hybrid import Simulation
     sim = Simulation.from_toml("dent")          # a built-in scene by name, or a path to a .toml
-    sim.run(until=0.2, out="outputs/dent")      # frames, bodies.csv, regions.csv, summary.json
+    sim.run(until=0.02, out="outputs/dent")      # frames, bodies.csv, regions.csv, summary.json
     print(sim.time, sim.body("ball").position)
 
 The command line (``hybrid run``), the tests and the benchmarks all step scenes through this

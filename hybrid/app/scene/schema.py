@@ -92,8 +92,8 @@ SOLVER = Section("simulation.solver", "[simulation.solver]", "Solver settings: t
           "slab sank into it after 20). The sweeps stop early once converged.", low=1),
     _non_negative("contact_margin", 0.005, "m", "Distance at which contacts are detected before touching."),
     Field("hold_resting", "boolean", True, "", "Step a deformable body lying still on static ground "
-          "with its resting nodes held, checked every step (see How it works: resting contact is "
-          "held); `false` leaves every contact to the solver."),
+          "with its resting nodes held, checked every step (docs/coupling.md, held resting "
+          "contact); `false` leaves every contact to the solver."),
     Field("linear_solver", "choice", "cholmod", "", "Sparse factorisation of the FEM bodies' system "
           "matrices: `cholmod` (supernodal Cholesky, SuiteSparse's CHOLMOD through cholespy; the "
           "fastest) or `superlu` (scipy's SuperLU, needs nothing beyond scipy).",
