@@ -105,6 +105,9 @@ def _render(args):
 
 
 def main(argv=None):
+    """Run the ``hybrid`` command line (``run``, ``render``, ``scenes``, ``validate``) on ``argv``
+    (default ``sys.argv[1:]``) and return its exit code: 0 ok, 2 bad input, 3 unstable, 4
+    rendering unavailable, 130 interrupted."""
     parser = argparse.ArgumentParser(
         prog="hybrid", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Rigid bodies coupled with plastic, fracturing tetrahedral FEM: scene files in, "

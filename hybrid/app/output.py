@@ -68,10 +68,12 @@ class FramePiece:
 
     @property
     def point_count(self) -> int:
+        """Number of points of the piece."""
         return len(self.points)
 
     @property
     def cell_count(self) -> int:
+        """Number of cells of the piece over all its blocks."""
         return sum(len(c) for _, c in self.cells)
 
 
@@ -198,13 +200,16 @@ class RunWriter:
     # -- paths ---------------------------------------------------------------------------
     @property
     def pvd_path(self) -> Path:
+        """The run's ParaView index, ``<out_dir>/<scene_name>.pvd``."""
         return self.out_dir / f"{self.scene_name}.pvd"
 
     @property
     def frames_dir(self) -> Path:
+        """The folder of the frame files, ``<out_dir>/frames``."""
         return self.out_dir / FRAMES_DIR
 
     def frame_path(self, index: int) -> Path:
+        """Path of frame number ``index`` (0-based): ``frames/frame_00000.vtu`` and on."""
         return self.frames_dir / f"frame_{index:05d}.vtu"
 
     # -- lifecycle -----------------------------------------------------------------------

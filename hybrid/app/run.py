@@ -29,6 +29,8 @@ class Progress:
         self.last_decile = -1
 
     def update(self, t, steps, force=False):
+        """Show simulated time ``t`` (s) after ``steps`` steps; on a terminal at most every 0.2 s
+        of wall time, else once per tenth of the duration, unless ``force``."""
         if not self.enabled:
             return
         now = clock.perf_counter()
@@ -46,6 +48,7 @@ class Progress:
             self.stream.flush()
 
     def done(self):
+        """End the bar's line (on a terminal)."""
         if self.enabled and self.tty:
             self.stream.write("\n")
 

@@ -271,6 +271,7 @@ class SurfaceContacts:
 
     @staticmethod
     def stacked(parts):
+        """One :class:`SurfaceContacts` of ``parts`` (a list of them) in order; empty if none."""
         if not parts:
             return SurfaceContacts(np.zeros(0, np.int64), np.zeros((0, 3), np.int64), np.zeros((0, 3)),
                                    np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
@@ -279,6 +280,7 @@ class SurfaceContacts:
 
     @property
     def count(self):
+        """Number of contacts."""
         return len(self.gap)
 
 

@@ -37,6 +37,8 @@ class ContactMemory:
 
     @staticmethod
     def of(keys, impulse):
+        """The memory of contacts ``keys`` (c,) int64 with impulses ``impulse`` (c, 3) N s; rows
+        with no key (negative) or a non-finite impulse are dropped, the rest sorted by key."""
         keep = (keys >= 0) & np.isfinite(impulse).all(axis=1)
         order = np.argsort(keys[keep], kind="stable")
         return ContactMemory(keys[keep][order], impulse[keep][order])

@@ -35,6 +35,7 @@ class SurfaceNodes:
 
     @property
     def count(self):
+        """Number of stacked surface nodes (k)."""
         return len(self.local)
 
     def stacked(self, j, local):

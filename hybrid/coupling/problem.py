@@ -108,6 +108,7 @@ class Particles:
 
     @property
     def count(self):
+        """Number of particles and places together."""
         return len(self.nodes) + len(self.corners)
 
     def nodes_of(self, j):

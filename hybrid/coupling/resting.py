@@ -57,6 +57,8 @@ class Resting:
 
     @property
     def held(self):
+        """Whether the set is held: it has rested unchanged over ``ENTER_AFTER`` steps, no wait
+        after a release remains, and it is not empty."""
         return self.steps > ENTER_AFTER and self.wait == 0 and len(self.nodes) > 0
 
 

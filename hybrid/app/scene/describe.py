@@ -19,6 +19,7 @@ def toml_text(value):
 
 
 def range_text(f):
+    """The numeric range of field ``f`` in words ('> 0', 'in [0, 1)', '<= 5'); '' if unbounded."""
     low = None if f.low is None else f"{f.low:g}"
     high = None if f.high is None else f"{f.high:g}"
     if low is not None and high is not None:
@@ -77,6 +78,8 @@ TYPE_NAMES = {"number": "number", "integer": "integer", "string": "string", "boo
 
 
 def default_text(f):
+    """The default of field ``f`` as the reference shows it: its ``default_text`` if set,
+    'required', 'none' for an empty array of tables, else the value as TOML."""
     if f.default_text is not None:
         return f.default_text
     if f.default is REQUIRED:

@@ -66,9 +66,11 @@ class Section:
     rules: tuple = ()
 
     def field(self, name):
+        """The :class:`Field` called ``name`` (StopIteration if the section has none)."""
         return next(f for f in self.fields if f.name == name)
 
     def names(self):
+        """The section's field names, in schema order."""
         return [f.name for f in self.fields]
 
 

@@ -16,12 +16,15 @@ class Where:
         self.source, self.label, self.prefix = source, label, prefix
 
     def nested(self, name):
+        """The place of the fields of inline table ``name`` within this one (prefix ``name.``)."""
         return Where(self.source, self.label, f"{self.prefix}{name}.")
 
     def general(self, text):
+        """A problem message about the table as a whole: ``<source>: <label>: <text>``."""
         return f"{self.source}: {self.label}: {text}"
 
     def problem(self, name, text):
+        """A problem message about field ``name`` of the table (with its inline-table prefix)."""
         return self.general(f"field '{self.prefix}{name}' {text}")
 
 
@@ -184,4 +187,6 @@ _CONVERTERS = {"number": _number, "integer": _integer, "string": _string, "boole
 
 
 def valid(*values):
+    """Whether every value was read successfully (none is INVALID or missing), so checks that
+    combine fields may run."""
     return all(v is not INVALID and v is not None for v in values)
