@@ -127,6 +127,41 @@ def _scatter(target, index, values):
     np.add.at(target, index[keep], values[keep])
 
 
+@dataclass
+class _Problem:
+    """One call's contacts as the solver kernel takes them: the contacts, their arms ra, rb
+    (c, 3) m on sides a and b, the solver bodies and their groups (SolverBodies.groups)."""
+    contacts: object
+    ra: np.ndarray
+    rb: np.ndarray
+    bodies: SolverBodies
+    groups: tuple
+
+    def solve(self, target, friction, scale_a, scale_b, active, lam, v, w, iterations,
+              apply_lam=False):
+        """:func:`rigid.solver.pgs` over these contacts (updates v, w and lam in place)."""
+        c, b = self.contacts, self.bodies
+        return pgs(c.body_a, c.body_b, self.ra, self.rb, c.normal, target, friction, scale_a,
+                   scale_b, active, lam, b.inv_mass, b.inv_inertia, v, w, iterations, *self.groups,
+                   apply_lam)
+
+    def sweep_stack(self, up, selected, target, lam, v, w, iterations, impulse):
+        """Shock propagation (Guendelman 2003): the contacts ``selected`` solved again level by
+        level up the stack (``up``, unit), each level with the lower side of its contacts frozen;
+        their impulses replace theirs in ``impulse``. Returns the per-contact inverse-mass scales
+        (scale_a, scale_b) that freeze the lower sides."""
+        c = self.contacts
+        level = stack_levels(c.body_a, c.body_b, c.normal, up, len(self.bodies.inv_mass),
+                             self.bodies.static, self.groups[0])
+        c_level, scale_a, scale_b = shock_scales(c.body_a, c.body_b, level)
+        for lv in np.unique(c_level[selected]):
+            at_level = (c_level == lv) & selected
+            level_imp = self.solve(target, c.friction, scale_a, scale_b, at_level, lam, v, w,
+                                   iterations)
+            impulse[at_level] = level_imp[at_level]
+        return scale_a, scale_b
+
+
 def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm=None):
     """Collisions, resting contact, shock propagation and penetration recovery for one step.
 
@@ -137,82 +172,50 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     step's impulses of persisting contacts; the sweeps lower or raise them as needed). Ignored
     with ``previous``.
     """
-    n = len(bodies.inv_mass)
+    n, c = len(bodies.inv_mass), contacts.count
     v, w = bodies.velocity.copy(), bodies.angular.copy()
-    c3 = lambda: np.zeros((contacts.count, 3))
-    out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)), c3(), c3(), c3())
-    if contacts.count == 0:
+    out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)), *(np.zeros((c, 3)) for _ in range(3)))
+    if c == 0:
         return out
-    groups = bodies.groups()
-    particle = groups[0] >= 0
-    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
-    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
-    ra, rb = arms(ia, ib, contacts.point, bodies.position)
-    ones = np.ones(contacts.count)
-    has_b = (ib >= 0)[:, None]
-    ib0 = np.maximum(ib, 0)
+    problem = _Problem(contacts, *arms(contacts.body_a, contacts.body_b, contacts.point,
+                                      bodies.position), bodies, bodies.groups())
+    # contacts on deformable bodies (particles) bounce through the body's own elasticity
+    particle = problem.groups[0] >= 0
+    ia, ib = contacts.body_a, contacts.body_b
+    on_particle = particle[ia] | (particle[np.maximum(ib, 0)] & (ib >= 0))
 
     # 1. collisions: restitution at each impact's time within the step
-    vn_t = normal_velocity(ia, ib, ra, rb, nrm, bodies.velocity_at_t, w)
-    an = np.einsum("ck,ck->c", bodies.accel[ia] - np.where(has_b, bodies.accel[ib0], 0.0), nrm)
-    tau = time_of_impact(contacts.gap, vn_t, an, h)
-    approach = -(vn_t + an * np.minimum(tau, h))
-    # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
-    threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
-    # contacts on deformable bodies (particles) bounce through the body's own elasticity
-    on_particle = particle[ia] | (particle[ib0] & (ib >= 0))
-    hits = (tau <= h) & (approach > threshold)
-    impact, soft = hits & ~on_particle, hits & on_particle
-    if soft.any():
-        # a rigid body that strikes a deformable body first this step is stopped by it in the
-        # contact pass; its later impacts wait there too (a ball at 40 m/s above a plate lying on
-        # the ground struck the ground through the plate, and bounced off both)
-        first = np.full(n, np.inf)
-        np.minimum.at(first, ia[soft], tau[soft])
-        np.minimum.at(first, ib0[soft & (ib >= 0)], tau[soft & (ib >= 0)])
-        impact &= (tau < first[ia]) & ((ib < 0) | (tau < first[ib0]))
     if previous is not None:     # position-level results belong to the first solve of the step
         for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
                      "momentum_fix", "collision_impulse"):
             setattr(out, name, getattr(previous, name))
-    elif impact.any():
-        # (inelastic impacts end in the contact pass the same way with or without the supports)
-        bouncing = bool((contacts.restitution[impact] > 0).any())
-        _collide(out, bodies, contacts, groups, impact, ~impact & ~on_particle & bouncing, tau,
-                 approach, ra, rb, v, w, h, gravity, settings)
+    else:
+        impact, tau, approach = _impacts(problem, on_particle, h, gravity, settings)
+        if impact.any():
+            # (inelastic impacts end in the contact pass the same way with or without the supports)
+            bouncing = bool((contacts.restitution[impact] > 0).any())
+            _collide(out, problem, impact, ~impact & ~on_particle & bouncing, tau, approach, h,
+                     gravity, settings)
 
     # 2. contact: no gap may close by the end of the step (inelastic, Coulomb friction)
-    moved = out.shift[ia] + np.cross(out.shift_rotation[ia], ra)
-    moved_b = np.where(has_b, out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
-    shift_n = np.einsum("ck,ck->c", moved - moved_b, nrm)
-    target = -(np.maximum(contacts.gap, 0.0) + shift_n) / h
-    every = np.ones(contacts.count, dtype=bool)
-    if previous is not None:
-        lam, apply_lam = previous.contact_lambda.copy(), False
-    elif warm is not None:
-        lam, apply_lam = warm_lambda(nrm, contacts.friction, warm), True
-    else:
-        lam, apply_lam = c3(), False
+    target = _contact_target(problem, out, h)
+    lam, apply_lam = _contact_start(contacts, previous, warm)
     # contacts on deformable bodies converge more slowly (a 1,800 kg box on a 1.8 kg slab sank
     # into it at 10 um/s after 20 sweeps): with any of them, the sweeps go on longer
     sweeps = max(settings.iterations, settings.deformable_iterations) if on_particle.any() \
         else settings.iterations
-    contact_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, every, lam, inv_m,
-                      invI, v, w, sweeps, *groups, apply_lam)
+    ones = np.ones(c)
+    contact_imp = problem.solve(target, contacts.friction, ones, ones, np.ones(c, dtype=bool), lam,
+                                v, w, sweeps, apply_lam)
 
     # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
-    sa = sb = ones
+    scale_a = scale_b = ones
     gnorm = np.linalg.norm(gravity)
     if gnorm > 0:
-        level = stack_levels(ia, ib, nrm, -np.asarray(gravity) / gnorm, n, bodies.static, groups[0])
-        c_level, sa, sb = shock_scales(ia, ib, level)
         # (contacts between particles and the static world gain nothing from it: left out)
-        rigid_side = ~particle[ia] & ((ib < 0) | ~particle[ib0])
-        for lv in np.unique(c_level[rigid_side]):
-            at_level = (c_level == lv) & rigid_side
-            level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
-                            inv_m, invI, v, w, settings.shock_iterations, *groups, False)
-            contact_imp[at_level] = level_imp[at_level]
+        rigid_side = ~particle[ia] & ((ib < 0) | ~particle[np.maximum(ib, 0)])
+        scale_a, scale_b = problem.sweep_stack(-np.asarray(gravity) / gnorm, rigid_side, target,
+                                               lam, v, w, settings.shock_iterations, contact_imp)
     out.contact_impulse = np.nan_to_num(contact_imp)
     out.contact_lambda = lam
 
@@ -220,14 +223,63 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     deep = contacts.gap < -settings.slop
     if deep.any() and previous is None:
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
-        pgs(ia, ib, ra, rb, nrm, target_p, np.zeros(contacts.count), sa, sb, deep,
-            np.zeros((contacts.count, 3)), inv_m, invI, out.pseudo_velocity, out.pseudo_angular,
-            settings.iterations, *groups, False)
+        problem.solve(target_p, np.zeros(c), scale_a, scale_b, deep, np.zeros((c, 3)),
+                      out.pseudo_velocity, out.pseudo_angular, settings.iterations)
     return out
 
 
-def _collide(out, bodies, contacts, groups, impact, support, tau, approach, ra, rb, v, w, h, gravity,
-             settings):
+def _impacts(problem, on_particle, h, gravity, settings):
+    """Which contacts are impacts this step, with their time of impact tau (s) and approach speed
+    (m/s) at that time, all (c,). An impact closes its gap within the step faster than the
+    restitution threshold; contacts on deformable bodies (``on_particle``) are never impacts, and
+    a rigid body's impacts after its first hit on a deformable body this step wait for the
+    contact pass."""
+    contacts, bodies = problem.contacts, problem.bodies
+    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
+    ib0 = np.maximum(ib, 0)
+    vn_t = normal_velocity(ia, ib, problem.ra, problem.rb, nrm, bodies.velocity_at_t, bodies.angular)
+    accel_b = np.where((ib >= 0)[:, None], bodies.accel[ib0], 0.0)
+    an = np.einsum("ck,ck->c", bodies.accel[ia] - accel_b, nrm)
+    tau = time_of_impact(contacts.gap, vn_t, an, h)
+    approach = -(vn_t + an * np.minimum(tau, h))
+    # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
+    threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
+    hits = (tau <= h) & (approach > threshold)
+    impact, soft = hits & ~on_particle, hits & on_particle
+    if soft.any():
+        # a rigid body that strikes a deformable body first this step is stopped by it in the
+        # contact pass; its later impacts wait there too (a ball at 40 m/s above a plate lying on
+        # the ground struck the ground through the plate, and bounced off both)
+        first = np.full(len(bodies.inv_mass), np.inf)
+        np.minimum.at(first, ia[soft], tau[soft])
+        np.minimum.at(first, ib0[soft & (ib >= 0)], tau[soft & (ib >= 0)])
+        impact &= (tau < first[ia]) & ((ib < 0) | (tau < first[ib0]))
+    return impact, tau, approach
+
+
+def _contact_target(problem, out, h):
+    """Normal velocity (c,) m/s each contact may reach at most: closing its gap exactly by the end
+    of the step, counting the shifts the collision pass gave the bodies."""
+    contacts, ra, rb = problem.contacts, problem.ra, problem.rb
+    ia, ib = contacts.body_a, contacts.body_b
+    ib0 = np.maximum(ib, 0)
+    moved = out.shift[ia] + np.cross(out.shift_rotation[ia], ra)
+    moved_b = np.where((ib >= 0)[:, None], out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
+    shift_n = np.einsum("ck,ck->c", moved - moved_b, contacts.normal)
+    return -(np.maximum(contacts.gap, 0.0) + shift_n) / h
+
+
+def _contact_start(contacts, previous, warm):
+    """Accumulated impulses (c, 3) the contact pass starts from, and whether they still have to
+    be applied to the bodies (a warm start) or already are (a repeat solve of the step)."""
+    if previous is not None:
+        return previous.contact_lambda.copy(), False
+    if warm is not None:
+        return warm_lambda(contacts.normal, contacts.friction, warm), True
+    return np.zeros((contacts.count, 3)), False
+
+
+def _collide(out, problem, impact, support, tau, approach, h, gravity, settings):
     """Collision pass: each impact reaches its restitution target (e times its approach) at its
     time of impact ``tau``, solved together with the ``support`` contacts (the other rigid
     contacts, held to close no further than their gap, as in the contact pass), so a body lying on
@@ -236,39 +288,39 @@ def _collide(out, bodies, contacts, groups, impact, support, tau, approach, ra, 
     Then, as in the contact pass, the stack is swept bottom-up with the lower side of each
     contact frozen (Guendelman 2003), which the sweeps alone reach only slowly through a stack
     (a ball on two stacked boxes left at 2.3 m/s instead of 3.5 after 20 sweeps, and set the top
-    box sliding). Updates v, w in place and fills ``out``'s collision fields."""
+    box sliding). Updates out.velocity, out.angular in place and fills ``out``'s collision
+    fields."""
+    contacts, v, w = problem.contacts, out.velocity, out.angular
     ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
-    n, c = len(bodies.inv_mass), contacts.count
-    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
-    ones = np.ones(c)
+    ones = np.ones(contacts.count)
     active = impact | support
-    target = np.where(impact, normal_velocity(ia, ib, ra, rb, nrm, v, w)
+    target = np.where(impact, normal_velocity(ia, ib, problem.ra, problem.rb, nrm, v, w)
                       + (1.0 + contacts.restitution) * approach, -np.maximum(contacts.gap, 0.0) / h)
     v0, w0 = v.copy(), w.copy()
-    lam = np.zeros((c, 3))
-    imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, ones, ones, active, lam, inv_m, invI,
-              v, w, settings.iterations, *groups, False)
+    lam = np.zeros((contacts.count, 3))
+    imp = problem.solve(target, contacts.friction, ones, ones, active, lam, v, w, settings.iterations)
     gnorm = np.linalg.norm(gravity)
     swept = bool(support.any() and gnorm > 0)
     if swept:
         up = -np.asarray(gravity) / gnorm
-        level = stack_levels(ia, ib, nrm, up, n, bodies.static, groups[0])
-        c_level, sa, sb = shock_scales(ia, ib, level)
         # only contacts that stack (a sideways hit keeps the answer of the sweeps above: frozen,
         # the box it hits would act as a wall)
         stacked = active & (np.abs(nrm @ up) > STACK_COS)
-        for lv in np.unique(c_level[stacked]):
-            at_level = (c_level == lv) & stacked
-            level_imp = pgs(ia, ib, ra, rb, nrm, target, contacts.friction, sa, sb, at_level, lam,
-                            inv_m, invI, v, w, settings.shock_iterations, *groups, False)
-            imp[at_level] = level_imp[at_level]
-    imp = np.nan_to_num(imp)
-    out.collision_impulse = imp
+        problem.sweep_stack(up, stacked, target, lam, v, w, settings.shock_iterations, imp)
+    out.collision_impulse = np.nan_to_num(imp)
     out.impact_dv = v - v0
-    # the bodies are moved back by the time their impulses acted times the velocity they gave, so
-    # bounces do not depend on where an impact falls in the step; their spin takes the angular
-    # momentum that moving them back takes from their motion, so it stays exact
-    t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, n)
+    t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, len(v))
+    _move_back(out, problem, t_contact, active, swept, v0, w0)
+
+
+def _move_back(out, problem, t_contact, active, swept, v0, w0):
+    """The bodies are moved back by the time their impulses acted times the velocity they gave,
+    so bounces do not depend on where an impact falls in the step; their spin takes the angular
+    momentum that moving them back takes from their motion, so it stays exact. Fills out.shift,
+    shift_rotation and momentum_fix."""
+    contacts, bodies, v, w = problem.contacts, problem.bodies, out.velocity, out.angular
+    ia, ib, n = contacts.body_a, contacts.body_b, len(v)
+    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
     if swept:   # frozen sides took less than the impulses: each body's own change, at its time
         t_body = np.zeros(n + 1)
         np.maximum.at(t_body, np.where(ia >= 0, ia, n), np.where(active, t_contact, 0.0))
@@ -279,7 +331,8 @@ def _collide(out, bodies, contacts, groups, impact, support, tau, approach, ra, 
         mass = np.where(inv_m > 0, 1.0 / np.where(inv_m > 0, inv_m, 1.0), 0.0)[:, None]
         out.momentum_fix = t_body * np.cross(mass * (v - v0), v)
         return
-    for side, r, j in ((ia, ra, imp), (ib, rb, -imp)):
+    imp = out.collision_impulse
+    for side, r, j in ((ia, problem.ra, imp), (ib, problem.rb, -imp)):
         s = np.maximum(side, 0)
         t = t_contact[:, None]          # each impulse at its own time
         _scatter(out.shift, side, -t * j * inv_m[s][:, None])
