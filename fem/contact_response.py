@@ -60,6 +60,7 @@ class ResponseCache:
 
     @property
     def W(self):
+        """The dense inverse-system block ``(3k, 3k)`` (s/kg) of the ``k`` known nodes, in their order."""
         m3 = 3 * len(self.known)
         return self._W[:m3, :m3]
 

@@ -125,10 +125,12 @@ class FemModel:
 
     @property
     def node_count(self):
+        """Number of nodes (corner and, for P2, midside)."""
         return len(self.rest_points)
 
     @property
     def tet_count(self):
+        """Number of tetrahedra."""
         return len(self.tets)
 
     @property
@@ -203,6 +205,7 @@ class FemState:
     energy_slack: float = 0.0
 
     def replace(self, **changes):
+        """A copy of this state with ``changes`` (field name = new value)."""
         return replace(self, **changes)
 
 

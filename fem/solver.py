@@ -80,6 +80,7 @@ class Factorisation:
         self.solve_cost = int(CHOLMOD_SOLVE_COST_PER_NNZ * A.nnz)
 
     def solve(self, rhs):
+        """The solution of ``matrix x = rhs`` for ``rhs`` ``(m,)`` or ``(m, k)`` (k right-hand sides)."""
         rhs = np.asarray(rhs, dtype=float)
         if self.backend == "superlu":
             return self._lu.solve(rhs)
@@ -129,6 +130,7 @@ class FactorCache:
         return self._derived[key]
 
     def invalidate(self):
+        """Forget the factorisation (the matrix changed); the next use factorises again."""
         self.factorisation = None
         self.dt = None
         self.matrix = None
