@@ -35,6 +35,8 @@ class RigidBodyDesc:
 
 @dataclass
 class PlaneDesc:
+    """A static half-space: a ``point`` (m) on its surface, its outward ``normal`` (the solid side is
+    opposite it), Coulomb ``friction`` and ``restitution``."""
     point: tuple = (0.0, 0.0, 0.0)
     normal: tuple = (0.0, 0.0, 1.0)
     friction: float = 0.5

@@ -84,6 +84,7 @@ class RigidModel:
 
     @property
     def body_count(self):
+        """Number of rigid bodies."""
         return len(self.body_mass)
 
 
@@ -108,6 +109,7 @@ class RigidState:
     last_dt: float = 0.0
 
     def copy(self):
+        """A deep copy (every array copied)."""
         return RigidState(self.position.copy(), self.orientation.copy(), self.velocity.copy(),
                           self.angular_momentum.copy(), self.contact_dv.copy(), self.time,
                           self.last_dt)

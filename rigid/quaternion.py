@@ -70,6 +70,7 @@ def from_rotation_vector(phi):
 
 
 def normalize(q):
+    """Unit quaternions ``(..., 4)`` of ``q`` (each divided by its norm)."""
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
