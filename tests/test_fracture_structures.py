@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fem.split import tet_slot_faces
 from hybrid.app.build import build
 from hybrid.coupling.events import apply_fracture, between_steps, fragment_of
 from hybrid.app.observe import region_rows, totals
@@ -184,6 +185,33 @@ def test_ball_shatters_plate_and_fragments_settle_without_gaining_energy():
     assert np.all(state.rigid.position[fragments, 2] > -0.005)
     assert np.all(np.linalg.norm(state.rigid.velocity[fragments], axis=1) < 1.0)
     assert rigid.body_count == len(model.rigid_ids)
+
+
+
+def test_crack_faces_waiting_to_open_are_state_and_the_model_changes_only_with_the_bodies():
+    model, state = build_scene(SHATTER)
+    seen = {"checks": 0, "waiting": 0}
+
+    def watch(before, after, new):
+        (m0, _), (m1, s1) = before, after
+        seen["checks"] += 1
+        # the first check fills the model's fracture data; afterwards a check returns the same
+        # model unless a body cracked open (its mesh, and so its model, changed)
+        assert (m1 is m0) == (not new) or (seen["checks"] == 1 and m0.fracture is None)
+        assert m1.fracture is not None and len(m1.fracture) == len(m1.fem)
+        if s1.fracture_pending is None:
+            return
+        # per FEM body, (tet, local face) rows of its own mesh naming faces still closed
+        assert len(s1.fracture_pending) == len(m1.fem)
+        for fem_model, data, rows in zip(m1.fem, m1.fracture, s1.fracture_pending):
+            assert rows.dtype == np.int64 and rows.shape[1:] == (2,)
+            if len(rows):
+                assert np.all((rows[:, 0] < fem_model.tet_count) & (rows[:, 1] < 4))
+                assert np.all(data.fracture.faces.interior[tet_slot_faces(data.fracture.faces, rows)])
+        seen["waiting"] += any(len(rows) for rows in s1.fracture_pending)
+
+    model, state, events = run(model, state, 100, watch)
+    assert events and seen["waiting"], "no crack left faces waiting to open"
 
 
 # ductile tearing: a bar pulled slowly past yield flows at Y A, then tears in two

@@ -5,7 +5,9 @@
 Each event returns a new model and state (models are never changed) and rebuilds only the bodies
 it touched. Plastic reference updates (``fem.reference``) bake large plastic strain into a body's
 rest shape and refactorise that body only; fracture (:mod:`hybrid.coupling.fracture`) cracks FEM
-bodies and turns their pieces into bodies (:mod:`hybrid.coupling.fragments`).
+bodies and turns their pieces into bodies (:mod:`hybrid.coupling.fragments`). History the events
+keep between steps is state (``HybridState.fracture_pending``: crack faces waiting to open), so a
+check that only chooses faces returns the same model.
 """
 from __future__ import annotations
 
@@ -46,6 +48,8 @@ def between_steps(model, state, timings=None):
     events = []
     fem, fem_states, updated = apply_reference_updates(model.fem, state.fem, model.dt)
     if updated:
+        # a new rest shape on the same tets: the bodies' fracture data (faces, smoothing) and
+        # their crack faces waiting to open (state.fracture_pending) stay as they are
         model = replace(model, fem=fem)
         state = replace(state, fem=fem_states, contact_sets=_forget(state.contact_sets, updated))
         events += [ReferenceUpdate(float(state.time), model.names[model.fem_ids[j]])

@@ -20,13 +20,16 @@ other body keeps its model and factorisation.
   than ``rigid_fragment_tets`` tets) makes unanchored pieces rigid bodies.
 - ``HybridModel.fragment_of`` (one entry per name): the original scene body each body came from
   (itself for scene bodies). ``HybridModel.fracture``: per FEM body :class:`FractureBody` (None
-  when the body cannot break), built from the model on first use and returned with a new model.
+  when the body cannot break), what depends only on the body's mesh: built once from the scene
+  bodies (:func:`fracture_bodies`; on first use when the built model has none) and for the pieces
+  of a split body.
+- ``HybridState.fracture_pending``: per FEM body, the crack faces chosen but not open yet
+  (history: a check that only adds waiting faces returns a new state and the same model).
 """
 from __future__ import annotations
 
 import time as clock
 from dataclasses import dataclass, replace
-from dataclasses import field as dataclass_field
 
 import numpy as np
 
@@ -41,22 +44,20 @@ from .fragments import RigidPiece, append_rigid, fem_fragment, rigid_fragments
 
 @dataclass(frozen=True)
 class FractureBody:
-    """Fracture data of one FEM body of the hybrid model (rebuilt when the body splits).
+    """Fracture data of one FEM body of the hybrid model: constant, it depends only on the body's
+    mesh and scene data (built once, and for each piece when the body splits). The crack faces
+    waiting to open are history: ``HybridState.fracture_pending``.
 
     origin: scene index of the original body this one comes from.
     fragment_model: "fem" | "rigid" | "auto". rigid_fragment_tets: "auto" pieces with fewer tets
         become rigid.
     fracture: :class:`fem.fracture.FractureModel` of the body's current mesh (strength, tearing
         strain, max cracks per step, unbreakable elements, faces, smoothing).
-    pending: ``(p, 2)`` int, (tet, local face) of crack faces chosen but not open yet: a face
-        opens by node duplication only once the crack surface through its nodes reaches the
-        boundary or an open crack, so chosen faces accumulate here until they do.
     """
     origin: int
     fragment_model: str
     rigid_fragment_tets: int
     fracture: FractureModel
-    pending: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
 
 @dataclass(frozen=True)
@@ -137,38 +138,59 @@ def fragment_of(model):
     return list(value)
 
 
-def fracture_data(model):
-    """Per FEM body :class:`FractureBody` (None when it cannot break): ``model.fracture``, or, when
-    the model has none yet, built from its bodies (:func:`apply_fracture` returns them with the
-    model it returns)."""
-    if model.fracture is not None and len(model.fracture) == len(model.fem):
-        return model.fracture
+def fracture_bodies(model):
+    """Per FEM body of ``model`` its :class:`FractureBody` built from the body's mesh and scene
+    data (None when it cannot break): the value of ``HybridModel.fracture`` for a model built
+    from a scene."""
     origins = fragment_of(model)
     bodies = [model.scene.bodies[body_id] for body_id in model.fem_ids]
     return tuple(_scene_fracture_body(m, origins[body_id], body) if _can_break(body) else None
                  for m, body_id, body in zip(model.fem, model.fem_ids, bodies))
 
 
+def fracture_data(model):
+    """Per FEM body :class:`FractureBody` (None when it cannot break): ``model.fracture``, or, when
+    the model has none yet, :func:`fracture_bodies` (:func:`apply_fracture` returns them with the
+    model it returns, so they are built once)."""
+    if model.fracture is not None and len(model.fracture) == len(model.fem):
+        return model.fracture
+    return fracture_bodies(model)
+
+
+def pending_faces(model, state):
+    """Per FEM body the ``(p, 2)`` (tet, local face) rows of its crack faces waiting to open
+    (``state.fracture_pending``; empty rows where none wait)."""
+    pending = state.fracture_pending
+    if pending is None:
+        return tuple(np.zeros((0, 2), np.int64) for _ in model.fem)
+    if len(pending) != len(model.fem):
+        raise ValueError(f"HybridState.fracture_pending has {len(pending)} entries for "
+                         f"{len(model.fem)} FEM bodies (an event replaced bodies without it)")
+    return tuple(pending)
+
+
 # --- crack search and splitting of one body --------------------------------------------------
 
-def find_cracks(fem_model, fem_state, data):
+def find_cracks(fem_model, fem_state, data, pending):
     """Crack faces of one body this step: ``(cut (f,) face ids in data.fracture.faces,
-    CrackCandidates)``; ``cut`` holds the pending faces and the new ones, and is empty when no
-    new face was chosen (``fem.fracture.find_crack`` on the body's rest shape)."""
+    CrackCandidates)``; ``cut`` holds the ``pending`` faces ((p, 2) (tet, local face) rows) and
+    the new ones, and is empty when no new face was chosen (``fem.fracture.find_crack`` on the
+    body's rest shape)."""
     sigma = element_stress(fem_model, fem_state, fem_state.tet_plastic_strain)
     peeq = fem_state.tet_peeq
     return find_crack(data.fracture, fem_model.rest_points, fem_model.tets, sigma,
                       None if peeq is None else peeq.max(axis=1), fem_state.tet_yielded,
-                      tet_slot_faces(data.fracture.faces, data.pending))
+                      tet_slot_faces(data.fracture.faces, pending))
 
 
 @dataclass
 class _Piece:
-    """One piece of a split body: its FEM model, state and fracture data, or, to become a rigid
-    body, ``rigid`` (model, state and data None)."""
+    """One piece of a split body: its FEM model, state, fracture data and ``(p, 2)`` crack faces
+    still waiting to open, or, to become a rigid body, ``rigid`` (the others None)."""
     model: object
     state: object
     data: FractureBody | None
+    pending: np.ndarray | None
     rigid: RigidPiece | None = None
 
 
@@ -181,14 +203,14 @@ def _turns_rigid(fem_model, data, frag, node_origin):
 
 
 def _fragment_data(data, fem_model, frag, cut):
-    """FractureBody of an FEM piece: the parent's material on the piece's mesh, with the cut faces
-    that did not open still pending."""
+    """FractureBody of an FEM piece (the parent's material on the piece's mesh) and the
+    ``(p, 2)`` rows of the cut faces that did not open, still pending in the piece."""
     parent = data.fracture
     fracture = fracture_model(fem_model.tets, fem_model.elements.tet_volume,
                               parent.fracture_stress, parent.tearing_strain, parent.max_cracks,
                               parent.tet_unbreakable[frag.tet_index])
     pending = fragment_tet_slots(parent.faces, cut, frag.tet_index, fracture.faces)
-    return replace(data, fracture=fracture, pending=pending)
+    return replace(data, fracture=fracture), pending
 
 
 def split_body(fem_model, fem_state, data, cut, dt):
@@ -201,7 +223,7 @@ def split_body(fem_model, fem_state, data, cut, dt):
                        fem_model.order, faces)
     if len(split.points) == fem_model.node_count:
         # nothing opened yet: the chosen faces wait until the crack reaches the surface
-        return [_Piece(fem_model, fem_state, replace(data, pending=face_tet_slots(faces, cut)))]
+        return [_Piece(fem_model, fem_state, data, face_tet_slots(faces, cut))]
     fragments = sorted(split_bodies(split.points, split.tets), key=lambda f: -len(f.tet_index))
     origin, volume = split.node_origin, fem_model.elements.tet_volume
     node_state = transfer_node_state(origin, fem_state.x, fem_state.v, fem_state.node_reaction)
@@ -212,11 +234,11 @@ def split_body(fem_model, fem_state, data, cut, dt):
             node_mass = lumped_mass_p1(frag.tets, volume[frag.tet_index], fem_model.density,
                                        len(frag.points))
             x, v = (a[frag.node_index] for a in node_state[:2])
-            pieces.append(_Piece(None, None, None, rigid=RigidPiece(frag, x, v, node_mass)))
+            pieces.append(_Piece(None, None, None, None, rigid=RigidPiece(frag, x, v, node_mass)))
             continue
         model, state = fem_fragment(fem_model, fem_state, frag, origin, node_state, vertex_mass,
                                     dt)
-        pieces.append(_Piece(model, state, _fragment_data(data, model, frag, cut)))
+        pieces.append(_Piece(model, state, *_fragment_data(data, model, frag, cut)))
     return pieces
 
 
@@ -224,11 +246,13 @@ def split_body(fem_model, fem_state, data, cut, dt):
 
 @dataclass
 class _Bodies:
-    """The hybrid model's bodies while an event changes them (lists copied from the model)."""
+    """The hybrid model's bodies while an event changes them (lists copied from the model and
+    state)."""
     fem: list
     fem_states: list
     fem_ids: list
     data: list
+    pending: list
     names: list
     origins: list
     scene_bodies: list
@@ -236,10 +260,10 @@ class _Bodies:
     rigid_new: list
 
     @classmethod
-    def of(cls, model, state, data):
+    def of(cls, model, state, data, pending):
         return cls(list(model.fem), list(state.fem), list(model.fem_ids), list(data),
-                   list(model.names), fragment_of(model), list(model.scene.bodies),
-                   list(model.rigid_ids), [])
+                   list(pending), list(model.names), fragment_of(model),
+                   list(model.scene.bodies), list(model.rigid_ids), [])
 
     def new_name(self, root):
         """``<original>.<k>`` for the next piece of scene body ``root`` (k counts its pieces so
@@ -266,6 +290,7 @@ class _Bodies:
             self.fem_states.append(piece.state)
             self.fem_ids.append(new_id)
             self.data.append(piece.data)
+            self.pending.append(piece.pending)
         return name
 
     def hybrid(self, model, state):
@@ -281,8 +306,13 @@ class _Bodies:
                             fem=self.fem, fem_ids=self.fem_ids, names=self.names, scene=scene,
                             fragment_of=self.origins, fracture=tuple(self.data))
         new_state = replace(state, rigid=rigid_state, fem=self.fem_states, contact_memory=None,
-                            resting=None, contact_sets=None)
+                            resting=None, contact_sets=None,
+                            fracture_pending=self.fracture_pending())
         return new_model, new_state
+
+    def fracture_pending(self):
+        """``HybridState.fracture_pending`` of these bodies (None when no face waits)."""
+        return tuple(self.pending) if any(len(p) for p in self.pending) else None
 
 
 def _crack(bodies, j, cut, found, model, state):
@@ -291,13 +321,14 @@ def _crack(bodies, j, cut, found, model, state):
     body_id = bodies.fem_ids[j]
     parent_body, root = bodies.scene_bodies[body_id], bodies.origins[body_id]
     pieces = split_body(model.fem[j], state.fem[j], bodies.data[j], cut, model.dt)
-    bodies.fem[j], bodies.fem_states[j], bodies.data[j] = (pieces[0].model, pieces[0].state,
-                                                            pieces[0].data)
-    if pieces[0].model is model.fem[j]:
+    first = pieces[0]
+    bodies.fem[j], bodies.fem_states[j], bodies.data[j], bodies.pending[j] = (
+        first.model, first.state, first.data, first.pending)
+    if first.model is model.fem[j]:
         return None
     new_names = [bodies.add(piece, parent_body, root) for piece in pieces[1:]]
     rigid_names = [name for name, piece in zip(new_names, pieces[1:]) if piece.model is None]
-    still_pending = sum(len(p.data.pending) for p in pieces if p.model is not None)
+    still_pending = sum(len(p.pending) for p in pieces if p.model is not None)
     return FractureEvent(
         time=float(state.time), body=bodies.names[body_id], origin=root,
         cracks=int(found.element.size), faces=int(len(cut) - still_pending // 2),
@@ -308,33 +339,35 @@ def _crack(bodies, j, cut, found, model, state):
 def apply_fracture(model, state, timings=None):
     """Crack and split the FEM bodies that fail this step; returns ``(model, state, events)``.
 
-    ``model``/``state`` are returned unchanged (same objects) when nothing cracks and the model
-    holds its fracture data; a new model otherwise (models are never changed). ``events`` is a
-    list of :class:`FractureEvent` (``event.message`` for the log, ``event.as_dict()`` for the
-    summary). ``timings``: optional dict; seconds spent are added under "fracture_check" and
-    "fracture_rebuild".
+    ``model``/``state`` are returned unchanged (same objects) when nothing cracks; a new state
+    with the same model when crack faces were chosen but none opened (they wait in
+    ``state.fracture_pending``); a new model and state when a body split (models are never
+    changed). A model without its fracture data yet comes back once holding it (see
+    :func:`fracture_data`). ``events`` is a list of :class:`FractureEvent` (``event.message`` for
+    the log, ``event.as_dict()`` for the summary). ``timings``: optional dict; seconds spent are
+    added under "fracture_check" and "fracture_rebuild".
     """
     timings = {} if timings is None else timings
     timings.setdefault("fracture_check", 0.0)
     timings.setdefault("fracture_rebuild", 0.0)
     t0 = clock.perf_counter()
-    data = fracture_data(model)
-    cracked = [(j, *find_cracks(model.fem[j], state.fem[j], d)) for j, d in enumerate(data)
-               if d is not None]
+    data, pending = fracture_data(model), pending_faces(model, state)
+    if data is not model.fracture:
+        model = replace(model, fracture=data, fragment_of=fragment_of(model))
+    cracked = [(j, *find_cracks(model.fem[j], state.fem[j], d, pending[j]))
+               for j, d in enumerate(data) if d is not None]
     cracked = [(j, cut, found) for j, cut, found in cracked if len(cut)]
     t1 = clock.perf_counter()
     timings["fracture_check"] += t1 - t0
     if not cracked:
-        if data is not model.fracture:
-            model = replace(model, fracture=data, fragment_of=fragment_of(model))
         return model, state, []
-    bodies = _Bodies.of(model, state, data)
+    bodies = _Bodies.of(model, state, data, pending)
     events = [_crack(bodies, j, cut, found, model, state) for j, cut, found in cracked]
     events = [event for event in events if event is not None]
     if events:
         model, state = bodies.hybrid(model, state)
     else:
-        # only pending faces changed: same bodies, same matrices
-        model = replace(model, fracture=tuple(bodies.data), fragment_of=bodies.origins)
+        # only pending faces changed: same bodies, same model
+        state = replace(state, fracture_pending=bodies.fracture_pending())
     timings["fracture_rebuild"] += clock.perf_counter() - t1
     return model, state, events

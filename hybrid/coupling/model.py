@@ -26,7 +26,10 @@ class HybridModel:
     names: every body's name in scene order (fragments appended as they appear).
     gravity (3,) m/s^2. dt s. settings: ContactSettings. scene: the Scene it was built from.
     fragment_of: per name, the scene index of the body it came from (itself for scene bodies).
-    fracture: per FEM body, its fracture data (hybrid.coupling.events), None until first used.
+    fracture: per FEM body, its :class:`hybrid.coupling.fracture.FractureBody` (what the crack
+    search needs of the body's mesh: strength, faces, smoothing, scene origin; None for a body
+    that cannot break); None on a model built from a scene until the first fracture check fills
+    it (hybrid.coupling.fracture.fracture_data), rebuilt only for the pieces of a split body.
     cache: CouplingCache, the coupled step's memos (a derived model starts with an empty one).
     """
     rigid: object
@@ -54,6 +57,13 @@ class HybridState:
     (hybrid.coupling.resting.Resting or None). contact_sets: per deformable body, the node set
     its contacts were solved on in its last step with contacts ((k,) int64 or None; see
     fem.contact_response.contact_set).
+    Event history, kept unchanged by the step and changed only by the events:
+    fracture_pending: per deformable body, the crack faces chosen but not open yet, ``(p, 2)``
+    int64 rows of (tet, local face j) of the body's mesh (``fem.split.face_tet_slots``; a face
+    opens by node duplication only once the crack surface through its nodes reaches the boundary
+    or an open crack, so chosen faces wait here until they do); None when no face waits in any
+    body (hybrid.coupling.fracture). A split hands each deformable piece its own still-closed
+    faces; reference-shape updates keep the tets, so the rows stay valid.
     """
     rigid: object
     fem: list = field(default_factory=list)
@@ -62,3 +72,4 @@ class HybridState:
     contact_memory: object = None
     resting: tuple = None
     contact_sets: tuple = None
+    fracture_pending: tuple = None
