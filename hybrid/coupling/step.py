@@ -12,6 +12,8 @@ Each stage owns one index space: bodies (rigid and FEM), stacked surface nodes
 (hybrid.coupling.nodes), contacts (hybrid.coupling.detect) and solver bodies
 (hybrid.coupling.problem).
 """
+from dataclasses import replace
+
 import numpy as np
 
 from fem import dynamics as fem_dyn
@@ -21,7 +23,6 @@ from rigid import step as rigid_step
 from . import held, resting
 from .detect import detect_all
 from .memory import ContactMemory, contact_keys
-from .model import HybridState
 from .nodes import SurfaceNodes
 from .problem import build_problem, log  # noqa: F401  (log: the step's messages)
 from .solve import integrate, solve
@@ -35,7 +36,7 @@ def step(model, state, dt=None):
     dt = model.dt if dt is None else dt
     if not model.fem:
         rigid, _ = rigid_step.step(model.rigid, state.rigid, dt, model.gravity, model.settings)
-        new = HybridState(rigid=rigid, fem=[], time=state.time + dt, steps=state.steps + 1)
+        new = replace(state, rigid=rigid, time=state.time + dt, steps=state.steps + 1)
     else:
         new = coupled_step(model, state, dt)
         while isinstance(new, held.LetGo):     # a held body's resting nodes let go: again, them free
@@ -85,6 +86,7 @@ def coupled_step(model, state, h):
     keys = np.concatenate([problem.keys, contact_keys(c_held.body_a, c_held.body_b, nodes.count,
                                                       model.rigid.body_count, False)])
     memory = ContactMemory.of(keys, np.concatenate([res.contact_impulse, row_impulse[rows]]))
-    return HybridState(rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
-                       contact_memory=memory, resting=held.watch(model, state, nodes, found, row_impulse),
-                       contact_sets=problem.contact_sets)
+    # history the step does not change (faces waiting to open) carries over
+    return replace(state, rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
+                   contact_memory=memory, resting=held.watch(model, state, nodes, found, row_impulse),
+                   contact_sets=problem.contact_sets)
