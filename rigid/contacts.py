@@ -142,16 +142,14 @@ def _ring_point(cx, cy, cz, rho, frame, i):
 
 
 @nb.njit(cache=True)
-def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_local, point_radius,
-                  point_kind, point_ring, point_axis, shape_kind, shape_params, shape_rotation,
-                  shape_offset, grid_index, grid_values, grid_start, grid_shape, grid_origin,
-                  grid_cell, plane_point, plane_normal, margin, out_a, out_b, out_p, out_n, out_gap):
-    cap = len(out_gap)
+def _plane_contacts(position, rotation, sweep, fixed, point_start, point_local, point_radius,
+                    point_kind, point_ring, point_axis, plane_point, plane_normal, margin, out_a,
+                    out_b, out_p, out_n, out_gap):
+    """Every free body's contact points against every plane (a ring: its nearest points to the
+    plane), written from out_*[0]; returns their count (b = -1 - plane index)."""
     c = 0
-    nb_ = len(fixed)
     zero = np.zeros(3)
-    # points against planes (a ring: its nearest points to the plane)
-    for a in range(nb_):
+    for a in range(len(fixed)):
         if fixed[a]:
             continue
         for k in range(point_start[a], point_start[a + 1]):
@@ -169,7 +167,7 @@ def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_lo
                             + (qz - plane_point[j, 2]) * nz)
                     gap = dist - point_radius[k]
                     if gap < margin + sweep[a]:
-                        if c < cap:
+                        if c < len(out_gap):     # the point halfway across the gap
                             h = point_radius[k] + 0.5 * gap
                             out_a[c] = a
                             out_b[c] = -1 - j
@@ -177,7 +175,17 @@ def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_lo
                             out_n[c, 0], out_n[c, 1], out_n[c, 2] = nx, ny, nz
                             out_gap[c] = gap
                         c += 1
-    # points of one body against the shape of the other, both ways
+    return c
+
+
+@nb.njit(cache=True)
+def _pair_contacts(pairs, position, rotation, sweep, fixed, point_start, point_local, point_radius,
+                   point_kind, point_ring, point_axis, shape_kind, shape_params, shape_rotation,
+                   shape_offset, grid_index, grid_values, grid_start, grid_shape, grid_origin,
+                   grid_cell, margin, out_a, out_b, out_p, out_n, out_gap, c):
+    """Every broad-phase pair both ways: body a's contact points against body b's signed distance
+    (a ring: its nearest points to b's surface), written from out_*[c]; returns the new count."""
+    zero = np.zeros(3)
     for q in range(len(pairs)):
         for side in range(2):
             a = pairs[q, side]
@@ -222,7 +230,7 @@ def _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, point_lo
                     if gap >= reach:
                         continue
                     nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
-                    if c < cap:
+                    if c < len(out_gap):     # the point halfway across the gap
                         h = point_radius[k] + 0.5 * gap
                         out_a[c] = a
                         out_b[c] = b
@@ -237,7 +245,6 @@ def detect(model, position, rotation, sweep, margin):
     """All contacts with gap below ``margin + sweep`` (m). ``sweep`` (b,) is each body's reach."""
     fixed = model.body_fixed
     pairs = _broad_phase(position, model.body_radius + margin, sweep, fixed)
-    point_start = model.point_start
     capacity = max(64, 4 * len(model.point_radius))     # grows below if more are found
     while True:
         out_a = np.empty(capacity, np.int64)
@@ -245,13 +252,16 @@ def detect(model, position, rotation, sweep, margin):
         out_p = np.empty((capacity, 3))
         out_n = np.empty((capacity, 3))
         out_gap = np.empty(capacity)
-        count = _narrow_phase(pairs, position, rotation, sweep, fixed, point_start, model.point_local,
-                              model.point_radius, model.point_kind, model.point_ring,
-                              model.point_axis, model.shape_kind, model.shape_params,
-                              model.shape_rotation, model.shape_offset, model.grid_index,
-                              model.grid_values, model.grid_start, model.grid_shape,
-                              model.grid_origin, model.grid_cell, model.plane_point,
-                              model.plane_normal, margin, out_a, out_b, out_p, out_n, out_gap)
+        points = (model.point_start, model.point_local, model.point_radius, model.point_kind,
+                  model.point_ring, model.point_axis)
+        out = (out_a, out_b, out_p, out_n, out_gap)
+        count = _plane_contacts(position, rotation, sweep, fixed, *points, model.plane_point,
+                                model.plane_normal, margin, *out)
+        count = _pair_contacts(pairs, position, rotation, sweep, fixed, *points, model.shape_kind,
+                               model.shape_params, model.shape_rotation, model.shape_offset,
+                               model.grid_index, model.grid_values, model.grid_start,
+                               model.grid_shape, model.grid_origin, model.grid_cell, margin, *out,
+                               count)
         if count <= capacity:
             break
         capacity = count
