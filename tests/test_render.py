@@ -61,7 +61,6 @@ def test_probe_backend_finds_offscreen_rendering_on_this_machine():
 
 
 def test_probe_failure_names_the_packages_to_install(monkeypatch):
-    monkeypatch.setattr(render, "_backend_cache", None)
     monkeypatch.setenv(render.WINDOW_ENV, "vtkNoSuchRenderWindow")
     ok, message = probe_backend(refresh=True)
     assert not ok

@@ -4,30 +4,19 @@
 ``hybrid.app.output.RunWriter`` wrote, and writes ``run_dir/render/frame_NNNNN.png`` for every frame
 plus a movie (``<scene>.mp4`` with libx264, or ``<scene>.gif`` when ffmpeg is unavailable).
 
-Rendering needs an off-screen OpenGL: EGL (``libegl1 libegl-mesa0 libgl1-mesa-dri``) or OSMesa
-(``libosmesa6``); no X display is used. VTK crashes the process instead of raising when neither is
-present, so ``probe_backend`` tries a tiny render in a subprocess first.
+Rendering needs an off-screen OpenGL (``hybrid.app.offscreen``, whose ``probe_backend`` and
+``WINDOW_ENV`` are re-exported here); no X display is used.
 """
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from hybrid.app.offscreen import WINDOW_ENV, probe_backend, use_backend  # noqa: F401 (re-exported)
 from hybrid.app.output import find_pvd, read_run
-
-INSTALL_HINT = ("install an off-screen OpenGL library: "
-                "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri (or libosmesa6)")
-WINDOW_ENV = "VTK_DEFAULT_OPENGL_WINDOW"
-# Off-screen VTK render windows, most capable first.
-OFFSCREEN_WINDOWS = ("vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow")
-PROBE_TIMEOUT = 60.0
 
 # Categorical colours indexed by body_id (saturated, none of them grey like the ground).
 BODY_PALETTE = np.array([
@@ -38,87 +27,6 @@ GROUND_COLOR = (0.9, 0.9, 0.88)
 VIEW_DIRECTION = np.array([1.0, -1.6, 0.9]) / np.linalg.norm([1.0, -1.6, 0.9])
 VIEW_ANGLE_DEG = 30.0
 DEFAULT_FPS = 30.0
-
-_PROBE_SCRIPT = r"""
-import sys
-import pyvista as pv
-pv.OFF_SCREEN = True
-plotter = pv.Plotter(off_screen=True, window_size=(48, 32))
-plotter.add_mesh(pv.Cube(), color="red")
-image = plotter.screenshot(return_img=True)
-name = plotter.ren_win.GetClassName()
-plotter.close()
-wanted = sys.argv[1]
-if wanted and name != wanted:
-    sys.exit(f"asked for {wanted}, VTK made {name}")
-if image is None or image.std() == 0:
-    sys.exit(f"{name} rendered a blank image")
-print(name)
-"""
-
-_backend_cache: tuple[bool, str, str | None] | None = None
-
-
-def _probe_window(window: str, timeout: float) -> tuple[bool, str]:
-    """Render a cube in a subprocess with one window class; (ok, class name or failure reason)."""
-    env = dict(os.environ)
-    if window:
-        env[WINDOW_ENV] = window
-    try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT, window], env=env,
-                              capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return False, f"{window or 'default window'}: timed out after {timeout:.0f} s"
-    if proc.returncode == 0:
-        return True, proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else window
-    if proc.returncode < 0:
-        try:
-            reason = f"crashed with {signal.Signals(-proc.returncode).name}"
-        except ValueError:
-            reason = f"killed by signal {-proc.returncode}"
-    else:
-        lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
-        reason = lines[-1] if lines else f"exit code {proc.returncode}"
-    return False, f"{window or 'default window'}: {reason}"
-
-
-def probe_backend(timeout: float = PROBE_TIMEOUT, refresh: bool = False) -> tuple[bool, str]:
-    """Check that off-screen rendering works here, without risking a crash of this process.
-
-    Tries a tiny pyvista render in a subprocess for each off-screen window type (EGL, then
-    OSMesa; the default window first when a DISPLAY is set, or the one named by
-    ``VTK_DEFAULT_OPENGL_WINDOW`` if the user set it). Returns ``(ok, message)``; when rendering is
-    impossible the message says what failed and which packages to install. The result is cached.
-    """
-    global _backend_cache
-    if _backend_cache is not None and not refresh:
-        return _backend_cache[:2]
-    if os.environ.get(WINDOW_ENV):
-        candidates: Sequence[str] = (os.environ[WINDOW_ENV],)
-    elif os.environ.get("DISPLAY"):
-        candidates = ("",) + OFFSCREEN_WINDOWS
-    else:
-        candidates = OFFSCREEN_WINDOWS
-    failures = []
-    for window in candidates:
-        ok, detail = _probe_window(window, timeout)
-        if ok:
-            _backend_cache = (True, f"off-screen rendering works ({detail})", window or None)
-            return _backend_cache[:2]
-        failures.append(detail)
-    _backend_cache = (False, "off-screen rendering is unavailable (" + "; ".join(failures)
-                      + "); " + INSTALL_HINT, None)
-    return _backend_cache[:2]
-
-
-def _use_backend() -> None:
-    """Fail with the install hint if rendering would crash; select the working window class."""
-    ok, message = probe_backend()
-    if not ok:
-        raise RuntimeError(message)
-    window = _backend_cache[2] if _backend_cache else None
-    if window and not os.environ.get(WINDOW_ENV):
-        os.environ[WINDOW_ENV] = window
 
 
 def _read_points_and_range(path: Path, field: str | None):
@@ -333,7 +241,7 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     lo, hi, clim, association = scene_bounds(frame_paths, field)
     if field is not None and clim is None:
         raise ValueError(f"no frame of {run_dir} has a field named {field!r}")
-    _use_backend()
+    backend = use_backend()
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -343,53 +251,76 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
 
     plotter = pv.Plotter(off_screen=True, window_size=(width, height))
     movie = None
-    pngs: list[Path] = []
     try:
-        plotter.set_background("#f7f8fa", top="#dde4ec")
-        centre = (lo + hi) / 2
-        ground_size = 2.5 * max(float(np.max(hi - lo)), 1e-3)
-        for point, normal in _scene_planes(summary):
-            foot = centre - np.dot(centre - point, normal) * normal
-            ground = pv.Plane(center=foot, direction=normal, i_size=ground_size, j_size=ground_size)
-            plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0)
-        plotter.camera_position = camera_for_bounds(lo, hi, width / height)
-        plotter.camera.view_angle = VIEW_ANGLE_DEG
-        plotter.reset_camera_clipping_range()
-        # Keep the camera fixed even when later add_mesh calls would reset it.
-        plotter.camera_set = True
-        import imageio.v3 as iio
-
+        _set_stage(plotter, lo, hi, _scene_planes(summary), width / height)
         movie = _MovieWriter(out_dir / scene, fps)
-        shown = None  # the mesh on screen; later frames are copied into it (one actor)
-        label = plotter.add_text("", position=(10, height - 28), font_size=12, color="black",
-                                 name="time", render=False)
-        for index, (time, path) in enumerate(zip(times, frame_paths)):
-            mesh = _frame_mesh(path, field, association)
-            if shown is None:
-                shown = mesh
-                style = dict(show_edges=True, edge_color=(0.15, 0.15, 0.15), edge_opacity=0.25,
-                             line_width=1.0, ambient=0.25, diffuse=0.75, specular=0.0,
-                             name="bodies", reset_camera=False, render=False)
-                if field is None:
-                    plotter.add_mesh(shown, scalars="body_color", rgb=True, **style)
-                else:
-                    plotter.add_mesh(shown, scalars=field, preference=association, clim=clim,
-                                     cmap="viridis",
-                                     scalar_bar_args=_scalar_bar(field, width), **style)
-            else:
-                shown.copy_from(mesh, deep=False)
-            label.input = f"t = {time:.3f} s"
-            plotter.reset_camera_clipping_range()
-            plotter.render()
-            image = plotter.screenshot(return_img=True)
-            png = out_dir / f"frame_{index:05d}.png"
-            iio.imwrite(png, image, compress_level=1)
-            movie.append(image)
-            pngs.append(png)
-            if progress is not None:
-                progress(index + 1, len(frame_paths))
+        pngs = _render_frames(plotter, times, frame_paths, out_dir, movie, (field, association, clim),
+                              (width, height), progress)
     finally:
         if movie is not None:
             movie.close()
         plotter.close()
-    return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": probe_backend()[1]}
+    return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": backend}
+
+
+def _set_stage(plotter, lo, hi, planes, aspect):
+    """Background, the scene's planes as ground squares around the bodies' box ``lo``-``hi``, and
+    a fixed camera that holds the whole box."""
+    import pyvista as pv
+
+    plotter.set_background("#f7f8fa", top="#dde4ec")
+    centre = (lo + hi) / 2
+    ground_size = 2.5 * max(float(np.max(hi - lo)), 1e-3)
+    for point, normal in planes:
+        foot = centre - np.dot(centre - point, normal) * normal
+        ground = pv.Plane(center=foot, direction=normal, i_size=ground_size, j_size=ground_size)
+        plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0)
+    plotter.camera_position = camera_for_bounds(lo, hi, aspect)
+    plotter.camera.view_angle = VIEW_ANGLE_DEG
+    plotter.reset_camera_clipping_range()
+    # Keep the camera fixed even when later add_mesh calls would reset it.
+    plotter.camera_set = True
+
+
+def _add_bodies(plotter, mesh, colouring, width):
+    """The bodies' mesh on screen: coloured by body, or by ``colouring`` = (field, association,
+    clim) with a scalar bar."""
+    field, association, clim = colouring
+    style = dict(show_edges=True, edge_color=(0.15, 0.15, 0.15), edge_opacity=0.25,
+                 line_width=1.0, ambient=0.25, diffuse=0.75, specular=0.0,
+                 name="bodies", reset_camera=False, render=False)
+    if field is None:
+        plotter.add_mesh(mesh, scalars="body_color", rgb=True, **style)
+    else:
+        plotter.add_mesh(mesh, scalars=field, preference=association, clim=clim, cmap="viridis",
+                         scalar_bar_args=_scalar_bar(field, width), **style)
+
+
+def _render_frames(plotter, times, frame_paths, out_dir, movie, colouring, size, progress):
+    """Every frame, copied into the one mesh on screen with its time in a corner, to a PNG and
+    the movie; returns the PNG paths."""
+    import imageio.v3 as iio
+
+    width, height = size
+    shown = None  # the mesh on screen; later frames are copied into it (one actor)
+    label = plotter.add_text("", position=(10, height - 28), font_size=12, color="black",
+                             name="time", render=False)
+    pngs: list[Path] = []
+    for index, (time, path) in enumerate(zip(times, frame_paths)):
+        mesh = _frame_mesh(path, colouring[0], colouring[1])
+        if shown is None:
+            shown = mesh
+            _add_bodies(plotter, shown, colouring, width)
+        else:
+            shown.copy_from(mesh, deep=False)
+        label.input = f"t = {time:.3f} s"
+        plotter.reset_camera_clipping_range()
+        plotter.render()
+        image = plotter.screenshot(return_img=True)
+        png = out_dir / f"frame_{index:05d}.png"
+        iio.imwrite(png, image, compress_level=1)
+        movie.append(image)
+        pngs.append(png)
+        if progress is not None:
+            progress(index + 1, len(frame_paths))
+    return pngs
