@@ -34,6 +34,7 @@ class Contacts:
 
     @property
     def count(self):
+        """Number of contacts."""
         return len(self.gap)
 
     def take(self, rows):

@@ -26,6 +26,9 @@ def kick(model, state, h, gravity):
 
 
 def solver_bodies(model, state, v, v_at_t, gvec):
+    """The rigid bodies as the contact solver sees them (SolverBodies): velocity ``v`` to drift
+    with, ``v_at_t`` at the start of the step, free acceleration ``gvec`` (b, 3) m/s^2, world
+    inverse inertia and angular velocity from the state, fixed bodies static."""
     invI = world_inverse_inertia(model, state.orientation)
     w = np.einsum("bij,bj->bi", invI, state.angular_momentum)
     return SolverBodies(model.body_inv_mass, invI, state.position, v, v_at_t, w, gvec,
