@@ -117,6 +117,36 @@ def build_rigid(bodies, planes):
     """RigidModel and initial RigidState from lists of RigidBodyDesc and PlaneDesc."""
     geo = [_geometry(d) for d in bodies]
     b = len(bodies)
+    mass, inertia, axes, com = _principal_frames(bodies, geo)
+    fixed = np.array([d.fixed for d in bodies], dtype=bool)
+    # body frame = principal frame at the centre of mass: p_shape = A p_body + com
+    to_body = lambda i, p: (np.asarray(p) - com[i]) @ axes[i]
+    local_points = [to_body(i, g.points) for i, g in enumerate(geo)]
+    model = RigidModel(
+        names=[d.name for d in bodies], body_mass=np.where(fixed, np.inf, mass),
+        body_inv_mass=np.where(fixed, 0.0, 1.0 / mass), body_inertia=inertia,
+        body_inv_inertia=np.where(fixed[:, None], 0.0, 1.0 / inertia),
+        body_fixed=fixed, body_friction=np.array([d.friction for d in bodies], float),
+        body_restitution=np.array([d.restitution for d in bodies], float),
+        body_radius=np.array([np.max(np.linalg.norm(p, axis=1) + g.point_radius)
+                              for p, g in zip(local_points, geo)]) if b else np.zeros(0),
+        shape_kind=np.array([g.kind for g in geo], dtype=np.int64),
+        shape_params=np.array([g.params for g in geo]).reshape(b, 4),
+        shape_rotation=axes, shape_offset=com, **_grids(geo), **_contact_points(geo, axes, local_points),
+        surface_vertices=[to_body(i, g.vertices) for i, g in enumerate(geo)],
+        surface_triangles=[g.triangles for g in geo],
+        plane_point=np.array([p.point for p in planes], float).reshape(-1, 3),
+        plane_normal=np.array([np.asarray(p.normal, float) / np.linalg.norm(p.normal) for p in planes]).reshape(-1, 3),
+        plane_friction=np.array([p.friction for p in planes], float),
+        plane_restitution=np.array([p.restitution for p in planes], float),
+        body_min_extent=np.array([np.min(np.ptp(g.vertices, axis=0)) for g in geo]) if b else np.zeros(0))
+    return model, _initial_state(bodies, fixed, inertia, axes, com)
+
+
+def _principal_frames(bodies, geo):
+    """Mass (b,) kg, principal moments (b, 3) kg m^2, principal axes (b, 3, 3) (columns, shape
+    frame, proper) and centre of mass (b, 3) m (shape frame) of every body."""
+    b = len(bodies)
     mass, inertia = np.zeros(b), np.zeros((b, 3))
     axes, com = np.zeros((b, 3, 3)), np.zeros((b, 3))
     for i, (d, g) in enumerate(zip(bodies, geo)):
@@ -130,59 +160,49 @@ def build_rigid(bodies, planes):
             inertia[i], axes[i] = np.linalg.eigh(I)
             if np.linalg.det(axes[i]) < 0:
                 axes[i][:, 2] *= -1
-    fixed = np.array([d.fixed for d in bodies], dtype=bool)
-    inv_mass = np.where(fixed, 0.0, 1.0 / mass)
-    inv_inertia = np.where(fixed[:, None], 0.0, 1.0 / inertia)
+    return mass, inertia, axes, com
 
-    # body frame = principal frame at the centre of mass: p_shape = A p_body + com
-    to_body = lambda i, p: (np.asarray(p) - com[i]) @ axes[i]
-    surface_vertices = [to_body(i, g.vertices) for i, g in enumerate(geo)]
-    local_points = [to_body(i, g.points) for i, g in enumerate(geo)]
-    point_radius = np.concatenate([g.point_radius for g in geo]) if b else np.zeros(0)
-    point_kind = np.concatenate([np.full(len(g.points), POINT_PLAIN) if g.point_kind is None else g.point_kind
-                                 for g in geo]).astype(np.int64) if b else np.zeros(0, np.int64)
-    point_ring = np.concatenate([np.zeros(len(g.points)) if g.point_ring is None else g.point_ring
-                                 for g in geo]) if b else np.zeros(0)
-    point_axis = np.concatenate([np.zeros((len(g.points), 3)) if g.point_axis is None else g.point_axis @ axes[i]
-                                 for i, g in enumerate(geo)]) if b else np.zeros((0, 3))
-    point_count = np.array([len(p) for p in local_points], dtype=np.int64)
-    point_start = np.concatenate([[0], np.cumsum(point_count)]).astype(np.int64)
-    body_radius = np.array([np.max(np.linalg.norm(p, axis=1) + g.point_radius)
-                            for p, g in zip(local_points, geo)]) if b else np.zeros(0)
-    extent = np.array([np.min(np.ptp(g.vertices, axis=0)) for g in geo]) if b else np.zeros(0)
 
+def _contact_points(geo, axes, local_points):
+    """RigidModel's point_* fields: every body's contact points (``local_points``, body frame)
+    one after the other, with their radii, kinds, ring radii and axes (turned into the body frame)."""
+    if not geo:
+        return dict(point_body=np.zeros(0, np.int64), point_local=np.zeros((0, 3)),
+                    point_radius=np.zeros(0), point_kind=np.zeros(0, np.int64),
+                    point_ring=np.zeros(0), point_axis=np.zeros((0, 3)))
+    return dict(
+        point_body=np.repeat(np.arange(len(geo)), [len(p) for p in local_points]),
+        point_local=np.concatenate(local_points),
+        point_radius=np.concatenate([g.point_radius for g in geo]),
+        point_kind=np.concatenate([np.full(len(g.points), POINT_PLAIN) if g.point_kind is None
+                                   else g.point_kind for g in geo]).astype(np.int64),
+        point_ring=np.concatenate([np.zeros(len(g.points)) if g.point_ring is None else g.point_ring
+                                   for g in geo]),
+        point_axis=np.concatenate([np.zeros((len(g.points), 3)) if g.point_axis is None
+                                   else g.point_axis @ axes[i] for i, g in enumerate(geo)]))
+
+
+def _grids(geo):
+    """RigidModel's grid_index and flat grid_* fields for the bodies whose distance is a grid."""
     grids = [g.grid for g in geo if g.grid is not None]
-    grid_index = np.full(b, -1, dtype=np.int64)
-    k = 0
-    for i, g in enumerate(geo):
-        if g.grid is not None:
-            grid_index[i], k = k, k + 1
+    grid_index = np.full(len(geo), -1, dtype=np.int64)
+    grid_index[[i for i, g in enumerate(geo) if g.grid is not None]] = np.arange(len(grids))
+    if not grids:
+        return dict(grid_index=grid_index, grid_values=np.zeros(1), grid_start=np.zeros(1, np.int64),
+                    grid_shape=np.ones((1, 3), np.int64), grid_origin=np.zeros((1, 3)),
+                    grid_cell=np.ones(1))
     sizes = [int(np.prod(gr.shape)) for gr in grids]
-    model = RigidModel(
-        names=[d.name for d in bodies], body_mass=np.where(fixed, np.inf, mass),
-        body_inv_mass=inv_mass, body_inertia=inertia, body_inv_inertia=inv_inertia,
-        body_fixed=fixed, body_friction=np.array([d.friction for d in bodies], float),
-        body_restitution=np.array([d.restitution for d in bodies], float), body_radius=body_radius,
-        shape_kind=np.array([g.kind for g in geo], dtype=np.int64),
-        shape_params=np.array([g.params for g in geo]).reshape(b, 4),
-        shape_rotation=axes, shape_offset=com, grid_index=grid_index,
-        grid_values=np.concatenate([gr.values.ravel() for gr in grids]) if grids else np.zeros(1),
-        grid_start=np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if grids else np.zeros(1, np.int64),
-        grid_shape=np.array([gr.shape for gr in grids], dtype=np.int64).reshape(-1, 3) if grids else np.ones((1, 3), np.int64),
-        grid_origin=np.array([gr.origin for gr in grids]).reshape(-1, 3) if grids else np.zeros((1, 3)),
-        grid_cell=np.array([gr.cell_size for gr in grids], float) if grids else np.ones(1),
-        point_body=np.repeat(np.arange(b), point_count), point_local=np.concatenate(local_points) if b else np.zeros((0, 3)),
-        point_radius=point_radius, point_kind=point_kind, point_ring=point_ring, point_axis=point_axis,
-        surface_vertices=surface_vertices,
-        surface_triangles=[g.triangles for g in geo],
-        plane_point=np.array([p.point for p in planes], float).reshape(-1, 3),
-        plane_normal=np.array([np.asarray(p.normal, float) / np.linalg.norm(p.normal) for p in planes]).reshape(-1, 3),
-        plane_friction=np.array([p.friction for p in planes], float),
-        plane_restitution=np.array([p.restitution for p in planes], float),
-        body_min_extent=extent)
-    model.point_start = point_start
+    return dict(grid_index=grid_index, grid_values=np.concatenate([gr.values.ravel() for gr in grids]),
+                grid_start=np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64),
+                grid_shape=np.array([gr.shape for gr in grids], dtype=np.int64).reshape(-1, 3),
+                grid_origin=np.array([gr.origin for gr in grids]).reshape(-1, 3),
+                grid_cell=np.array([gr.cell_size for gr in grids], float))
 
-    # initial state: user pose of the shape frame -> pose of the principal frame at the com
+
+def _initial_state(bodies, fixed, inertia, axes, com):
+    """RigidState at the user's poses: the user places the shape frame; the state holds the pose
+    of the principal frame at the centre of mass."""
+    b = len(bodies)
     q_user = quat.normalize(np.array([d.orientation for d in bodies], float).reshape(b, 4))
     R_user = quat.to_matrix(q_user)
     position = np.array([d.position for d in bodies], float).reshape(b, 3) + np.einsum("bij,bj->bi", R_user, com)
@@ -192,6 +212,5 @@ def build_rigid(bodies, planes):
     I_world = np.einsum("bij,bj,bkj->bik", R, inertia, R)
     L = np.where(fixed[:, None], 0.0, np.einsum("bij,bj->bi", I_world, w))
     v = np.where(fixed[:, None], 0.0, np.array([d.velocity for d in bodies], float).reshape(b, 3))
-    state = RigidState(position=position, orientation=orientation, velocity=v, angular_momentum=L,
-                       contact_dv=np.zeros((b, 3)))
-    return model, state
+    return RigidState(position=position, orientation=orientation, velocity=v, angular_momentum=L,
+                      contact_dv=np.zeros((b, 3)))

@@ -32,6 +32,8 @@ class RigidModel:
         grids flat: grid_values (sum of nodes,), grid_start (g,), grid_shape (g, 3) int,
         grid_origin (g, 3) m, grid_cell (g,) m.
     point_body (p,) int, point_local (p, 3) m (body frame), point_radius (p,) m: contact points.
+    point_start (b + 1,) int: body i's points are point_start[i] .. point_start[i + 1] - 1
+        (derived from point_body when the model is made, never passed).
     point_kind (p,) int: POINT_PLAIN (every detector), POINT_RING (a circle of radius
         point_ring (p,) m about the unit axis point_axis (p, 3) (body frame) through point_local:
         rigid bodies and planes meet its nearest points, so a cylinder rolls as a circle, not a
@@ -72,9 +74,12 @@ class RigidModel:
     point_kind: np.ndarray = field(default=None)
     point_ring: np.ndarray = field(default=None)
     point_axis: np.ndarray = field(default=None)
+    point_start: np.ndarray = field(init=False, repr=False, default=None)
 
     def __post_init__(self):
         p = len(self.point_radius)
+        counts = np.bincount(self.point_body, minlength=len(self.body_mass))
+        self.point_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         if self.point_kind is None:
             self.point_kind = np.full(p, POINT_PLAIN, dtype=np.int64)
         if self.point_ring is None:
