@@ -214,10 +214,7 @@ def append_rigid(rm, rs, new_model, new_state):
     changes["surface_vertices"] = list(rm.surface_vertices) + list(new_model.surface_vertices)
     changes["surface_triangles"] = list(rm.surface_triangles) + list(new_model.surface_triangles)
     changes["point_body"] = np.concatenate([rm.point_body, new_model.point_body + rm.body_count])
-    model = replace(rm, **changes, **_appended_grids(rm, new_model))
-    count = np.bincount(changes["point_body"], minlength=model.body_count)
-    # point_start is not a RigidModel field (rigid.build sets it the same way on a new model)
-    model.point_start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+    model = replace(rm, **changes, **_appended_grids(rm, new_model))     # point_start follows point_body
     state = RigidState(*(np.concatenate([getattr(rs, k), getattr(new_state, k)])
                          for k in ("position", "orientation", "velocity", "angular_momentum",
                                    "contact_dv")), time=rs.time, last_dt=rs.last_dt)
