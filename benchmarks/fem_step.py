@@ -1,6 +1,6 @@
 """FEM step cost: an elastic slab with a rigid box resting on it.
 
-Scene (built with hybrid.app.scene.parse_scene + hybrid.app.build.build, stepped with hybrid.coupling.step.step):
+Scene (parsed with hybrid.app.scene.parse_scene, stepped by hybrid.Simulation):
 a 1 m x 1 m x 0.2 m FEM slab (E = 1 MPa, nu = 0.3, 1000 kg/m^3, mass damping 1/s, P1 tets,
 lumped mass, backward Euler) and a rigid 0.3 m cube (2000 kg/m^3) resting on its top face;
 gravity -9.81 m/s^2, dt = 1 ms. Two ways to hold the slab up (``--supports``):
@@ -65,9 +65,8 @@ from skfem.models.elasticity import lame_parameters, linear_elasticity
 
 from fem import dynamics as fem_dyn
 from fem import solver as fem_solver
-from hybrid.app.build import build
+from hybrid import Simulation
 from hybrid.app.scene import parse_scene
-from hybrid.coupling.step import step
 
 from _common import write_csv
 
@@ -181,19 +180,21 @@ def naive_step(points_rest, tets, x, v, gravity):
 
 def measure(cells, frame, support, backend, steps, warmup):
     scene = parse_scene(tomllib.loads(scene_text(cells, frame, support, backend)), "fem_step", Path("."))
-    model, state = build(scene)
+    sim = Simulation(scene)
+    model = sim.model
     if model.fem[0].linear_solver != backend:
         raise RuntimeError(f"the slab was built with linear_solver {model.fem[0].linear_solver!r}, "
                            f"not the scene's {backend!r}")
     for _ in range(warmup):
-        state = step(model, state)
+        sim.step()
     fem_model = model.fem[0]
     floor = floor_ms(fem_model)
     times = []
     for _ in range(steps):
         t0 = time.perf_counter()
-        state = step(model, state)
+        sim.step()
         times.append(time.perf_counter() - t0)
+    state = sim.state
     step_ms = 1e3 * float(np.median(times))
     q1, q3 = 1e3 * np.percentile(times, [25, 75])
     record = state.resting[0] if state.resting is not None else None
@@ -203,14 +204,15 @@ def measure(cells, frame, support, backend, steps, warmup):
     elastic, _ = median_ms(lambda: fem_dyn.step(fem_model, settled, DT, model.gravity), steps)
     floor = min(floor, floor_ms(fem_model))     # before and after the step timings
     cold = cold_floor_ms(fem_model)
-    state, in_step = in_step_solve_ms(model, state, steps)
+    in_step = in_step_solve_ms(sim, steps)
+    state = sim.state
     sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
     return model, state, dict(step_ms=step_ms, step_q1=q1, step_q3=q3, elastic_ms=elastic,
                               floor_ms=floor, cold_floor_ms=cold, solve_in_step_ms=in_step,
                               held_nodes=held, **sanity)
 
 
-def in_step_solve_ms(model, state, steps):
+def in_step_solve_ms(sim, steps):
     """Median time of the single back-substitutions (one right-hand side) made inside ``steps``
     more coupled steps (ms): the floor's solve as the step sees it, after the rest of the step has
     used the caches. Timed in separate steps, so the step timings carry no timer."""
@@ -226,10 +228,10 @@ def in_step_solve_ms(model, state, steps):
     fem_solver.Factorisation.solve = timed
     try:
         for _ in range(steps):
-            state = step(model, state)
+            sim.step()
     finally:
         fem_solver.Factorisation.solve = solve
-    return state, 1e3 * float(np.median(times)) if times else float("nan")
+    return 1e3 * float(np.median(times)) if times else float("nan")
 
 
 def main():

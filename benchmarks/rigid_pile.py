@@ -27,9 +27,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from hybrid.app.build import build
+from hybrid import Simulation
 from hybrid.app.scene import parse_scene
-from hybrid.coupling.step import step
 
 from _common import write_csv
 
@@ -83,22 +82,22 @@ def pile_stats(z, xy, half):
 def run_ours(n, seconds, profile_steps):
     scene = parse_scene(tomllib.loads(scene_toml(n, seconds)), f"<rigid pile {n}>", Path("."))
     t0 = time.perf_counter()
-    model, state = build(scene)
+    sim = Simulation(scene)
     build_time = time.perf_counter() - t0
     steps = int(round(seconds / DT))
-    state = step(model, state)                 # first step outside the timing (JIT cache load)
+    sim.step()                                 # first step outside the timing (JIT cache load)
     t0 = time.perf_counter()
     for _ in range(steps - 1):
-        state = step(model, state)
+        sim.step()
     wall = time.perf_counter() - t0
-    rs = state.rigid
+    rs = sim.state.rigid
     stats = pile_stats(rs.position[:, 2], rs.position[:, :2], pile_layout(n)[2])
     profile_text = ""
     if profile_steps > 0:
         profiler = cProfile.Profile()
         profiler.enable()
         for _ in range(profile_steps):
-            state = step(model, state)
+            sim.step()
         profiler.disable()
         buffer = io.StringIO()
         pstats.Stats(profiler, stream=buffer).sort_stats("tottime").print_stats(8)
