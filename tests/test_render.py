@@ -151,3 +151,9 @@ def test_gif_is_written_when_ffmpeg_is_unavailable(tmp_path, monkeypatch):
     frames = iio.imread(result["movie"], index=None)
     assert frames.shape[:3] == (2, 121, 161)
     assert not (tmp_path / "pictures" / "boxes.mp4").exists()
+
+
+def test_colour_bar_names_each_field_with_its_unit():
+    assert render._scalar_bar("von_mises", 960)["title"] == "von_mises (Pa)"
+    assert render._scalar_bar("principal_stress", 960)["title"] == "principal_stress (Pa)"
+    assert render._scalar_bar("plastic_strain", 960)["title"] == "plastic_strain (-)"

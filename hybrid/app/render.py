@@ -199,6 +199,9 @@ def _frame_mesh(path: Path, field: str | None, association: str = "cell"):
     return mesh
 
 
+# units of the cell fields a run writes (hybrid.app.observe.tet_fields); '-' for a pure number
+FIELD_UNITS = {"von_mises": "Pa", "principal_stress": "Pa", "plastic_strain": "-", "yielded": "-"}
+
 # colour bar text (pixels) and the room its widest label ("-1.23e+06") and the bar take
 BAR_FONT = 14
 BAR_ROOM = 40 + 9 * 0.62 * BAR_FONT
@@ -207,7 +210,7 @@ BAR_ROOM = 40 + 9 * 0.62 * BAR_FONT
 def _scalar_bar(field, width):
     """Colour bar arguments: vertical at the right edge, placed so that its labels stay inside an
     image ``width`` pixels wide (at 0.86 of the width, 640 px cut "-1.31e+06" to "-1.31e+0")."""
-    return {"title": f"{field} (Pa)", "color": "black", "vertical": True, "fmt": "%.3g",
+    return {"title": f"{field} ({FIELD_UNITS.get(field, '-')})", "color": "black", "vertical": True, "fmt": "%.3g",
             "title_font_size": BAR_FONT, "label_font_size": BAR_FONT,
             "position_x": min(0.86, 1.0 - (BAR_ROOM + 16) / width), "position_y": 0.1}
 
