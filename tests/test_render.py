@@ -157,3 +157,23 @@ def test_colour_bar_names_each_field_with_its_unit():
     assert render._scalar_bar("von_mises", 960)["title"] == "von_mises (Pa)"
     assert render._scalar_bar("principal_stress", 960)["title"] == "principal_stress (Pa)"
     assert render._scalar_bar("plastic_strain", 960)["title"] == "plastic_strain (-)"
+
+
+def test_a_rerun_replaces_the_earlier_movie_and_frames(tmp_path):
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    stale = run_dir / "render"
+    stale.mkdir(parents=True)
+    for name in ("boxes.gif", "boxes.mp4", "frame_00007.png"):      # an earlier, longer render
+        (stale / name).write_bytes(b"old")
+    result = render_run(run_dir, size=(WIDTH, HEIGHT))
+    left = sorted(p.name for p in stale.iterdir())
+    assert left == sorted([p.name for p in result["pngs"]] + [result["movie"].name])
+    assert result["movie"].read_bytes() != b"old"
+
+
+def test_render_refuses_a_size_it_cannot_draw(tmp_path):
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    with pytest.raises(ValueError, match="at least 16 pixels"):
+        render_run(run_dir, size=(0, -5))

@@ -6,11 +6,24 @@ simulation went unstable (frames written so far are kept), 4 rendering unavailab
 """
 import argparse
 import sys
+from importlib import metadata
 from importlib import resources
 from pathlib import Path
 
 from ..scenes import builtin_names, builtin_path, builtin_summary
 from .scene import SceneError, load_scene, validate_command
+
+
+# the cell fields a run writes that `hybrid render --field` can colour by
+FIELDS = ("von_mises", "principal_stress", "plastic_strain")
+
+
+def _version():
+    """The installed project's version."""
+    try:
+        return metadata.version("hybrid-sim")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _default_scene_path():
@@ -51,8 +64,10 @@ def _run(args):
     from .geometry import MeshError
     from hybrid.coupling.step import InstabilityError
     out = Path(args.out) if args.out else Path("outputs") / scene.name
-    if out.exists() and not out.is_dir():
-        print(f"{path}: --out {out} is a file; give a folder (it is created if missing)", file=sys.stderr)
+    blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        print(f"{path}: --out {out}: {blocking} is a file; give a folder (it is created if missing)",
+              file=sys.stderr)
         return 2
     try:
         sim = Simulation(scene)
@@ -70,7 +85,9 @@ def _run(args):
         return 3
     c = summary["conservation"]
     print(f"done: {summary['steps']} steps, {summary['frames']} frames in {summary['wall_time']:.1f} s "
-          f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g}")
+          f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g} "
+          f"(largest change of total energy over the frames, relative to the largest |energy|; "
+          f"friction, inelastic contact, damping, plastic flow and fracture lower it)")
     print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv, summary.json")
     print(f"render it with: hybrid render {out}")
     return 0
@@ -80,6 +97,10 @@ def _render(args):
     from .output import read_run
     from .render import render_run
     run_dir = Path(args.dir)
+    if min(args.size) < 16:
+        print(f"{run_dir}: --size {args.size[0]} {args.size[1]}: give a width and height of at least "
+              f"16 pixels", file=sys.stderr)
+        return 2
     try:
         times, frames, _ = read_run(run_dir)
     except (FileNotFoundError, OSError, ValueError) as err:
@@ -115,6 +136,7 @@ def main(argv=None):
         epilog=f"built-in scenes (hybrid run NAME):\n{_scenes_text()}\n\n"
                "exit codes: 0 ok, 2 bad input, 3 unstable (frames so far kept), 4 rendering "
                "unavailable, 130 interrupted")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="simulate a scene (the built-in default scene if none is given)")
     p.add_argument("scene", nargs="?", help="scene file (TOML) or the name of a built-in scene")
@@ -123,7 +145,9 @@ def main(argv=None):
     p = sub.add_parser("render", help="render a finished run off-screen to PNG frames and a movie")
     p.add_argument("dir", help="run folder written by 'hybrid run'")
     p.add_argument("--size", type=int, nargs=2, default=[960, 540], metavar=("W", "H"))
-    p.add_argument("--field", help="colour FEM bodies by a cell field (von_mises, principal_stress)")
+    p.add_argument("--field", choices=FIELDS,
+                   help="colour FEM bodies by a cell field: von_mises, principal_stress (Pa) or "
+                        "plastic_strain")
     sub.add_parser("scenes", help="list the built-in scenes")
     p = sub.add_parser("validate", help="check a scene file and report every problem")
     p.add_argument("scene")

@@ -240,6 +240,8 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     scene = find_pvd(run_dir, summary).stem
     fps = float(fps) if fps else movie_fps(times, summary)
     width, height = int(size[0]), int(size[1])
+    if width < 16 or height < 16:
+        raise ValueError(f"--size {width} {height}: give a width and height of at least 16 pixels")
 
     lo, hi, clim, association = scene_bounds(frame_paths, field)
     if field is not None and clim is None:
@@ -249,7 +251,8 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
 
     pv.OFF_SCREEN = True
     out_dir.mkdir(parents=True, exist_ok=True)
-    for stale in out_dir.glob("frame_*.png"):
+    # an earlier render's frames and movie (a rerun with fewer frames, or a GIF where ffmpeg was)
+    for stale in (*out_dir.glob("frame_*.png"), *out_dir.glob(f"{scene}.mp4"), *out_dir.glob(f"{scene}.gif")):
         stale.unlink()
 
     plotter = pv.Plotter(off_screen=True, window_size=(width, height))
