@@ -26,3 +26,29 @@ def test_help_lists_every_render_field_and_version_is_printed(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["--version"])
     assert exit_.value.code == 0 and capsys.readouterr().out.startswith("hybrid ")
+
+
+def test_a_rigid_body_starting_inside_a_deformable_one_is_warned_about():
+    import tomllib
+    from pathlib import Path
+
+    from hybrid import Simulation
+    from hybrid.app.scene import parse_scene
+    text = """
+[simulation]
+dt = 0.001
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.2, 0.2], resolution = 0.1 }
+young = 1.0e6
+position = [0.0, 0.0, 0.1]
+[[bodies]]
+name = "stone"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0.0, 0.0, %s]
+"""
+    sunk = Simulation(parse_scene(tomllib.loads(text % 0.22), "<test>", Path(".")))   # 3 cm into it
+    assert sunk.warnings == ["bodies 'block' and 'stone' overlap at the start"]
+    clear = Simulation(parse_scene(tomllib.loads(text % 0.2501), "<test>", Path(".")))
+    assert clear.warnings == []

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from rigid.contacts import detect
+from rigid.contacts import detect, detect_points
 from rigid import quaternion as quat
 
 from . import observe
@@ -54,14 +54,24 @@ class Progress:
 
 
 def overlapping_bodies(model, state, tolerance=1e-4):
-    """Pairs of rigid bodies (names) that start interpenetrating by more than ``tolerance`` m."""
+    """Pairs of bodies (names) that start interpenetrating by more than ``tolerance`` m: rigid
+    bodies with each other, and deformable bodies' surface nodes inside rigid bodies."""
     rm, rs = model.rigid, state.rigid
-    if rm.body_count < 2:
+    if rm.body_count == 0:
         return []
-    c = detect(rm, rs.position, quat.to_matrix(rs.orientation), np.zeros(rm.body_count), 0.0)
+    R = quat.to_matrix(rs.orientation)
+    still = np.zeros(rm.body_count)
+    c = detect(rm, rs.position, R, still, 0.0)
     deep = (c.gap < -tolerance) & (c.body_b >= 0)
-    pairs = {tuple(sorted((int(a), int(b)))) for a, b in zip(c.body_a[deep], c.body_b[deep])}
-    return [(model.names[model.rigid_ids[a]], model.names[model.rigid_ids[b]]) for a, b in sorted(pairs)]
+    names = [model.names[i] for i in model.rigid_ids]
+    pairs = {tuple(sorted((names[a], names[b]))) for a, b in zip(c.body_a[deep], c.body_b[deep])}
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        x = s.x[m.surface_nodes]
+        k = len(x)
+        hits = detect_points(rm, rs.position, R, x, np.zeros(k), still, 0.0, np.zeros(k), np.zeros(k))
+        inside = (hits.gap < -tolerance) & (hits.body_b >= 0)
+        pairs |= {(model.names[model.fem_ids[j]], names[b]) for b in np.unique(hits.body_b[inside])}
+    return sorted(pairs)
 
 
 def _drift(values, reference, scales=()):
