@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hybrid.app import render
-from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.output import FramePiece, RunWriter, read_run
 from hybrid.app.render import BODY_PALETTE, movie_fps, probe_backend, render_run
 
 WIDTH, HEIGHT = 320, 240
@@ -177,3 +177,56 @@ def test_render_refuses_a_size_it_cannot_draw(tmp_path):
     write_two_box_run(run_dir)
     with pytest.raises(ValueError, match="at least 16 pixels"):
         render_run(run_dir, size=(0, -5))
+
+
+def write_block_and_cube_run(run_dir, stresses=(1.0e6, 2.0e6)):
+    """A deformable two-tet block (von Mises ``stresses`` in the two frames) beside a rigid cube,
+    with the ``deformable`` cell flags a simulation writes."""
+    summary = {"scene": {"name": "mixed", "planes": [], "simulation": {"output_fps": 20}}}
+    with RunWriter(run_dir, "mixed") as writer:
+        for time, stress in zip((0.0, 0.05), stresses):
+            block = FramePiece(0, TET_POINTS, [("tetra", TETS)],
+                               cell_data={"von_mises": np.array([stress, stress]), "deformable": np.int8(1)})
+            cube = FramePiece(1, CUBE_POINTS + [2.0, 0.0, 0.5], [("triangle", CUBE_TRIANGLES)])
+            writer.write_frame(time, [block, cube], [])
+        writer.close(summary)
+
+
+def test_field_scale_comes_from_deformable_cells_and_rigid_bodies_are_grey(tmp_path):
+    run_dir = tmp_path / "mixed"
+    write_block_and_cube_run(run_dir, stresses=(1.0e6, 2.0e6))
+    frames = read_run(run_dir)[1]
+    # the rigid cube's cells (0 Pa, no stress of their own) do not stretch the scale down to 0
+    assert render.scene_bounds(frames, "von_mises")[2] == (1.0e6, 2.0e6)
+    result = render_run(run_dir, size=(WIDTH, HEIGHT), field="von_mises")
+    image = iio.imread(result["pngs"][0])[..., :3].astype(int)
+    grey = (np.abs(image - np.round(255 * np.array(render.RIGID_GREY) * 0.9)).max(axis=-1) < 60) \
+        & (np.ptp(image, axis=-1) < 8) & (image.sum(axis=-1) > 200)
+    assert grey[:, WIDTH // 2:].sum() > 200        # the cube, right of the block, drawn grey
+
+
+def test_percentile_scale_ignores_a_few_extreme_elements(tmp_path):
+    run_dir = tmp_path / "mixed"
+    write_block_and_cube_run(run_dir, stresses=(1.0e6, 1.0e6))
+    frames = read_run(run_dir)[1]
+    values = np.concatenate([np.full(98, 1.0), [1.0e3, 1.0e4]])
+    assert render._limits(values, "run") == (1.0, 1.0e4)
+    low, high = render._limits(values, "percentile")
+    assert low == 1.0 and high < 1.0e3
+    with pytest.raises(ValueError, match="colour range"):
+        render_run(run_dir, size=(WIDTH, HEIGHT), field="von_mises", colour_range="nope")
+    assert frames
+
+
+def test_frame_scale_draws_each_frame_against_its_own_range(tmp_path):
+    run_dir = tmp_path / "mixed"
+    write_block_and_cube_run(run_dir, stresses=(1.0e6, 3.0e6))    # uniform stress, tripled
+    run_scale = render_run(run_dir, size=(WIDTH, HEIGHT), field="von_mises", colour_range="run")
+    first, second = (iio.imread(p)[..., :3].astype(int) for p in run_scale["pngs"])
+    assert np.abs(first - second).sum() > 0                    # one scale: the colour changes
+    own = render_run(run_dir, out=tmp_path / "own", size=(WIDTH, HEIGHT), field="von_mises",
+                     colour_range="frame")
+    first, second = (iio.imread(p)[..., :3].astype(int) for p in own["pngs"])
+    changed = np.abs(first - second).max(axis=-1) > 2
+    bar = int(WIDTH * render._scalar_bar("von_mises", WIDTH)["position_x"])
+    assert changed[40:, :bar].sum() < 20              # each frame its own scale: the body the same

@@ -114,7 +114,8 @@ def _render(args):
         print(f"\rrendering frame {done}/{total}", end="", file=sys.stderr, flush=True)
 
     try:
-        result = render_run(run_dir, size=tuple(args.size), field=args.field, progress=progress)
+        result = render_run(run_dir, size=tuple(args.size), field=args.field, progress=progress,
+                            colour_range=args.range)
     except RuntimeError as err:
         print(f"\n{err}", file=sys.stderr)
         return 4
@@ -148,6 +149,9 @@ def main(argv=None):
     p.add_argument("--field", choices=FIELDS,
                    help="colour FEM bodies by a cell field: von_mises, principal_stress (Pa) or "
                         "plastic_strain")
+    p.add_argument("--range", choices=("run", "percentile", "frame"), default="run",
+                   help="the field's colour scale: the run's smallest to largest value (default), its "
+                        "2nd to 98th percentile, or each frame's own range")
     sub.add_parser("scenes", help="list the built-in scenes")
     p = sub.add_parser("validate", help="check a scene file and report every problem")
     p.add_argument("scene")

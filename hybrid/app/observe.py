@@ -34,7 +34,7 @@ def frame_pieces(model, state):
             pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
         cell = "tetra10" if m.order == 2 else "tetra"
-        cell_data = tet_fields(m, s)
+        cell_data = tet_fields(m, s) | {"deformable": np.int8(1)}       # rigid bodies' cells: 0
         pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)], cell_data=cell_data,
                                  point_data={"displacement": s.x - m.rest_points, "velocity": s.v}))
     # the original scene body each piece came from (itself unless it is a fracture fragment)

@@ -27,10 +27,14 @@ GROUND_COLOR = (0.9, 0.9, 0.88)
 VIEW_DIRECTION = np.array([1.0, -1.6, 0.9]) / np.linalg.norm([1.0, -1.6, 0.9])
 VIEW_ANGLE_DEG = 30.0
 DEFAULT_FPS = 30.0
+RIGID_GREY = (0.62, 0.62, 0.6)  # rigid bodies when deformable ones are coloured by a field
+DEFORMABLE = "deformable"      # cell data marking the deformable bodies' cells (1) in a frame
+COLOUR_RANGES = ("run", "percentile", "frame")
 
 
 def _read_points_and_range(path: Path, field: str | None):
-    """Frame points and (min, max, "cell" or "point") of ``field`` (magnitude for vectors).
+    """Frame points and (values, "cell" or "point") of ``field`` (magnitude for vectors; the
+    deformable bodies' cells only when the frame marks them), None without values.
 
     Only the points and that one array are read.
     """
@@ -44,6 +48,7 @@ def _read_points_and_range(path: Path, field: str | None):
         selection.DisableAllArrays()
         if field:
             selection.EnableArray(field)
+    reader.GetCellDataArraySelection().EnableArray(DEFORMABLE)
     reader.Update()
     grid = reader.GetOutput()
     points = grid.GetPoints()
@@ -56,31 +61,42 @@ def _read_points_and_range(path: Path, field: str | None):
                 values = vtk_to_numpy(array).astype(float)
                 if values.ndim > 1:
                     values = np.linalg.norm(values, axis=1)
-                value_range = (float(values.min()), float(values.max()), association)
+                flags = grid.GetCellData().GetArray(DEFORMABLE)
+                if association == "cell" and flags is not None:
+                    values = values[vtk_to_numpy(flags) > 0]   # rigid bodies' cells carry no field
+                if len(values):
+                    value_range = (values, association)
                 break
     return xyz, value_range
 
 
-def scene_bounds(frame_paths: Sequence[Path], field: str | None = None):
-    """Union (lo, hi) of all frames' points; range and association of ``field`` over all frames."""
+def scene_bounds(frame_paths: Sequence[Path], field: str | None = None, colour_range: str = "run"):
+    """Union (lo, hi) of all frames' points; the colour range of ``field`` over all frames
+    (``colour_range`` "run": its smallest to largest value; "percentile": its 2nd to 98th
+    percentile, so a few extreme elements do not wash out every frame) and its association."""
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
-    value_lo, value_hi = np.inf, -np.inf
-    association = "cell"
+    values, association = [], "cell"
     for path in frame_paths:
-        xyz, value_range = _read_points_and_range(path, field)
+        xyz, found = _read_points_and_range(path, field)
         if len(xyz):
             lo = np.minimum(lo, xyz.min(axis=0))
             hi = np.maximum(hi, xyz.max(axis=0))
-        if value_range:
-            value_lo, value_hi = min(value_lo, value_range[0]), max(value_hi, value_range[1])
-            association = value_range[2]
+        if found:
+            values.append(found[0])
+            association = found[1]
     if not np.all(np.isfinite(lo)):
         lo, hi = -np.ones(3) * 0.5, np.ones(3) * 0.5
-    clim = None
-    if np.isfinite(value_lo):
-        clim = (value_lo, value_hi if value_hi > value_lo else value_lo + max(abs(value_lo), 1.0))
+    clim = _limits(np.concatenate(values), colour_range) if values else None
     return lo, hi, clim, association
+
+
+def _limits(values, colour_range):
+    """Colour limits (low, high) of ``values``: min-max ("run", "frame") or 2nd-98th percentile."""
+    low, high = (np.percentile(values, [2.0, 98.0]) if colour_range == "percentile"
+                 else (values.min(), values.max()))
+    low, high = float(low), float(high)
+    return low, high if high > low else low + max(abs(low), 1.0)
 
 
 def camera_for_bounds(lo: np.ndarray, hi: np.ndarray, aspect: float,
@@ -196,6 +212,11 @@ def _frame_mesh(path: Path, field: str | None, association: str = "cell"):
         mesh.cell_data[field] = np.zeros(mesh.n_cells)
     elif association == "point" and field not in mesh.point_data:
         mesh.point_data[field] = np.zeros(mesh.n_points)
+    if field is not None and association == "cell" and DEFORMABLE in mesh.cell_data:
+        # rigid bodies carry no stress: no value, drawn in RIGID_GREY instead of the scale's zero
+        values = np.asarray(mesh.cell_data[field], dtype=float).copy()
+        values[np.asarray(mesh.cell_data[DEFORMABLE]) == 0] = np.nan
+        mesh.cell_data[field] = values
     return mesh
 
 
@@ -218,7 +239,8 @@ def _scalar_bar(field, width):
 def render_run(run_dir: Path | str, out: Path | str | None = None,
                size: tuple[int, int] = (960, 540), fps: float | None = None,
                field: str | None = None,
-               progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+               progress: Callable[[int, int], None] | None = None,
+               colour_range: str = "run") -> dict[str, Any]:
     """Render every saved frame of a run to PNG and assemble a movie.
 
     run_dir: a directory written by ``hybrid.app.output.RunWriter``.
@@ -228,6 +250,9 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     field: colour by this cell (or point) field with a scalar bar, e.g. ``"von_mises"``;
         default colours each body by its ``body_id``.
     progress: called as ``progress(frames_done, frame_count)`` after each frame.
+    colour_range: the field's colour scale: "run" (smallest to largest value over the run),
+        "percentile" (2nd to 98th percentile over the run) or "frame" (each frame's own range).
+        Only deformable bodies carry a field; rigid bodies are drawn grey.
 
     Returns ``{"pngs": [paths], "movie": path, "fps": fps, "backend": message}``. Raises
     RuntimeError with the packages to install when off-screen OpenGL is unavailable.
@@ -243,7 +268,9 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     if width < 16 or height < 16:
         raise ValueError(f"--size {width} {height}: give a width and height of at least 16 pixels")
 
-    lo, hi, clim, association = scene_bounds(frame_paths, field)
+    if colour_range not in COLOUR_RANGES:
+        raise ValueError(f"colour range {colour_range!r}: one of {', '.join(COLOUR_RANGES)}")
+    lo, hi, clim, association = scene_bounds(frame_paths, field, colour_range)
     if field is not None and clim is None:
         raise ValueError(f"no frame of {run_dir} has a field named {field!r}")
     backend = use_backend()
@@ -260,7 +287,7 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     try:
         _set_stage(plotter, lo, hi, _scene_planes(summary), width / height)
         movie = _MovieWriter(out_dir / scene, fps)
-        pngs = _render_frames(plotter, times, frame_paths, out_dir, movie, (field, association, clim),
+        pngs = _render_frames(plotter, times, frame_paths, out_dir, movie, (field, association, clim, colour_range),
                               (width, height), progress)
     finally:
         if movie is not None:
@@ -290,8 +317,8 @@ def _set_stage(plotter, lo, hi, planes, aspect):
 
 def _add_bodies(plotter, mesh, colouring, width):
     """The bodies' mesh on screen: coloured by body, or by ``colouring`` = (field, association,
-    clim) with a scalar bar."""
-    field, association, clim = colouring
+    clim, colour range) with a scalar bar."""
+    field, association, clim, _ = colouring
     style = dict(show_edges=True, edge_color=(0.15, 0.15, 0.15), edge_opacity=0.25,
                  line_width=1.0, ambient=0.25, diffuse=0.75, specular=0.0,
                  name="bodies", reset_camera=False, render=False)
@@ -299,7 +326,7 @@ def _add_bodies(plotter, mesh, colouring, width):
         plotter.add_mesh(mesh, scalars="body_color", rgb=True, **style)
     else:
         plotter.add_mesh(mesh, scalars=field, preference=association, clim=clim, cmap="viridis",
-                         scalar_bar_args=_scalar_bar(field, width), **style)
+                         nan_color=RIGID_GREY, scalar_bar_args=_scalar_bar(field, width), **style)
 
 
 def _render_frames(plotter, times, frame_paths, out_dir, movie, colouring, size, progress):
@@ -319,6 +346,12 @@ def _render_frames(plotter, times, frame_paths, out_dir, movie, colouring, size,
             _add_bodies(plotter, shown, colouring, width)
         else:
             shown.copy_from(mesh, deep=False)
+        if colouring[3] == "frame":      # this frame's own range
+            values = np.asarray(shown.cell_data[colouring[0]] if colouring[1] == "cell"
+                                else shown.point_data[colouring[0]], dtype=float)
+            values = values[np.isfinite(values)]
+            if values.ndim == 1 and len(values):
+                plotter.update_scalar_bar_range(_limits(values, "frame"))
         label.input = f"t = {time:.3f} s"
         plotter.reset_camera_clipping_range()
         plotter.render()
