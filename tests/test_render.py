@@ -230,3 +230,14 @@ def test_frame_scale_draws_each_frame_against_its_own_range(tmp_path):
     changed = np.abs(first - second).max(axis=-1) > 2
     bar = int(WIDTH * render._scalar_bar("von_mises", WIDTH)["position_x"])
     assert changed[40:, :bar].sum() < 20              # each frame its own scale: the body the same
+
+
+def test_colour_bar_has_its_own_room_beside_the_bodies(tmp_path):
+    run_dir = tmp_path / "mixed"
+    write_block_and_cube_run(run_dir)            # the rigid cube is the rightmost body
+    result = render_run(run_dir, size=(WIDTH, HEIGHT), field="von_mises")
+    image = iio.imread(result["pngs"][0])[..., :3].astype(int)
+    cube = (np.abs(image - np.round(255 * np.array(render.RIGID_GREY) * 0.9)).max(axis=-1) < 60) \
+        & (np.ptp(image, axis=-1) < 8) & (image.sum(axis=-1) > 200)
+    columns = np.nonzero(cube[40:].sum(axis=0) >= 30)[0]      # the cube (not the bar's grey text)
+    assert len(columns) > 10 and columns.max() < WIDTH * render._bar_left("von_mises", WIDTH)

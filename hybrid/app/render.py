@@ -225,6 +225,7 @@ FIELD_UNITS = {"von_mises": "Pa", "principal_stress": "Pa", "plastic_strain": "-
 
 # colour bar text (pixels) and the room its widest label ("-1.23e+06") and the bar take
 BAR_FONT = 14
+BAR_WIDTH = 0.05    # the colour bar's width, a fraction of the image's (pyvista's default)
 BAR_ROOM = 40 + 9 * 0.62 * BAR_FONT
 
 
@@ -232,8 +233,15 @@ def _scalar_bar(field, width):
     """Colour bar arguments: vertical at the right edge, placed so that its labels stay inside an
     image ``width`` pixels wide (at 0.86 of the width, 640 px cut "-1.31e+06" to "-1.31e+0")."""
     return {"title": f"{field} ({FIELD_UNITS.get(field, '-')})", "color": "black", "vertical": True, "fmt": "%.3g",
-            "title_font_size": BAR_FONT, "label_font_size": BAR_FONT,
+            "title_font_size": BAR_FONT, "label_font_size": BAR_FONT, "width": BAR_WIDTH,
             "position_x": min(0.86, 1.0 - (BAR_ROOM + 16) / width), "position_y": 0.1}
+
+
+def _bar_left(field, width):
+    """Where the colour bar and its title, centred over it, begin (a fraction of the width)."""
+    bar = _scalar_bar(field, width)
+    title = 0.62 * BAR_FONT * len(bar["title"])         # pixels, as BAR_ROOM estimates a label
+    return min(bar["position_x"], bar["position_x"] + (BAR_WIDTH * width - title) / (2 * width))
 
 
 def render_run(run_dir: Path | str, out: Path | str | None = None,
@@ -285,7 +293,8 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     plotter = pv.Plotter(off_screen=True, window_size=(width, height))
     movie = None
     try:
-        _set_stage(plotter, lo, hi, _scene_planes(summary), width / height)
+        room = 1.0 if field is None else _bar_left(field, width) - 0.02
+        _set_stage(plotter, lo, hi, _scene_planes(summary), width / height, room)
         movie = _MovieWriter(out_dir / scene, fps)
         pngs = _render_frames(plotter, times, frame_paths, out_dir, movie, (field, association, clim, colour_range),
                               (width, height), progress)
@@ -296,9 +305,10 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": backend}
 
 
-def _set_stage(plotter, lo, hi, planes, aspect):
+def _set_stage(plotter, lo, hi, planes, aspect, room=1.0):
     """Background, the scene's planes as ground squares around the bodies' box ``lo``-``hi``, and
-    a fixed camera that holds the whole box."""
+    a fixed camera that holds the whole box in the left ``room`` of the image's width (the rest is
+    the colour bar's)."""
     import pyvista as pv
 
     plotter.set_background("#f7f8fa", top="#dde4ec")
@@ -308,8 +318,10 @@ def _set_stage(plotter, lo, hi, planes, aspect):
         foot = centre - np.dot(centre - point, normal) * normal
         ground = pv.Plane(center=foot, direction=normal, i_size=ground_size, j_size=ground_size)
         plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0)
-    plotter.camera_position = camera_for_bounds(lo, hi, aspect)
+    plotter.camera_position = camera_for_bounds(lo, hi, aspect * room)
     plotter.camera.view_angle = VIEW_ANGLE_DEG
+    # the view's centre at the middle of that room: viewport x runs from -1 to 1
+    plotter.camera.SetWindowCenter(1.0 - room, 0.0)
     plotter.reset_camera_clipping_range()
     # Keep the camera fixed even when later add_mesh calls would reset it.
     plotter.camera_set = True
