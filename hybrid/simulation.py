@@ -19,6 +19,7 @@ from .app.build import build
 from .app.run import Progress, Recorder, forwarded, overlapping_bodies, summary
 from .app.scene import SceneError, load_scene
 from .coupling.events import between_steps
+from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, log as step_log, step
 from .scenes import builtin_path
 
@@ -156,6 +157,10 @@ class Simulation:
                 bar.update(self.time, self.steps)
         except InstabilityError as error:
             return error
+        except Exception as error:      # noqa: BLE001 (the run's boundary)
+            # a bug or a case the simulator does not handle: the run still ends with its frames,
+            # its summary and a message naming the time and the stage, not a traceback
+            return StepFailure.of(self.time, error)
         return None
 
     def body(self, name):

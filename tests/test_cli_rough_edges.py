@@ -52,3 +52,43 @@ position = [0.0, 0.0, %s]
     assert sunk.warnings == ["bodies 'block' and 'stone' overlap at the start"]
     clear = Simulation(parse_scene(tomllib.loads(text % 0.2501), "<test>", Path(".")))
     assert clear.warnings == []
+
+
+def test_an_unexpected_error_in_a_step_ends_the_run_with_its_frames_and_summary(tmp_path, capsys,
+                                                                                 monkeypatch):
+    import json
+
+    from hybrid.coupling import step as coupled
+
+    solve, calls = coupled.solve, []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 30:
+            return 1.0 / 0.0
+        return solve(*args)
+
+    monkeypatch.setattr(coupled, "solve", failing)
+    scene = tmp_path / "drop.toml"
+    scene.write_text("""
+[simulation]
+duration = 0.1
+dt = 0.001
+output_fps = 100
+[[planes]]
+[[bodies]]
+name = "block"
+model = "fem"
+young = 1.0e6
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }
+position = [0.0, 0.0, 0.2]
+""")
+    out = tmp_path / "out"
+    assert main(["run", str(scene), "--out", str(out), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert "a step failed at t = 0.029 s in hybrid.coupling.step.coupled_step" in err
+    assert "ZeroDivisionError" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "unstable" and summary["steps"] == 29
+    assert len(list((out / "frames").glob("*.vtu"))) == summary["frames"] == 3

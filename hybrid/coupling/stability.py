@@ -15,6 +15,30 @@ class InstabilityError(RuntimeError):
         super().__init__(f"unstable: body '{body}' at t = {time:.6g} s: {quantity} = {value:.3g}")
 
 
+class StepFailure(InstabilityError):
+    """A step raised an unexpected exception: the run ends as unstable, like a divergence, naming
+    the time (s), the ``stage`` (the innermost simulator function the error came from) and the
+    ``error`` itself; ``body`` is None (the stage does not say which body)."""
+
+    def __init__(self, time, stage, error):
+        RuntimeError.__init__(self, f"unstable: a step failed at t = {time:.6g} s in {stage}: "
+                                    f"{type(error).__name__}: {error}")
+        self.body, self.time, self.quantity, self.value = None, time, stage, float("nan")
+        self.stage, self.error = stage, error
+
+    @classmethod
+    def of(cls, time, error):
+        """The failure of ``error`` raised by a step starting at ``time``, named by its stage."""
+        stage, tb = "the step", error.__traceback__
+        while tb is not None:
+            code = tb.tb_frame.f_code
+            module = tb.tb_frame.f_globals.get("__name__", "")
+            if module.split(".")[0] in ("rigid", "fem", "hybrid"):
+                stage = f"{module}.{code.co_name}"
+            tb = tb.tb_next
+        return cls(time, stage, error)
+
+
 def check_finite(model, state):
     """Raise InstabilityError naming the first body whose state diverged."""
     rs = state.rigid
