@@ -76,8 +76,8 @@ class Simulation:
     @classmethod
     def from_toml(cls, path):
         """Load, validate and build a scene file, or a built-in scene given by name (``hybrid
-        scenes`` lists them). Raises SceneError listing every problem, FileNotFoundError for a
-        missing file."""
+        scenes`` lists them). Raises SceneError listing every problem (a missing file among them),
+        KeyError for a name that is no built-in scene."""
         return cls(load_scene(scene_path(path)))
 
     @property
@@ -183,12 +183,10 @@ class Simulation:
 
 
 def scene_path(path_or_name):
-    """The scene file a user named: an existing path, else the built-in scene of that name (a
-    name that is neither gives its path back, for the loader to report as missing)."""
+    """The scene file a user named: an existing path or anything that looks like one (a .toml
+    file, a path with folders: the loader reports it if missing), else the built-in scene of that
+    name; KeyError naming the built-in scenes for a bare name that is neither."""
     path = Path(path_or_name)
     if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
         return path
-    try:
-        return builtin_path(str(path_or_name))
-    except KeyError:
-        return path
+    return builtin_path(str(path_or_name))

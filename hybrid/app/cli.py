@@ -52,10 +52,11 @@ def _rejected(path, err):
 
 def _run(args):
     from ..simulation import Simulation, scene_path
-    path = scene_path(args.scene) if args.scene else _default_scene_path()
-    if not path.exists() and path.suffix != ".toml" and len(path.parts) == 1:
-        print(f"{path}: no such scene file or built-in scene; built-in scenes: "
-              f"{', '.join(builtin_names())} (hybrid scenes lists them)", file=sys.stderr)
+    try:
+        path = scene_path(args.scene) if args.scene else _default_scene_path()
+    except KeyError as err:             # a bare name that is no built-in scene
+        print(f"{args.scene}: no such scene file or built-in scene; {err.args[0].split('; ', 1)[1]}",
+              file=sys.stderr)
         return 2
     try:
         scene = load_scene(path)

@@ -80,10 +80,10 @@ def _solver_nodes(fems, state, nodes, in_contact, h):
     touched = np.unique(in_contact)
     if not len(touched):
         return touched, tuple(sets)
-    for j in np.unique(nodes.body[touched]):
+    bodies = np.unique(nodes.body[touched])
+    for j in bodies:
         sets[j] = contact_set(fems[j], h, nodes.local[touched[nodes.body[touched] == j]], sets[j])
-    return (np.concatenate([nodes.stacked(j, sets[j]) for j in np.unique(nodes.body[touched])]).astype(np.int64),
-            tuple(sets))
+    return np.concatenate([nodes.stacked(j, sets[j]) for j in bodies]).astype(np.int64), tuple(sets)
 
 
 def _reporter(name):
