@@ -7,9 +7,9 @@ from pathlib import Path
 from hybrid.app import geometry
 
 from .describe import describe, toml_text
-from .records import (Anchor, Body, Damping, Load, Plane, Scene, Shape, Simulation, Solver,
+from .records import (Anchor, Auto, Body, Damping, Load, Plane, Scene, Shape, Simulation, Solver,
                       Unbreakable)
-from .schema import (ANCHOR, BODY, DAMPING, FEM_MODELS, INVALID, LOAD, MAX_ELEMENTS, MAX_STEPS, PLANE,
+from .schema import (ANCHOR, AUTO, BODY, DAMPING, FEM_MODELS, INVALID, LOAD, MAX_ELEMENTS, MAX_STEPS, PLANE,
                      SHAPE, SIMULATION, SOLVER, TOP, UNBREAKABLE)
 from .tables import Where, read_table, table_entries, valid
 
@@ -135,9 +135,6 @@ def _parse_body(table, source, index, base_dir, problems):
         values["shape"] = _parse_shape(values["shape"], where, problems)
         if valid(model) and isinstance(values["shape"], Shape):
             _check_element_count(values["shape"], fem_model, where, problems)
-    if model == "auto":
-        problems.append(where.problem("model", "= \"auto\" (switching between rigid and FEM) is not "
-                                               "implemented yet; use \"rigid\" or \"fem\""))
     if has_mesh and valid(values["mesh"]) and valid(model):
         _check_mesh(table["mesh"], values["mesh"], model, where, problems)
 
@@ -145,6 +142,7 @@ def _parse_body(table, source, index, base_dir, problems):
     values["damping"] = Damping()
     if fem_model and isinstance(damping, dict):
         values["damping"] = Damping(**read_table(damping, DAMPING, where.nested("damping"), problems))
+    values["auto"] = _parse_auto(values.pop("auto"), values, given, where, problems)
     for key, section, kind in (("anchors", ANCHOR, Anchor), ("loads", LOAD, Load),
                                ("unbreakable", UNBREAKABLE, Unbreakable)):
         entries = values[key]
@@ -157,6 +155,22 @@ def _parse_body(table, source, index, base_dir, problems):
                     source, f"[bodies.{key}]{named} (bodies[{index}].{key}[{i}])"), problems))
                 for i, entry in enumerate(entries))
     return Body(**values)
+
+
+def _parse_auto(table, values, given, where, problems):
+    """The body's switching thresholds (``auto = { ... }``), defaults when absent."""
+    if "auto" in given and values["model"] != "auto" and values["fragment_model"] != "auto" \
+            and valid(values["model"], values["fragment_model"]) and values["model"] in FEM_MODELS:
+        problems.append(where.problem("auto", "needs model = \"auto\" or fragment_model = \"auto\""))
+    if not isinstance(table, dict):
+        return Auto()
+    out = read_table(table, AUTO, where.nested("auto"), problems)
+    low, high = out["rigidify_strain"], out["elastify_strain"]
+    if valid(low, high) and high <= low:
+        problems.append(where.nested("auto").problem(
+            "elastify_strain", f"must exceed rigidify_strain ({toml_text(low)}), got {toml_text(high)}"))
+        return Auto()
+    return Auto(**out) if all(valid(v) for v in out.values()) else Auto()
 
 
 def _parse_shape(table, where, problems):
@@ -209,7 +223,7 @@ def _check_mesh(written, resolved, model, where, problems):
     """Record a problem if the mesh file is missing, unreadable or unusable for ``model``."""
     try:
         mesh = geometry.read_mesh(resolved)
-        if model == "fem":
+        if model in FEM_MODELS:
             geometry.tets_from_mesh(mesh, resolved)
         geometry.surface_from_mesh(mesh, resolved)
     except geometry.MeshError as error:

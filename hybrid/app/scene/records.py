@@ -3,7 +3,7 @@ from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
 from .describe import allowed_text, default_text
-from .schema import (ANCHOR, BODY, DAMPING, LOAD, PLANE, SHAPE, SIMULATION, SOLVER, UNBREAKABLE,
+from .schema import (ANCHOR, AUTO, BODY, DAMPING, LOAD, PLANE, SHAPE, SIMULATION, SOLVER, UNBREAKABLE,
                      field_default)
 
 Vec3 = tuple[float, float, float]
@@ -51,6 +51,14 @@ class Shape:
 class Damping:
     mass: float = field_default(DAMPING, "mass")
     stiffness: float = field_default(DAMPING, "stiffness")
+
+
+@dataclass(frozen=True)
+class Auto:
+    rigidify_strain: float = field_default(AUTO, "rigidify_strain")
+    elastify_strain: float = field_default(AUTO, "elastify_strain")
+    window: int = field_default(AUTO, "window")
+    fracture_margin: float = field_default(AUTO, "fracture_margin")
 
 
 @dataclass(frozen=True)
@@ -102,6 +110,7 @@ class Body:
     rigid_fragment_tets: int = field_default(BODY, "rigid_fragment_tets")
     max_cracks_per_step: int = field_default(BODY, "max_cracks_per_step")
     unbreakable: tuple[Unbreakable, ...] = ()
+    auto: Auto = Auto()
 
 
 @dataclass(frozen=True)
@@ -140,6 +149,7 @@ Simulation.__doc__ = _attribute_doc(SIMULATION, "Time stepping settings (``[simu
 Plane.__doc__ = _attribute_doc(PLANE, "A static half-space (``[[planes]]``); ``normal`` is a unit vector.")
 Shape.__doc__ = _attribute_doc(SHAPE, "An analytic body shape; fields a type does not use are None.")
 Damping.__doc__ = _attribute_doc(DAMPING, "Rayleigh damping of an FEM body.")
+Auto.__doc__ = _attribute_doc(AUTO, "When an auto body switches between rigid and FEM.")
 Anchor.__doc__ = _attribute_doc(ANCHOR, "A held region of an FEM body; ``box`` is ``(min, max)``.")
 Load.__doc__ = _attribute_doc(LOAD, "A loaded region of an FEM body; ``box`` is ``(min, max)``.")
 Unbreakable.__doc__ = _attribute_doc(UNBREAKABLE, "A region of an FEM body that never cracks.")

@@ -147,6 +147,26 @@ DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = 
     _non_negative("stiffness", 0.0, "s", "Stiffness-proportional coefficient."),
 ))
 
+AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body (or an `auto` "
+               "fragment) switches between rigid and FEM (docs/auto.md). Strains are measured as an "
+               "element's strain rate times the body's response time, the longer of its elastic wave "
+               "transit time (largest extent over sqrt(young / density)) and the step: dimensionless, "
+               "so the defaults hold from rubber to steel and centimetres to metres.", (
+    _positive("rigidify_strain", 1e-5, "", "An FEM auto body becomes rigid once its largest measured "
+              "strain rate stays below this for `window` steps (and nothing yields, its largest "
+              "principal stress is below `fracture_margin` of `fracture_stress`, its anchors are "
+              "still and it has no load unless anchored)."),
+    _positive("elastify_strain", 1e-4, "", "A rigid auto body becomes FEM again, before the step is "
+              "taken, when the change of its contact impulses in that step would strain it by more "
+              "than this (predicted through its kept FEM factorisation). Must exceed "
+              "`rigidify_strain`."),
+    Field("window", "integer", 10, "", "Steps the strain rate must stay low before rigidifying; "
+          "also the fewest steps between two switches of a body.", low=1),
+    Field("fracture_margin", "number", 0.5, "", "A breakable body rigidifies only while its largest "
+          "principal stress is below this fraction of `fracture_stress`.", low=0.0, high=1.0,
+          low_open=True),
+))
+
 REGION_DOC = "Region `[[xmin, ymin, zmin], [xmax, ymax, zmax]]` in body coordinates (rest shape)."
 
 ANCHOR = Section("bodies.anchors", "[[bodies.anchors]]", "Nodes of an FEM body held at a prescribed "
@@ -169,8 +189,9 @@ UNBREAKABLE = Section("bodies.unbreakable", "[[bodies.unbreakable]]", "Region of
 
 BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("name", "string", REQUIRED, "", "Unique name."),
-    Field("model", "choice", "rigid", "", "`rigid`, `fem` (deformable) or `auto` (switches when stress "
-          "demands it).", choices=("rigid", "fem", "auto")),
+    Field("model", "choice", "rigid", "", "`rigid`, `fem` (deformable) or `auto` (stepped as rigid "
+          "while its deformation does not change, as FEM while a load would deform it; "
+          "docs/auto.md).", choices=("rigid", "fem", "auto")),
     Field("shape", "table", None, "", "Analytic shape, see `shape = { ... }`.", table="bodies.shape",
           default_text="none"),
     Field("mesh", "path", None, "", "Mesh file (any format meshio reads), relative to the scene file's folder.",
@@ -224,6 +245,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "overstressed first).", low=1, fem=True),
     Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
           table="bodies.unbreakable", fem=True, default_text="none"),
+    Field("auto", "table", None, "", "Thresholds of `model = \"auto\"` switching, see "
+          "`auto = { ... }`.", table="bodies.auto", fem=True, default_text="see `auto = { ... }`"),
 ), rules=("Exactly one of `shape` or `mesh` is required.",
           "Names must be unique.",
           "FEM fields (marked FEM) need `model = \"fem\"` or `\"auto\"`; `young` is then required.",
@@ -234,7 +257,7 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "
           "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
           "listing them by index.",
-          "`model = \"auto\"` is not implemented yet: a scene using it is rejected.",
+          "`auto` needs `model = \"auto\"` or `fragment_model = \"auto\"`.",
           "Every anchor and load box must hold at least one node of the body's mesh (checked when "
           "the body is built, by `run` and `validate`).",
           "A scene needs at least one body."))
@@ -246,7 +269,7 @@ TOP = Section("", "top level", "The scene file.", (
 ))
 
 SCHEMA = {s.key: s for s in (TOP, SIMULATION, SOLVER, PLANE, BODY, SHAPE, DAMPING, ANCHOR, LOAD,
-                                  UNBREAKABLE)}
+                                  UNBREAKABLE, AUTO)}
 
 
 def field_default(section, name):
