@@ -18,9 +18,8 @@ from .app import geometry, observe
 from .app.build import build
 from .app.run import Progress, Recorder, forwarded, overlapping_bodies, summary
 from .app.scene import SceneError, load_scene
-from .coupling.events import between_steps
 from .coupling.stability import StepFailure
-from .coupling.step import InstabilityError, log as step_log, step
+from .coupling.step import InstabilityError, advance, log as step_log
 from .scenes import builtin_path
 
 
@@ -28,11 +27,14 @@ from .scenes import builtin_path
 class Body:
     """One body as the simulation has it now (a copy: changing it changes nothing).
 
-    name: the body's name (fracture pieces: ``<name>.<k>``). kind: ``"rigid"`` or ``"fem"``.
+    name: the body's name (fracture pieces: ``<name>.<k>``). kind: ``"rigid"`` or ``"fem"``, how
+    it is stepped now (an auto body switches).
     position (3,) m: centre of mass. orientation (4,): unit quaternion (w, x, y, z) of the body's
     frame (FEM: its scene orientation turned by its best-fit rotation). velocity (3,) m/s: of the
     centre of mass. angular_velocity (3,) rad/s. kinetic_energy J.
-    FEM bodies only (None for rigid ones): points (n, 3) m, node positions; tets (t, 4 or 10)
+    FEM and auto bodies only (None for rigid ones; an auto body stepped as rigid gives its tet
+    mesh carried by the rigid motion, its fields as they were when it became rigid): points
+    (n, 3) m, node positions; tets (t, 4 or 10)
     node indices; von_mises (t,) Pa and principal_stress (t,) Pa, of each element's stress;
     plastic_strain (t,) accumulated equivalent plastic strain (0 without a yield_stress).
     """
@@ -101,18 +103,18 @@ class Simulation:
         return list(self.model.names)
 
     def step(self):
-        """Advance every body by one time step, then apply the events due (reference-shape
-        updates, fracture). Returns this step's events. Raises InstabilityError (naming the body,
-        the time and the quantity) when a body's state diverges; the simulation is then left at
-        the last finite state."""
-        self.state = step(self.model, self.state)
-        return self._between_steps()
-
-    def _between_steps(self):
-        """Apply the events due after a step; returns them."""
-        self.model, self.state, happened = between_steps(self.model, self.state, self.timings)
+        """Advance every body by one time step, with the events due (reference-shape updates,
+        fracture, auto bodies switching between rigid and FEM). Returns this step's events.
+        Raises InstabilityError (naming the body, the time and the quantity) when a body's state
+        diverges; the simulation is then left at the last finite state."""
+        self.model, self.state, happened = advance(self.model, self.state, self.timings,
+                                                   self._stepped)
         self.events.extend(happened)
         return happened
+
+    def _stepped(self, model, state):
+        """Called after each step with its model and state, before the events between steps
+        (a hook for subclasses; nothing here)."""
 
     def run(self, until=None, out=None, progress=True, log=print):
         """Step until simulated time ``until`` (s; default the scene's ``duration``), recording a
@@ -169,16 +171,17 @@ class Simulation:
             raise KeyError(f"no body '{name}'; bodies: {', '.join(self.model.names)}")
         index = self.model.names.index(name)
         row = next(r for r in observe.body_rows(self.model, self.state) if r[1] == name)
-        values = np.array(row[2:], float)
+        values = np.array(row[2:-1], float)
         pose = dict(name=name, position=values[0:3], orientation=values[3:7], velocity=values[7:10],
                     angular_velocity=values[10:13], kinetic_energy=float(values[13]))
-        if index not in self.model.fem_ids:
-            return Body(kind="rigid", **pose)
-        j = self.model.fem_ids.index(index)
-        m, s = self.model.fem[j], self.state.fem[j]
+        kind = "fem" if index in self.model.fem_ids else "rigid"
+        deformable = [(m, s) for k, m, s in observe.fem_states(self.model, self.state) if k == index]
+        if not deformable:
+            return Body(kind=kind, **pose)
+        m, s = deformable[0]
         fields = observe.tet_fields(m, s)
         plastic = np.broadcast_to(fields["plastic_strain"], (m.tet_count,)).copy()
-        return Body(kind="fem", points=s.x.copy(), tets=m.tets.copy(), von_mises=fields["von_mises"],
+        return Body(kind=kind, points=s.x.copy(), tets=m.tets.copy(), von_mises=fields["von_mises"],
                     principal_stress=fields["principal_stress"], plastic_strain=plastic, **pose)
 
 

@@ -17,7 +17,12 @@ class RigidBodyDesc:
     shape: primitive dict ({"type": "box", "size": [...]}, ...) or None when ``vertices`` and
     ``triangles`` (closed, outward, in the body's own frame) are given. position/orientation place
     the body's own frame in the world; velocity (m/s) is the centre of mass's, angular_velocity
-    (rad/s) is world-frame.
+    (rad/s) is world-frame. point_masses: ``(points (n, 3) m, masses (n,) kg)`` in the shape frame,
+    whose mass, centre and inertia the body takes instead of its solid's (a deformable body
+    turned rigid keeps the momentum and energy of its lumped node masses exactly); None: the
+    solid of ``density``. grid_cells: cells across the largest extent of a mesh body's
+    signed-distance grid (None: the grid's default; fewer build faster, for bodies made during a
+    run).
     """
     name: str
     shape: dict = None
@@ -31,6 +36,8 @@ class RigidBodyDesc:
     friction: float = 0.5
     restitution: float = 0.0
     fixed: bool = False
+    point_masses: tuple = None
+    grid_cells: int = None
 
 
 @dataclass
@@ -90,7 +97,8 @@ def _geometry(desc):
         params[:2] = r, 0.5 * float(desc.shape["height"])
         return _cylinder_rings(_Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius), r)
     else:
-        grid = SignedDistanceGrid.build(vertices, triangles)
+        cell = None if desc.grid_cells is None else float(np.ptp(vertices, axis=0).max()) / desc.grid_cells
+        grid = SignedDistanceGrid.build(vertices, triangles, cell_size=cell)
     return _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
 
 
@@ -150,9 +158,11 @@ def _principal_frames(bodies, geo):
     mass, inertia = np.zeros(b), np.zeros((b, 3))
     axes, com = np.zeros((b, 3, 3)), np.zeros((b, 3))
     for i, (d, g) in enumerate(zip(bodies, geo)):
-        props = mass_properties(g.vertices, g.triangles, d.density)
-        mass[i], com[i] = props.mass, props.com
-        I = props.inertia
+        if d.point_masses is None:
+            props = mass_properties(g.vertices, g.triangles, d.density)
+            mass[i], com[i], I = props.mass, props.com, props.inertia
+        else:
+            mass[i], com[i], I = _point_mass_properties(*d.point_masses)
         off = np.abs(I - np.diag(np.diag(I))).max()
         if off <= 1e-12 * np.abs(I).max():
             inertia[i], axes[i] = np.diag(I), np.eye(3)   # keep the user's axes when already principal
@@ -161,6 +171,16 @@ def _principal_frames(bodies, geo):
             if np.linalg.det(axes[i]) < 0:
                 axes[i][:, 2] *= -1
     return mass, inertia, axes, com
+
+
+def _point_mass_properties(points, masses):
+    """Mass (kg), centre of mass (3,) m and inertia (3, 3) kg m^2 about it of point masses."""
+    points, masses = np.asarray(points, float), np.asarray(masses, float)
+    total = masses.sum()
+    com = masses @ points / total
+    r = points - com
+    inertia = np.eye(3) * (masses @ np.einsum("ni,ni->n", r, r)) - np.einsum("n,ni,nj->ij", masses, r, r)
+    return total, com, inertia
 
 
 def _contact_points(geo, axes, local_points):

@@ -86,10 +86,28 @@ def cylinder_sdf(px, py, pz, r, hh, cx, cy, cz):
 
 @nb.njit(cache=True)
 def grid_sdf(values, start, shape, origin, cell, px, py, pz):
+    """Signed distance and unit normal of a grid body at a shape-frame point. Beyond the grid's
+    box (a sphere or capsule centre further out than the grid's padding, still within its radius
+    of the surface): the distance to the surface point nearest the box point closest to it (that
+    point less its distance along its normal), along the line to it."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     fx, fy, fz = (px - origin[0]) / cell, (py - origin[1]) / cell, (pz - origin[2]) / cell
     if fx < 0 or fy < 0 or fz < 0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
-        return FAR, 0.0, 0.0, 0.0
+        qx = origin[0] + cell * min(max(fx, 0.0), nx - 1.0)
+        qy = origin[1] + cell * min(max(fy, 0.0), ny - 1.0)
+        qz = origin[2] + cell * min(max(fz, 0.0), nz - 1.0)
+        phi, gx, gy, gz = _grid_inside(values, start, shape, origin, cell, qx, qy, qz)
+        sx, sy, sz = qx - phi * gx, qy - phi * gy, qz - phi * gz
+        d = math.sqrt((px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2)
+        ux, uy, uz = _unit(px - sx, py - sy, pz - sz)
+        return d, ux, uy, uz
+    return _grid_inside(values, start, shape, origin, cell, px, py, pz)
+
+
+@nb.njit(cache=True)
+def _grid_inside(values, start, shape, origin, cell, px, py, pz):
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    fx, fy, fz = (px - origin[0]) / cell, (py - origin[1]) / cell, (pz - origin[2]) / cell
     i, j, k = min(int(fx), nx - 2), min(int(fy), ny - 2), min(int(fz), nz - 2)
     tx, ty, tz = fx - i, fy - j, fz - k
     c = np.empty(8)

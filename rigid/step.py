@@ -6,16 +6,25 @@ resolved by :func:`rigid.resolve.resolve_contacts` (collisions at their time of 
 contact, shock propagation, penetration recovery); its names are re-exported here for callers
 that step through this module.
 """
+from typing import NamedTuple
+
 import numpy as np
 
 from . import quaternion as quat
-from .contacts import detect
+from .contacts import Contacts, concatenate, detect
 from .integrate import rotate_by, rotate_free
 from .model import world_inverse_inertia
 from .resolve import ContactSettings, Resolution, SolverBodies, resolve_contacts
 
-__all__ = ["ContactSettings", "Resolution", "SolverBodies", "drift", "kick", "reach",
+__all__ = ["ContactSettings", "Resolution", "SolverBodies", "Touches", "drift", "kick", "reach",
            "resolve_contacts", "solver_bodies", "step", "substep_count"]
+
+
+class Touches(NamedTuple):
+    """The contacts a step resolved (every substep's, one after another) and the impulse each
+    gave its side a ``(c, 3)`` N s, world (side b took the opposite)."""
+    contacts: Contacts
+    impulse: np.ndarray
 
 
 def kick(model, state, h, gravity):
@@ -66,12 +75,13 @@ def substep_count(model, state, dt, settings):
 
 
 def step(model, state, dt, gravity, settings=None):
-    """Advance ``state`` by ``dt`` seconds; returns the new state and the last substep's contacts.
+    """Advance ``state`` by ``dt`` seconds; returns the new state and the step's :class:`Touches`.
     ``settings``: ContactSettings (default: its defaults)."""
     settings = ContactSettings() if settings is None else settings
     gravity = np.asarray(gravity, float)
     n = substep_count(model, state, dt, settings)
-    contacts = None
+    touched = Touches(Contacts(*(np.zeros(0, np.int64),) * 2, *(np.zeros((0, 3)),) * 2,
+                               *(np.zeros(0),) * 3), np.zeros((0, 3)))
     for _ in range(n):
         h = dt / n
         v, v_at_t, gvec = kick(model, state, h, gravity)
@@ -80,7 +90,9 @@ def step(model, state, dt, gravity, settings=None):
                           reach(model, bodies, h), settings.margin)
         res = resolve_contacts(bodies, contacts, h, gravity, settings)
         state = drift(model, state, res, h, v)
-    return state, contacts
+        touched = Touches(concatenate(touched.contacts, contacts, 0, 0), np.concatenate(
+            [touched.impulse, res.collision_impulse + res.contact_impulse]))
+    return state, touched
 
 
 def reach(model, bodies, h):

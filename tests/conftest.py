@@ -23,11 +23,10 @@ class Sim(Simulation):
         self.keep_before_events = keep_before_events
         self.before_events = None
 
-    def _between_steps(self):
+    def _stepped(self, model, state):
         # with keep_before_events, the model and state of the last step before its events
         if self.keep_before_events:
-            self.before_events = (self.model, self.state)
-        return super()._between_steps()
+            self.before_events = (model, state)
 
     def advance(self, seconds, each=None):
         n = int(round(seconds / self.model.dt))

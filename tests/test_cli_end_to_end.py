@@ -42,7 +42,7 @@ angular_velocity = [3.0, -1.0, 2.0]
 BODY_NAMES = ["box", "ball"]
 FRAME_COUNT = 10            # t = 0, 1/30, ..., 0.3 s
 COLUMNS = ["time", "body", "x", "y", "z", "qw", "qx", "qy", "qz", "vx", "vy", "vz",
-           "wx", "wy", "wz", "kinetic_energy"]
+           "wx", "wy", "wz", "kinetic_energy", "model"]
 
 
 def hybrid(*args, cwd):
@@ -94,6 +94,7 @@ def test_bodies_csv_has_one_row_per_body_and_frame_with_consistent_kinetic_energ
         rows = list(reader)
     assert len(rows) == len(BODY_NAMES) * FRAME_COUNT
     assert [r["body"] for r in rows] == BODY_NAMES * FRAME_COUNT
+    assert {r["model"] for r in rows if r["body"] == "ball"} == {"rigid"}
     q = np.array([[float(r[k]) for k in ("qw", "qx", "qy", "qz")] for r in rows])
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
 
@@ -144,7 +145,9 @@ BAD_SCENES = {
     "unknown_key": (SMALL_SCENE.replace("output_fps = 30", "output_fps = 30\nbogus_key = 1"), "bogus_key"),
     # what `run` met only once it started (tracebacks, or `validate` saying OK to a scene `run` rejected)
     "no_bodies": (SMALL_SCENE[:SMALL_SCENE.index("[[bodies]]")], "[[bodies]]"),
-    "auto_model": (SMALL_SCENE.replace('name = "box"', 'name = "box"\nmodel = "auto"\nyoung = 1e6'), "model"),
+    "auto_thresholds": (SMALL_SCENE.replace('name = "box"', 'name = "box"\nmodel = "auto"\nyoung = 1e6\n'
+                                            'auto = { rigidify_strain = 1e-3, elastify_strain = 1e-4 }'),
+                        "auto.elastify_strain"),
     "anchor_holds_nothing": (SMALL_SCENE + 'model = "fem"\nyoung = 1e6\n'
                              '[[bodies.anchors]]\nbox = [[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]\n', "[[bodies.anchors]] 0 box"),
     "mesh_too_fine": (SMALL_SCENE.replace("size = [0.2, 0.1, 0.1] }", "size = [0.2, 0.1, 0.1], resolution = 1e-4 }"),

@@ -32,7 +32,8 @@ def tet_piece(t):
 
 
 def body_rows(t):
-    return [(t, body, 0.1 + 0.2, 1 / 3, t, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -t, 0.0, 0.0, 0.0, 1e-300 * 7)
+    return [(t, body, 0.1 + 0.2, 1 / 3, t, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -t, 0.0, 0.0, 0.0, 1e-300 * 7,
+             "fem")
             for body in (3, 7)]
 
 
@@ -139,7 +140,7 @@ def test_writer_creates_nothing_until_something_is_written(tmp_path):
 def test_bad_rows_and_shapes_are_rejected_before_writing(tmp_path):
     run_dir = tmp_path / "run"
     writer = RunWriter(run_dir, "demo")
-    with pytest.raises(ValueError, match="16"):
+    with pytest.raises(ValueError, match="17"):
         writer.write_frame(0.0, [box_piece(0.0)], [(0.0, 1, 2.0)])
     bad = FramePiece(1, BOX_POINTS, [("triangle", BOX_TRIANGLES)], cell_data={"von_mises": np.ones(5)})
     with pytest.raises(ValueError, match="von_mises"):

@@ -7,6 +7,8 @@ from fem.plasticity import von_mises
 from rigid import quaternion as quat
 from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_energy, reported_velocity
 
+from hybrid.coupling.switch import fem_state
+
 from .output import FramePiece
 
 
@@ -23,20 +25,40 @@ def tet_fields(fem_model, fem_state):
     return fields
 
 
+def _tet_piece(body_id, m, s):
+    """The FramePiece of an FEM body (model ``m``, state ``s``): its tets with their fields."""
+    cell = "tetra10" if m.order == 2 else "tetra"
+    cell_data = tet_fields(m, s) | {"deformable": np.int8(1)}       # rigid bodies' cells: 0
+    return FramePiece(body_id, s.x, [(cell, m.tets)], cell_data=cell_data,
+                      point_data={"displacement": s.x - m.rest_points, "velocity": s.v})
+
+
+def fem_states(model, state):
+    """``(body id, FemModel, FemState)`` of every FEM body and every auto body stepped as rigid
+    now (its parked shape carried by the rigid motion, its fields as they were when it became
+    rigid), so an auto body is always written as its tet mesh."""
+    out = [(int(k), m, s) for k, m, s in zip(model.fem_ids, model.fem, state.fem)]
+    for i, k in enumerate(model.rigid_ids):
+        parked = model.parked.get(int(k))
+        if parked is not None:
+            out.append((int(k), parked.fem, fem_state(parked, model.rigid, state.rigid, i,
+                                                      model.gravity)))
+    return out
+
+
 def frame_pieces(model, state):
-    """One FramePiece per body: rigid surfaces and FEM tet meshes in world coordinates."""
+    """One FramePiece per body: rigid surfaces and FEM tet meshes in world coordinates (auto
+    bodies as tet meshes however they are stepped)."""
     pieces = []
     rm, rs = model.rigid, state.rigid
     if rm.body_count:
         R = quat.to_matrix(rs.orientation)
         for i in range(rm.body_count):
+            if int(model.rigid_ids[i]) in model.parked:
+                continue
             pts = rs.position[i] + rm.surface_vertices[i] @ R[i].T
             pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
-    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
-        cell = "tetra10" if m.order == 2 else "tetra"
-        cell_data = tet_fields(m, s) | {"deformable": np.int8(1)}       # rigid bodies' cells: 0
-        pieces.append(FramePiece(int(model.fem_ids[j]), s.x, [(cell, m.tets)], cell_data=cell_data,
-                                 point_data={"displacement": s.x - m.rest_points, "velocity": s.v}))
+    pieces += [_tet_piece(k, m, s) for k, m, s in fem_states(model, state)]
     # the original scene body each piece came from (itself unless it is a fracture fragment)
     origin = model.fragment_of if model.fragment_of is not None else list(range(len(model.names)))
     for piece in pieces:
@@ -46,9 +68,11 @@ def frame_pieces(model, state):
 
 
 def body_rows(model, state):
-    """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy`` in scene order.
+    """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy,model`` in scene
+    order; ``model`` is how the body was stepped (``rigid`` or ``fem``).
 
-    Rigid: centre of mass, orientation of the body's own frame, velocity at the frame's time.
+    Rigid: centre of mass, orientation of the body's own frame, velocity at the frame's time; an
+    auto body stepped as rigid: the orientation its FEM row would give (continuous across switches).
     FEM: centre of mass, its scene orientation turned by its best-fit rotation (shape matching),
     momentum / mass, and the angular
     velocity I^-1 L of the node cloud about its centre of mass.
@@ -63,8 +87,10 @@ def body_rows(model, state):
         R_shape, _ = body_pose_in_shape_frame(rm, rs)
         q = quat.from_matrix(R_shape)
         for i in range(rm.body_count):
-            rows[int(model.rigid_ids[i])] = (t, model.names[model.rigid_ids[i]], *rs.position[i], *q[i],
-                                             *v[i], *w[i], float(ke[i]))
+            k = int(model.rigid_ids[i])
+            if k in model.parked:
+                q[i] = _parked_orientation(model, state, i, k)
+            rows[k] = (t, model.names[k], *rs.position[i], *q[i], *v[i], *w[i], float(ke[i]), "rigid")
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
         weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix
         mass = weights.sum()
@@ -76,17 +102,27 @@ def body_rows(model, state):
         placed = model.scene.bodies[model.fem_ids[j]].orientation
         q = quat.from_matrix(s.R @ quat.to_matrix(np.asarray(placed, float)))
         ke = fem_dyn.kinetic_energy(m, s)
-        rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w, ke)
+        rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w,
+                                       ke, "fem")
     return [tuple(float(x) if not isinstance(x, str) else x for x in rows[k]) for k in sorted(rows)]
+
+
+def _parked_orientation(model, state, i, k):
+    """Orientation (4,) of rigid auto body ``i`` (scene index ``k``) as its FEM row gives it: its
+    scene orientation turned by its best-fit rotation, carried by the rigid rotation since."""
+    parked = model.parked[k]
+    turn = quat.to_matrix(state.rigid.orientation[i]) @ parked.rotation.T
+    placed = quat.to_matrix(np.asarray(model.scene.bodies[k].orientation, float))
+    return quat.from_matrix(turn @ parked.state.R @ placed)
 
 
 def region_rows(model, state):
     """Rows ``time,body,region,fx,fy,fz,ux,uy,uz`` for every anchor and load region."""
     from fem.stress import region_table
     out = []
-    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+    for k, m, s in fem_states(model, state):
         for name, *values in region_table(m, s):
-            out.append((state.time, model.names[model.fem_ids[j]], name, *values))
+            out.append((state.time, model.names[k], name, *values))
     return out
 
 

@@ -36,7 +36,7 @@ import numpy as np
 
 BODY_COLUMNS = (
     "time", "body", "x", "y", "z", "qw", "qx", "qy", "qz",
-    "vx", "vy", "vz", "wx", "wy", "wz", "kinetic_energy",
+    "vx", "vy", "vz", "wx", "wy", "wz", "kinetic_energy", "model",
 )
 REGION_COLUMNS = ("time", "body", "region", "fx", "fy", "fz", "ux", "uy", "uz")
 

@@ -1,4 +1,4 @@
-"""Events between steps: plastic reference-shape updates, then fracture.
+"""Events between steps: plastic reference-shape updates, fracture, then auto bodies turning rigid.
 
     model, state, events = between_steps(model, state)
 
@@ -7,7 +7,9 @@ it touched. Plastic reference updates (``fem.reference``) bake large plastic str
 rest shape and refactorise that body only; fracture (:mod:`hybrid.coupling.fracture`) cracks FEM
 bodies and turns their pieces into bodies (:mod:`hybrid.coupling.fragments`). History the events
 keep between steps is state (``HybridState.fracture_pending``: crack faces waiting to open), so a
-check that only chooses faces returns the same model.
+check that only chooses faces returns the same model. Auto bodies calm long enough become rigid
+bodies (:mod:`hybrid.coupling.auto`, :mod:`hybrid.coupling.switch`); how many steps each has been
+calm is state (``HybridState.calm``).
 """
 from __future__ import annotations
 
@@ -15,7 +17,9 @@ from dataclasses import dataclass, replace
 
 from fem.reference import apply_reference_updates
 
+from .auto import rigid_due
 from .fracture import FractureEvent, apply_fracture, fragment_of
+from .switch import rigidify
 
 __all__ = ["between_steps", "apply_fracture", "fragment_of", "FractureEvent", "ReferenceUpdate"]
 
@@ -41,7 +45,7 @@ class ReferenceUpdate:
 
 
 def between_steps(model, state, timings=None):
-    """All events due after a step: reference-shape updates, then fracture.
+    """All events due after a step: reference-shape updates, fracture, auto bodies turning rigid.
 
     Returns ``(model, state, events)``: events are FractureEvents and ReferenceUpdate records,
     each with ``.message`` and ``.as_dict()``. ``timings``: see :func:`apply_fracture`."""
@@ -55,7 +59,9 @@ def between_steps(model, state, timings=None):
         events += [ReferenceUpdate(float(state.time), model.names[model.fem_ids[j]])
                    for j in updated]
     model, state, cracks = apply_fracture(model, state, timings)
-    return model, state, events + cracks
+    calm, due = rigid_due(model, state)
+    model, state, switched = rigidify(model, replace(state, calm=calm), due)
+    return model, state, events + cracks + switched
 
 
 def _forget(contact_sets, bodies):

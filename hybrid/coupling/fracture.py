@@ -38,8 +38,9 @@ from fem.split import (face_tet_slots, fragment_tet_slots, lumped_mass_p1, split
                        split_mesh, tet_slot_faces, transfer_node_state)
 from fem.stress import element_stress
 from rigid import quaternion as quat
+from rigid.compose import append_bodies
 
-from .fragments import RigidPiece, append_rigid, fem_fragment, rigid_fragments
+from .fragments import RigidPiece, fem_fragment, rigid_fragments
 
 
 @dataclass(frozen=True)
@@ -299,8 +300,8 @@ class _Bodies:
         if self.rigid_new:
             add_model, add_state = rigid_fragments(self.rigid_new, model.gravity,
                                                    rigid_state.last_dt)
-            rigid_model, rigid_state = append_rigid(rigid_model, rigid_state, add_model,
-                                                    add_state)
+            rigid_model, rigid_state = append_bodies(rigid_model, rigid_state, add_model,
+                                                     add_state)
         scene = replace(model.scene, bodies=tuple(self.scene_bodies))
         new_model = replace(model, rigid=rigid_model, rigid_ids=np.array(self.rigid_ids, dtype=int),
                             fem=self.fem, fem_ids=self.fem_ids, names=self.names, scene=scene,

@@ -6,7 +6,7 @@ A piece of a split FEM body (a :class:`fem.split.Fragment` of the split mesh) be
   (``fem.model.build_fem_model``), anchors and loads go with the nodes they hold (a load shared by
   pieces is split between them in proportion to the mass of its nodes in each), the regions keep
   their scene names, and the parent's per-node and per-element state is carried over; or
-- a rigid body (:func:`rigid_fragments`, then :func:`append_rigid`): its current surface
+- a rigid body (:func:`rigid_fragments`, then :func:`rigid.compose.append_bodies`): its current surface
   (``rigid.trimesh.tet_boundary``) with the piece's mass, linear and angular momentum.
 """
 from __future__ import annotations
@@ -180,42 +180,4 @@ def rigid_fragments(pieces, gravity, last_dt):
         state.velocity[i] = momentum / model.body_mass[i] - 0.5 * np.asarray(gravity) * last_dt
         r = piece.x - state.position[i]
         state.angular_momentum[i] = np.cross(r, piece.node_mass[:, None] * piece.v).sum(axis=0)
-    return model, state
-
-
-def _grid_count(rm):
-    return int(rm.grid_index.max()) + 1 if rm.body_count and rm.grid_index.max() >= 0 else 0
-
-
-def _appended_grids(rm, new_model):
-    """RigidModel fields of the signed-distance grids of ``rm`` followed by ``new_model``'s."""
-    ga, gb = _grid_count(rm), _grid_count(new_model)
-    grid_index_b = np.where(new_model.grid_index >= 0, new_model.grid_index + ga, -1)
-    changes = {"grid_index": np.concatenate([rm.grid_index, grid_index_b])}
-    if gb:
-        src = (rm,) if ga else ()
-        offset = len(rm.grid_values) if ga else 0
-        changes["grid_values"] = np.concatenate([g.grid_values for g in src + (new_model,)])
-        changes["grid_start"] = np.concatenate([rm.grid_start] * bool(ga) +
-                                               [new_model.grid_start + offset]).astype(np.int64)
-        for key in ("grid_shape", "grid_origin", "grid_cell"):
-            changes[key] = np.concatenate([getattr(g, key) for g in src + (new_model,)])
-    return changes
-
-
-def append_rigid(rm, rs, new_model, new_state):
-    """RigidModel/RigidState with the bodies of ``new_model`` appended (planes of ``rm`` kept)."""
-    per_body = ("body_mass", "body_inv_mass", "body_inertia", "body_inv_inertia", "body_fixed",
-                "body_friction", "body_restitution", "body_radius", "shape_kind", "shape_params",
-                "shape_rotation", "shape_offset", "point_local", "point_radius", "point_kind",
-                "point_ring", "point_axis", "body_min_extent")
-    changes = {k: np.concatenate([getattr(rm, k), getattr(new_model, k)]) for k in per_body}
-    changes["names"] = list(rm.names) + list(new_model.names)
-    changes["surface_vertices"] = list(rm.surface_vertices) + list(new_model.surface_vertices)
-    changes["surface_triangles"] = list(rm.surface_triangles) + list(new_model.surface_triangles)
-    changes["point_body"] = np.concatenate([rm.point_body, new_model.point_body + rm.body_count])
-    model = replace(rm, **changes, **_appended_grids(rm, new_model))     # point_start follows point_body
-    state = RigidState(*(np.concatenate([getattr(rs, k), getattr(new_state, k)])
-                         for k in ("position", "orientation", "velocity", "angular_momentum",
-                                   "contact_dv")), time=rs.time, last_dt=rs.last_dt)
     return model, state

@@ -30,6 +30,9 @@ class HybridModel:
     search needs of the body's mesh: strength, faces, smoothing, scene origin; None for a body
     that cannot break); None on a model built from a scene until the first fracture check fills
     it (hybrid.coupling.fracture.fracture_data), rebuilt only for the pieces of a split body.
+    parked: the auto bodies stepped as rigid bodies now, by scene index: each one's
+    :class:`hybrid.coupling.switch.Parked` (its FEM model, kept factorised, and its FEM state
+    when it became rigid); empty when none is.
     cache: CouplingCache, the coupled step's memos (a derived model starts with an empty one).
     """
     rigid: object
@@ -43,6 +46,7 @@ class HybridModel:
     scene: object = None
     fragment_of: list = None
     fracture: list = None
+    parked: dict = field(default_factory=dict)
     cache: CouplingCache = field(default_factory=CouplingCache, init=False, compare=False, repr=False)
 
 
@@ -64,6 +68,9 @@ class HybridState:
     or an open crack, so chosen faces wait here until they do); None when no face waits in any
     body (hybrid.coupling.fracture). A split hands each deformable piece its own still-closed
     faces; reference-shape updates keep the tets, so the rows stay valid.
+    Auto bodies (hybrid.coupling.auto): touches: the last step's contact impulses on rigid auto
+    bodies (:class:`hybrid.coupling.auto.Touches`, None without any); calm: per FEM auto body
+    (scene index), how many steps in a row it has been calm enough to become rigid.
     """
     rigid: object
     fem: list = field(default_factory=list)
@@ -73,3 +80,5 @@ class HybridState:
     resting: tuple = None
     contact_sets: tuple = None
     fracture_pending: tuple = None
+    touches: object = None
+    calm: dict = field(default_factory=dict)

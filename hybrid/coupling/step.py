@@ -21,11 +21,14 @@ from fem.model import holding
 from rigid import step as rigid_step
 
 from . import held, resting
+from .auto import Touches, auto_bodies, fem_due, held_touches, scene_indices
 from .detect import detect_all
+from .events import between_steps
 from .memory import ContactMemory, contact_keys
 from .nodes import SurfaceNodes
 from .problem import build_problem, log  # noqa: F401  (log: the step's messages)
 from .solve import integrate, solve
+from .switch import elastify
 from .stability import MAX_DISTANCE, MAX_SPEED, InstabilityError, check_finite  # noqa: F401
 
 
@@ -35,8 +38,11 @@ def step(model, state, dt=None):
     InstabilityError naming the body whose state diverged."""
     dt = model.dt if dt is None else dt
     if not model.fem:
-        rigid, _ = rigid_step.step(model.rigid, state.rigid, dt, model.gravity, model.settings)
-        new = replace(state, rigid=rigid, time=state.time + dt, steps=state.steps + 1)
+        rigid, touched = rigid_step.step(model.rigid, state.rigid, dt, model.gravity, model.settings)
+        auto = auto_bodies(model)
+        touches = Touches.of(auto, *touched, scene_indices(model)) if len(auto) else None
+        new = replace(state, rigid=rigid, time=state.time + dt, steps=state.steps + 1,
+                      touches=touches)
     else:
         new = coupled_step(model, state, dt)
         while isinstance(new, held.LetGo):     # a held body's resting nodes let go: again, them free
@@ -44,6 +50,26 @@ def step(model, state, dt=None):
             new = coupled_step(model, state, dt)
     check_finite(model, new)
     return new
+
+
+def advance(model, state, timings=None, stepped=None):
+    """One step of the simulation: ``(model, state, events)``. The bodies step (:func:`step`);
+    a rigid auto body the step would strain past its threshold makes it be taken again with that
+    body deformable (hybrid.coupling.auto.fem_due, before the step is kept); then the events
+    between steps (hybrid.coupling.events.between_steps: reference-shape updates, fracture, auto
+    bodies turning rigid). ``timings``: see hybrid.coupling.fracture.apply_fracture.
+    ``stepped(model, state)``, if given, is called with them after the step, before its events."""
+    new, switched = step(model, state), []
+    due = fem_due(model, state, new)
+    while due:
+        model, state, events = elastify(model, state, due)
+        switched += events
+        new = step(model, state)
+        due = fem_due(model, state, new)
+    if stepped is not None:
+        stepped(model, new)
+    model, new, events = between_steps(model, new, timings)
+    return model, new, switched + events
 
 
 def coupled_step(model, state, h):
@@ -83,10 +109,15 @@ def coupled_step(model, state, h):
     if let_go is not None:
         return let_go
     c_held = found.nodes.take(rows)
+    auto = auto_bodies(model)
+    touches = None if not len(auto) else Touches.of(
+        auto, problem.contacts, res.collision_impulse + res.contact_impulse,
+        scene_indices(model, problem.parts)).plus(
+        held_touches(model, auto, nodes, c_held, row_impulse[rows]))
     keys = np.concatenate([problem.keys, contact_keys(c_held.body_a, c_held.body_b, nodes.count,
                                                       model.rigid.body_count, False)])
     memory = ContactMemory.of(keys, np.concatenate([res.contact_impulse, row_impulse[rows]]))
     # history the step does not change (faces waiting to open) carries over
     return replace(state, rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
                    contact_memory=memory, resting=held.watch(model, state, nodes, found, row_impulse),
-                   contact_sets=problem.contact_sets)
+                   contact_sets=problem.contact_sets, touches=touches)

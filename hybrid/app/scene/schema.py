@@ -152,14 +152,17 @@ AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body 
                "element's strain rate times the body's response time, the longer of its elastic wave "
                "transit time (largest extent over sqrt(young / density)) and the step: dimensionless, "
                "so the defaults hold from rubber to steel and centimetres to metres.", (
-    _positive("rigidify_strain", 1e-5, "", "An FEM auto body becomes rigid once its largest measured "
-              "strain rate stays below this for `window` steps (and nothing yields, its largest "
+    _positive("rigidify_strain", 1e-4, "", "An FEM auto body becomes rigid once its largest measured "
+              "strain stays below this for `window` steps (and nothing yields, its largest "
               "principal stress is below `fracture_margin` of `fracture_stress`, its anchors are "
-              "still and it has no load unless anchored)."),
-    _positive("elastify_strain", 1e-4, "", "A rigid auto body becomes FEM again, before the step is "
+              "still and it has no load unless anchored). At most a tenth of the elastify "
+              "threshold in use."),
+    _positive("elastify_strain", 1e-3, "", "A rigid auto body becomes FEM again, before the step is "
               "taken, when the change of its contact impulses in that step would strain it by more "
-              "than this (predicted through its kept FEM factorisation). Must exceed "
-              "`rigidify_strain`."),
+              "than this (predicted through its kept FEM factorisation). A plastic or breakable "
+              "body uses at most half its yield strain `yield_stress / young` (and half "
+              "`fracture_stress / young`), so it is deformable before anything yields or cracks. "
+              "Must exceed `rigidify_strain`."),
     Field("window", "integer", 10, "", "Steps the strain rate must stay low before rigidifying; "
           "also the fewest steps between two switches of a body.", low=1),
     Field("fracture_margin", "number", 0.5, "", "A breakable body rigidifies only while its largest "

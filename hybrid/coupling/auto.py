@@ -1,0 +1,270 @@
+"""Auto bodies (``model = "auto"``): when each is stepped as a rigid body and when as an FEM body.
+
+An auto body is an FEM body while loads deform it and a rigid body while its deformation does not
+change (after Mercier-Aubin, Winter, Levin and Kry 2022, adaptive rigidification):
+
+- it becomes rigid (:func:`rigid_due`, checked between steps) once its measured strain has stayed
+  below ``rigidify_strain`` for ``window`` steps, no element of it yields, its largest principal
+  stress is below ``fracture_margin`` of its ``fracture_stress``, no crack face of it waits to
+  open, its anchors are still and, unless anchored, it carries no load;
+- it becomes an FEM body again (:func:`fem_due`, checked after a step, before the step is kept)
+  when the change of the contact impulses it took in that step, applied to its kept FEM system,
+  would strain it by more than ``elastify_strain``: the step is then taken again with it
+  deformable (hybrid.coupling.step.advance).
+
+Strain is measured as an element's strain rate (fem.stress.element_strain_rate) times the body's
+response time, the longer of its elastic wave transit time (largest extent over sqrt(E / rho))
+and the step: the strain amplitude of a vibration when the body answers within a step, the strain
+one step adds when it answers more slowly. Both are dimensionless, so one default serves rubber
+and steel, centimetres and metres. The switches themselves are :mod:`hybrid.coupling.switch`.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from fem import dynamics as fem_dyn
+from fem.stress import element_strain_rate, element_stress, principal_stress_max
+from fem.system import system_factorisation
+from rigid import quaternion as quat
+
+
+@dataclass(frozen=True)
+class Switch:
+    """An auto body changed how it is stepped. time: s. body: its name. event: ``"rigidify"``
+    (stepped as a rigid body from now) or ``"elastify"`` (as an FEM body again)."""
+    time: float
+    body: str
+    event: str
+
+    @property
+    def message(self):
+        """One line for the run log."""
+        kind = "a rigid body" if self.event == "rigidify" else "an FEM body again"
+        return f"t = {self.time:.4f} s: '{self.body}' is stepped as {kind} ({self.event})"
+
+    def as_dict(self):
+        """JSON-ready summary row: time, body, event kind."""
+        return {"time": self.time, "body": self.body, "event": self.event}
+
+
+@dataclass(frozen=True)
+class Touches:
+    """The contact impulses rigid auto bodies took over one step, one row per contact side:
+    body (c,) the auto body's scene index, partner (c,) the other side's (-1: a plane or static
+    ground), point (c, 3) m world, impulse (c, 3) N s on the auto body (world)."""
+    body: np.ndarray
+    partner: np.ndarray
+    point: np.ndarray
+    impulse: np.ndarray
+
+    @classmethod
+    def between(cls, auto, a, b, point, impulse):
+        """The rows of contacts between scene bodies ``a`` and ``b`` (c,) (-1: a plane or static
+        ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a, that touch a body of
+        ``auto`` (scene indices), from that body's side."""
+        on_a, on_b = np.isin(a, auto), np.isin(b, auto)
+        return cls(np.concatenate([a[on_a], b[on_b]]), np.concatenate([b[on_a], a[on_b]]),
+                   np.concatenate([point[on_a], point[on_b]]),
+                   np.concatenate([impulse[on_a], -impulse[on_b]]))
+
+    @classmethod
+    def of(cls, auto, contacts, impulse, scene_of):
+        """:meth:`between` for ``contacts`` whose bodies are numbered as ``scene_of`` (s,) gives
+        their scene indices (-1 stays -1)."""
+        a = np.where(contacts.body_a >= 0, scene_of[np.maximum(contacts.body_a, 0)], -1)
+        b = np.where(contacts.body_b >= 0, scene_of[np.maximum(contacts.body_b, 0)], -1)
+        return cls.between(auto, a, b, contacts.point, impulse)
+
+    def plus(self, other):
+        """These rows followed by ``other``'s."""
+        return Touches(*(np.concatenate([getattr(self, f), getattr(other, f)])
+                         for f in ("body", "partner", "point", "impulse")))
+
+    def of_body(self, k):
+        """``(partner, point, impulse)`` rows of body ``k``."""
+        rows = self.body == k
+        return self.partner[rows], self.point[rows], self.impulse[rows]
+
+
+def auto_bodies(model):
+    """Scene indices ``(a,)`` of the auto bodies, however they are stepped now."""
+    fem = [k for k in model.fem_ids if settings(model, k) is not None]
+    return np.array(sorted(set(fem) | set(model.parked)), dtype=np.int64)
+
+
+def settings(model, index):
+    """The switching thresholds (scene ``auto`` table) of body ``index``, None unless it is an
+    auto body."""
+    body = model.scene.bodies[index] if model.scene is not None else None
+    return body.auto if body is not None and body.model == "auto" else None
+
+
+def thresholds(model, index):
+    """``(rigidify, elastify)`` strains in use for auto body ``index``: the scene's, elastify at
+    most half the body's yield and fracture strains (it turns deformable before anything yields
+    or cracks), rigidify at most a tenth of that."""
+    auto, body = settings(model, index), model.scene.bodies[index]
+    elastify = auto.elastify_strain
+    for stress in (body.yield_stress, body.fracture_stress):
+        if stress is not None:
+            elastify = min(elastify, 0.5 * stress / body.young)
+    return min(auto.rigidify_strain, 0.1 * elastify), elastify
+
+
+def response_time(fem, h):
+    """The body's response time (s): its elastic wave transit time or the step ``h``, the longer."""
+    extent = float(np.ptp(fem.rest_points, axis=0).max())
+    return max(extent / np.sqrt(fem.young / fem.density), h)
+
+
+def strain_measure(fem, x, v, h, inverse_F=None):
+    """Largest element strain rate of velocities ``v`` at shape ``x`` times the response time
+    (``inverse_F``: see fem.stress.element_strain_rate)."""
+    return float(element_strain_rate(fem, x, v, inverse_F).max()) * response_time(fem, h)
+
+
+# --- rigidify ----------------------------------------------------------------------------------
+
+def may_be_rigid(fem):
+    """Whether the body can be stepped as a rigid body at all: anchors still (an anchored body
+    is then fixed) and, unless anchored, no load (a rigid body carries no applied force)."""
+    if fem.has_anchors:
+        return not np.any(fem.anchor_velocity)
+    return not np.any(fem.load_force)
+
+
+def _calm(model, state, j, auto):
+    """Whether FEM body ``j`` is calm enough this step to count towards becoming rigid."""
+    m, s = model.fem[j], state.fem[j]
+    if not may_be_rigid(m) or (s.tet_yielded is not None and s.tet_yielded.any()):
+        return False
+    if state.fracture_pending is not None and len(state.fracture_pending[j]):
+        return False
+    rigidify = thresholds(model, model.fem_ids[j])[0]
+    if strain_measure(m, s.x, s.v, model.dt) >= rigidify or _approaching(model, state, j, rigidify):
+        return False
+    strength = model.scene.bodies[model.fem_ids[j]].fracture_stress
+    if strength is None:
+        return True
+    sigma = element_stress(m, s, s.tet_plastic_strain)
+    return float(principal_stress_max(sigma).max()) < auto.fracture_margin * strength
+
+
+def _approaching(model, state, j, rigidify):
+    """Whether FEM body ``j`` is moving while a contact it took no impulse from waits within
+    reach (it is about to touch something: turned rigid now, it would turn back on landing). A
+    body counts as moving at a centre speed above ``rigidify`` strain over its response time."""
+    if state.touches is None:
+        return False
+    impulse = state.touches.of_body(model.fem_ids[j])[2]
+    if not len(impulse) or np.all(np.any(impulse != 0.0, axis=1)):
+        return False
+    m, s = model.fem[j], state.fem[j]
+    speed = float(np.linalg.norm(fem_dyn.mass_weights(m) @ s.v)) / float(m.node_mass.sum())
+    extent = float(np.ptp(m.rest_points, axis=0).max())
+    return speed > rigidify * extent / response_time(m, model.dt)
+
+
+def rigid_due(model, state):
+    """``(calm, due)``: every FEM auto body's count of calm steps in a row (scene index ->
+    steps) and the FEM bodies (indices into model.fem) to turn rigid now: those calm for their
+    ``window``, and fracture pieces smaller than ``rigid_fragment_tets`` as soon as they are
+    calm (the size hint of ``fragment_model = "auto"``)."""
+    calm, due = {}, []
+    for j, k in enumerate(model.fem_ids):
+        auto = settings(model, k)
+        if auto is None:
+            continue
+        calm[k] = state.calm.get(k, 0) + 1 if _calm(model, state, j, auto) else 0
+        body = model.scene.bodies[k]
+        small = model.fragment_of is not None and model.fragment_of[k] != k \
+            and model.fem[j].tet_count < body.rigid_fragment_tets
+        if calm[k] >= auto.window or (small and calm[k]):
+            due.append(j)
+    return calm, due
+
+
+# --- elastify ----------------------------------------------------------------------------------
+
+def impulse_change(before, after, k):
+    """``(points (r, 3), impulses (r, 3))``: how the contact impulses on body ``k`` changed from
+    the touches ``before`` to ``after``. Each partner's rows now scaled by the part of its total
+    that is new (its rows whole for a new partner, none for a steady one: a body resting under a
+    steady load does not change, however the solver shares the load among its points), and the
+    rows of a partner that let go, negated. None when nothing touches it in either."""
+    partner, point, impulse = after.of_body(k)
+    old_partner, old_point, old_impulse = (before.of_body(k) if before is not None
+                                           else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))))
+    if not len(partner) and not len(old_partner):
+        return None
+    points, changes = [], []
+    for p in np.unique(partner):
+        rows = partner == p
+        total, old_total = impulse[rows].sum(axis=0), old_impulse[old_partner == p].sum(axis=0)
+        scale = 1.0 - float(total @ old_total) / max(float(total @ total), 1e-300)
+        points.append(point[rows])
+        changes.append(scale * impulse[rows])
+    gone = ~np.isin(old_partner, partner)
+    points.append(old_point[gone])
+    changes.append(-old_impulse[gone])
+    return np.concatenate(points), np.concatenate(changes)
+
+
+def predicted_strain(parked, position, rotation, points, impulses, h):
+    """The strain measure of the velocity change the impulses ``(r, 3)`` N s (world) at
+    ``points`` (r, 3) m would give the parked body's FEM system (each at its nearest surface
+    node), the body's rigid pose now being ``position`` (3,), ``rotation`` (3, 3)."""
+    fem, rest = parked.fem, parked.state
+    local = (points - position) @ rotation               # body frame, as parked.local
+    nodes = parked.surface_nodes[parked.tree.query(local)[1]]
+    node_impulse = np.zeros((fem.node_count, 3))
+    # world now -> world when parked (turn back by the rotation since), -> the FEM body's frame
+    turn = rotation @ parked.rotation.T
+    np.add.at(node_impulse, nodes, impulses @ turn)
+    j_b = (node_impulse @ rest.R).ravel()
+    dv = np.zeros_like(j_b)
+    solve = system_factorisation(fem, h).solve
+    if fem.anchored:
+        dv[fem.free_dofs] = solve(j_b[fem.free_dofs])
+    else:
+        dv = solve(j_b)
+    return strain_measure(fem, rest.x, dv.reshape(-1, 3) @ rest.R.T, h, parked.inverse_F)
+
+
+def fem_due(model, before, after):
+    """Scene indices of the rigid auto bodies that the step from ``before`` to ``after`` would
+    strain beyond their ``elastify_strain`` (they must take it again as FEM bodies)."""
+    if not model.parked or after.touches is None:
+        return []
+    due = []
+    for k, parked in sorted(model.parked.items()):
+        change = impulse_change(before.touches, after.touches, k)
+        if change is None or not len(change[0]):
+            continue
+        i = int(np.flatnonzero(model.rigid_ids == k)[0])
+        R = quat.to_matrix(before.rigid.orientation[i])
+        strain = predicted_strain(parked, before.rigid.position[i], R, *change, model.dt)
+        if strain > thresholds(model, k)[1]:
+            due.append(k)
+    return due
+
+
+def scene_indices(model, parts=None):
+    """Scene index of every solver body: the rigid bodies, then (with ``parts``, the step's
+    :class:`hybrid.coupling.problem.Particles`) the particles and places of FEM bodies."""
+    rigid = np.asarray(model.rigid_ids, dtype=np.int64)
+    if parts is None:
+        return rigid
+    fem_ids = np.asarray(model.fem_ids, dtype=np.int64)
+    place_body = parts.node_body[parts.corners[:, 0]] if len(parts.corners) else np.zeros(0, np.int64)
+    return np.concatenate([rigid, fem_ids[parts.body], fem_ids[place_body]])
+
+
+def held_touches(model, auto, nodes, contacts, impulse):
+    """:class:`Touches` of held resting nodes' contacts (found's numbering: stacked surface nodes
+    ``nodes`` on side a, rigid bodies or -1 on side b) with ``impulse`` (c, 3) on the nodes."""
+    fem_ids = np.asarray(model.fem_ids, dtype=np.int64)
+    a = fem_ids[nodes.body[contacts.body_a]]
+    rigid = np.asarray(model.rigid_ids, dtype=np.int64)
+    b = np.where(contacts.body_b >= 0, rigid[np.maximum(contacts.body_b, 0)] if len(rigid) else -1, -1)
+    return Touches.between(auto, a, b, contacts.point, impulse)

@@ -1,0 +1,167 @@
+"""Auto bodies switching between FEM and rigid (when: :mod:`hybrid.coupling.auto`).
+
+    model, state, events = rigidify(model, state, bodies)    # FEM bodies -> rigid bodies
+    model, state, events = elastify(model, state, indices)   # rigid auto bodies -> FEM bodies
+
+A body turned rigid keeps its deformed shape (its sag under load stays in it): its surface is the
+FEM surface where the nodes are, its mass, centre of mass and inertia those of its lumped node
+masses there, so its linear and angular momentum carry over exactly (and its kinetic energy, for
+a velocity field that was rigid); an anchored body becomes a fixed one. Its FEM model and state
+are kept, parked in ``HybridModel.parked`` (the model keeps its factorisation): turned back, it
+resumes from that deformed shape carried along by the rigid motion since, with the rigid velocity
+field as its node velocities and its plastic strain unchanged.
+"""
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fem import dynamics as fem_dyn
+from fem.momentum import skew
+from fem.stress import inverse_deformation_gradients
+from rigid import quaternion as quat
+from rigid.build import RigidBodyDesc, build_rigid
+from rigid.compose import append_bodies, take_bodies
+from rigid.model import angular_velocity, reported_velocity
+from rigid.trimesh import compact
+
+from .auto import Switch
+from .fracture import fracture_data
+
+
+# cells across a body's signed-distance grid when it turns rigid: others meet it through the
+# grid; 20 across builds in 0.07 s where the default 40 take 0.6 s (a switch waits for it)
+GRID_CELLS = 20
+
+
+@dataclass(frozen=True)
+class Parked:
+    """An auto body stepped as a rigid body, as it was when it became rigid.
+
+    fem: its FemModel (factorised). state: its FemState then. fracture: its
+    hybrid.coupling.fracture.FractureBody (or None). position (3,) m, rotation (3, 3): the rigid
+    body's pose then. local: (n, 3) m its nodes in the rigid body's frame. surface_nodes (s,) and
+    tree (a cKDTree of their ``local``): to find the node nearest a contact point. inverse_F
+    (t, 3, 3): its elements' inverse deformation gradients then (the predicted strain's).
+    """
+    fem: object
+    state: object
+    fracture: object
+    position: np.ndarray
+    rotation: np.ndarray
+    local: np.ndarray
+    surface_nodes: np.ndarray
+    tree: object
+    inverse_F: np.ndarray
+
+    def nodes_at(self, position, rotation):
+        """The nodes ``(n, 3)`` m where the rigid body at pose (position, rotation) has them."""
+        return position + self.local @ rotation.T
+
+
+def _drop(values, index):
+    """A per-FEM-body tuple without the entries of ``index`` (None stays None)."""
+    return None if values is None else tuple(v for j, v in enumerate(values) if j not in index)
+
+
+def _rigid_bodies(model, state, bodies):
+    """RigidModel/RigidState of FEM ``bodies`` as rigid bodies, momentum carried over."""
+    descs = []
+    for j in bodies:
+        m, s, k = model.fem[j], state.fem[j], model.fem_ids[j]
+        scene_body = model.scene.bodies[k]
+        vertices, triangles, _ = compact(s.x, m.surface)
+        descs.append(RigidBodyDesc(name=model.names[k], vertices=vertices, triangles=triangles,
+                                   density=m.density, friction=scene_body.friction,
+                                   restitution=scene_body.restitution, fixed=m.has_anchors,
+                                   point_masses=(s.x, m.node_mass), grid_cells=GRID_CELLS))
+    rm, rs = build_rigid(descs, [])
+    last_dt = state.rigid.last_dt
+    for i, j in enumerate(bodies):
+        m, s = model.fem[j], state.fem[j]
+        if rm.body_fixed[i]:
+            continue
+        momentum = fem_dyn.mass_weights(m) @ s.v
+        # leapfrog keeps the mid-step velocity and the last step's contact velocity change, half
+        # of each added back when the velocity is reported (rigid.model.reported_velocity): a
+        # body resting on the ground goes on taking its weight's impulse each step
+        touched = state.touches.of_body(model.fem_ids[j])[2] if state.touches is not None else ()
+        rs.contact_dv[i] = np.sum(touched, axis=0) / rm.body_mass[i] if len(touched) else 0.0
+        rs.velocity[i] = momentum / rm.body_mass[i] - 0.5 * (model.gravity * last_dt + rs.contact_dv[i])
+        rs.angular_momentum[i] = fem_dyn.mass_moments(m, s.x - rs.position[i], s.v)[1]
+    return rm, rs
+
+
+def rigidify(model, state, bodies):
+    """Turn the FEM auto ``bodies`` (indices into model.fem) into rigid bodies; returns the new
+    model, state and their Switch events."""
+    if not bodies:
+        return model, state, []
+    rm, rs = _rigid_bodies(model, state, bodies)
+    model = replace(model, fracture=fracture_data(model))       # each body's own goes parked with it
+    parked = dict(model.parked)
+    for i, j in enumerate(bodies):
+        m, s = model.fem[j], state.fem[j]
+        R = quat.to_matrix(rs.orientation[i])
+        local = (s.x - rs.position[i]) @ R
+        parked[model.fem_ids[j]] = Parked(m, s, model.fracture[j], rs.position[i].copy(), R, local,
+                                          m.surface_nodes, cKDTree(local[m.surface_nodes]),
+                                          inverse_deformation_gradients(m, s.x))
+    rigid, rigid_state = append_bodies(model.rigid, state.rigid, rm, rs)
+    gone = set(bodies)
+    keep = [j for j in range(len(model.fem)) if j not in gone]
+    new_model = replace(model, rigid=rigid, rigid_ids=np.concatenate(
+        [model.rigid_ids, [model.fem_ids[j] for j in bodies]]).astype(int),
+        fem=[model.fem[j] for j in keep], fem_ids=[model.fem_ids[j] for j in keep],
+        fracture=_drop(model.fracture, gone), parked=parked)
+    new_state = replace(state, rigid=rigid_state, fem=[state.fem[j] for j in keep],
+                        contact_memory=None, resting=_drop(state.resting, gone),
+                        contact_sets=_drop(state.contact_sets, gone),
+                        fracture_pending=_drop(state.fracture_pending, gone))
+    events = [Switch(float(state.time), model.names[model.fem_ids[j]], "rigidify") for j in bodies]
+    return new_model, new_state, events
+
+
+def fem_state(parked, rm, rs, i, gravity):
+    """The FemState of parked body at rigid index ``i``: its parked shape moved by the rigid
+    motion since, node velocities the rigid velocity field now."""
+    s = parked.state
+    if rm.body_fixed[i]:
+        return s.replace(v=np.zeros_like(s.v), time=rs.time)
+    R = quat.to_matrix(rs.orientation[i])
+    position = rs.position[i]
+    x = parked.nodes_at(position, R)
+    v_c = reported_velocity(rm, rs, gravity)[i]
+    w = angular_velocity(rm, rs)[i]
+    turn = R @ parked.rotation.T
+    return s.replace(x=x, v=v_c + (x - position) @ skew(w).T, R=turn @ s.R,
+                     c=position + turn @ (s.c - parked.position), time=rs.time)
+
+
+def elastify(model, state, indices):
+    """Turn the rigid auto bodies of scene ``indices`` back into FEM bodies; returns the new
+    model, state and their Switch events."""
+    if not indices:
+        return model, state, []
+    rm, rs = model.rigid, state.rigid
+    at = [int(np.flatnonzero(model.rigid_ids == k)[0]) for k in indices]
+    fems = [model.parked[k].fem for k in indices]
+    states = [fem_state(model.parked[k], rm, rs, i, model.gravity) for k, i in zip(indices, at)]
+    keep = [i for i in range(rm.body_count) if i not in at]
+    rigid, rigid_state = take_bodies(rm, rs, keep)
+    parked = {k: p for k, p in model.parked.items() if k not in indices}
+    fracture = tuple(fracture_data(model)) + tuple(model.parked[k].fracture for k in indices)
+    new_model = replace(model, rigid=rigid, rigid_ids=model.rigid_ids[keep],
+                        fem=list(model.fem) + fems, fem_ids=list(model.fem_ids) + list(indices),
+                        fracture=fracture, parked=parked)
+    more = (None,) * len(indices)
+    pending = None if state.fracture_pending is None else \
+        tuple(state.fracture_pending) + tuple(np.zeros((0, 2), np.int64) for _ in indices)
+    new_state = replace(state, rigid=rigid_state, fem=list(state.fem) + states,
+                        contact_memory=None,
+                        resting=None if state.resting is None else tuple(state.resting) + more,
+                        contact_sets=None if state.contact_sets is None else tuple(state.contact_sets) + more,
+                        fracture_pending=pending,
+                        calm={k: c for k, c in state.calm.items() if k not in indices})
+    events = [Switch(float(state.time), model.names[k], "elastify") for k in indices]
+    return new_model, new_state, events

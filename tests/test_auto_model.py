@@ -1,0 +1,155 @@
+"""model = "auto": bodies stepped as rigid while their deformation does not change and as FEM while
+a load would deform them (hybrid.coupling.auto, hybrid.coupling.switch), checked against the same
+scenes run all-FEM and against exact conservation at the switches."""
+import numpy as np
+
+from fem.momentum import rigid_part
+from hybrid.app import observe
+
+from conftest import Sim
+
+BLOCK = """
+[[bodies]]
+name = "block"
+model = "{model}"
+young = 1e6
+density = 1000
+shape = {{ type = "box", size = [0.2, 0.1, 0.1], resolution = 0.05 }}
+velocity = {velocity}
+angular_velocity = {spin}
+damping = {{ stiffness = {beta} }}
+{extra}
+"""
+
+ZERO_G = """
+[simulation]
+duration = 1.0
+dt = 0.001
+gravity = [0, 0, 0]
+"""
+
+
+def _events(sim, kind):
+    return [e for e in sim.events if getattr(e, "event", None) == kind]
+
+
+def _relative(a, b, scale):
+    return float(np.linalg.norm(np.asarray(a) - np.asarray(b))) / scale
+
+
+def test_a_free_spinning_body_turns_rigid_with_momentum_and_energy_exact():
+    sim = Sim(ZERO_G + BLOCK.format(model="auto", velocity="[0.3, 0.1, -0.2]",
+                                    spin="[0.5, -1.0, 2.0]", beta=0.01,
+                                    extra="auto = { rigidify_strain = 1e-6 }"),
+              keep_before_events=True)
+    for _ in range(400):
+        sim.step()
+        if _events(sim, "rigidify"):
+            break
+    assert _events(sim, "rigidify"), "a calm free body should become rigid"
+    assert sim.body("block").kind == "rigid"
+    before_model, before_state = sim.before_events
+    e0, P0, L0 = observe.totals(before_model, before_state)
+    e1, P1, L1 = observe.totals(sim.model, sim.state)
+    linear, angular = observe.momentum_scales(before_model, before_state)
+    assert _relative(P1, P0, linear) < 1e-9
+    assert _relative(L1, L0, angular) < 1e-9
+    ke0 = observe.body_rows(before_model, before_state)[0][15]
+    ke1 = sim.body("block").kinetic_energy
+    assert abs(ke1 - ke0) < 1e-9 * ke0
+    # what it gave up is exactly the kinetic energy of its velocities' deformational part
+    m, s = before_model.fem[0], before_state.fem[0]
+    relative = s.v - rigid_part(m, s.x, s.v)
+    assert abs((ke0 - ke1) - 0.5 * m.node_mass @ np.einsum("ni,ni->n", relative, relative)) < 1e-12 * ke0
+    # and it flies on as the rigid body it is: momentum, energy unchanged over further steps
+    sim.advance(0.05)
+    assert sim.body("block").kind == "rigid"
+    e2, P2, L2 = observe.totals(sim.model, sim.state)
+    assert _relative(P2, P0, linear) < 1e-9 and _relative(L2, L0, angular) < 1e-9
+    assert abs(sim.body("block").kinetic_energy - ke0) < 1e-9 * ke0
+
+
+HIT = ZERO_G + BLOCK.format(model="{model}", velocity="[0, 0, 0]", spin="[0, 0, 0]", beta=0.0,
+                            extra="") + """
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.03 }
+density = 7800
+position = [-0.16, 0.01, 0.0]
+velocity = [2, 0, 0]
+"""
+
+
+def _run_hit(model, steps):
+    sim = Sim(HIT.replace("{model}", model).replace("{{", "{").replace("}}", "}"))
+    first_touch = None
+    for _ in range(steps):
+        sim.step()
+        if first_touch is None and np.linalg.norm(sim.body("ball").velocity - [2, 0, 0]) > 1e-9:
+            first_touch = sim.time
+    return sim, first_touch
+
+
+def test_a_rigid_auto_body_struck_turns_deformable_before_the_impact_step():
+    auto, touched = _run_hit("auto", 60)
+    fem, fem_touched = _run_hit("fem", 60)
+    rigidified, elastified = _events(auto, "rigidify"), _events(auto, "elastify")
+    assert rigidified and elastified
+    # rigid before the ball arrives, deformable for the step that has the impact
+    assert rigidified[0].time < touched - auto.dt
+    assert elastified[0].time <= touched - auto.dt + 1e-12
+    assert touched == fem_touched
+    # the impact as in the all-FEM run, momentum of the pair conserved through it
+    for name in ("ball", "block"):
+        assert np.allclose(auto.body(name).velocity, fem.body(name).velocity, atol=1e-9)
+    _, P_auto, _ = observe.totals(auto.model, auto.state)
+    assert abs(P_auto[0] - 2 * auto.model.rigid.body_mass[0]) < 1e-9 * abs(P_auto[0])
+
+
+SOFT = """
+[simulation]
+duration = 1.0
+dt = 0.002
+[[planes]]
+[[bodies]]
+name = "low"
+model = "{model}"
+young = 1e5
+density = 1000
+shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.067 }}
+position = [0, 0, 0.11]
+damping = {{ stiffness = 0.002 }}
+[[bodies]]
+name = "high"
+model = "{model}"
+young = 1e5
+density = 1000
+shape = {{ type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }}
+position = [0.03, 0.02, 0.3]
+damping = {{ stiffness = 0.002 }}
+"""
+
+
+def test_soft_bodies_dropped_on_the_ground_and_each_other_settle_where_all_fem_ones_do():
+    auto = Sim(SOFT.format(model="auto")).advance(2.0)
+    fem = Sim(SOFT.format(model="fem")).advance(2.0)
+    assert _events(auto, "rigidify") and _events(auto, "elastify")
+    assert auto.body("low").kind == "rigid"           # at rest at the end: rigid
+    for name, size in (("low", 0.2), ("high", 0.1)):
+        assert np.linalg.norm(auto.body(name).position - fem.body(name).position) < 0.01 * size
+
+
+STACK = SOFT.replace("duration = 1.0", "duration = 10.0").replace("dt = 0.002", "dt = 0.004") \
+    .replace("position = [0.03, 0.02, 0.3]", "position = [0.0, 0.0, 0.26]")
+
+
+def test_a_body_resting_under_a_steady_load_does_not_chatter():
+    sim = Sim(STACK.format(model="auto"))
+    switched = {"low": [], "high": []}
+    for _ in range(int(round(10.0 / sim.dt))):
+        for event in sim.step():
+            switched[event.body].append(sim.steps)
+    for name, steps in switched.items():
+        assert 1 <= len(steps) <= 10, f"{name} switched {len(steps)} times in 10 s"
+        assert np.all(np.diff(steps) > 1), f"{name} switched on consecutive steps: {steps}"
+    assert sim.body("low").kind == "rigid" and sim.body("high").kind == "rigid"
