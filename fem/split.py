@@ -174,7 +174,28 @@ def split_mesh(points: np.ndarray, tets: np.ndarray, cut_faces: np.ndarray,
     on_cut[tets[faces.face_tets[cut, 0][:, None], face_slots[faces.face_local[cut, 0]]]] = True
     group_count, group = _incidence_groups(tets, faces, cut, on_cut, face_slots)
     new_tets, node_origin = _node_per_group(tets, on_cut, group, group_count, node_count)
+    if tets.shape[1] == 10:
+        group_count, group = _conforming_edge_groups(new_tets, group, group_count)
+        new_tets, node_origin = _node_per_group(tets, on_cut, group, group_count, node_count)
     return SplitMesh(points[node_origin], new_tets, node_origin)
+
+
+# P2 edge slots 4..9 lie on the edges 01, 12, 02, 03, 13, 23
+EDGE_VERTEX_SLOTS = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+
+
+def _conforming_edge_groups(new_tets, group, group_count):
+    """P2: the incidence groups with each edge node's incidences regrouped by the copies of its
+    edge's two vertices, so tets that still share both vertices of an edge share its edge node.
+    (Grouped through faces, an edge node on the crack could be split while both its vertices stay
+    shared through other tets; the mesh was then not conforming: two edge nodes on one edge, of
+    which the assembly, one node per edge, keeps one, and the fragment's system was singular.)
+    Returns (group_count, group (tets.size,))."""
+    ends = np.sort(new_tets[:, EDGE_VERTEX_SLOTS], axis=2).reshape(-1, 2)       # (t * 6, 2)
+    _, pair = np.unique(ends, axis=0, return_inverse=True)
+    group = group.reshape(new_tets.shape).copy()
+    group[:, 4:] = group_count + pair.reshape(-1, 6)
+    return group_count + int(pair.max(initial=-1)) + 1, group.ravel()
 
 
 def _incidence_groups(tets, faces, cut, on_cut, face_slots):

@@ -49,11 +49,16 @@ def normal_velocity(ia, ib, ra, rb, normal, v, w):
 
 @nb.njit(cache=True)
 def contact_basis(normal):
-    """(c, 3, 3) orthonormal contact bases: rows are the normal and two tangents (right-handed)."""
+    """(c, 3, 3) orthonormal contact bases: rows are the normal and two tangents (right-handed).
+    A normal that is not a unit vector (zero, or not finite) has no basis: its rows are zero, so
+    the contact has no response and the solver leaves it out (detection gives none such; a
+    tangent built from a zero normal divided by its zero length)."""
     c = len(normal)
-    out = np.empty((c, 3, 3))
+    out = np.zeros((c, 3, 3))
     for k in range(c):
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        if not abs(n0 * n0 + n1 * n1 + n2 * n2 - 1.0) < 1e-6:
+            continue
         if abs(n0) > 0.57735:
             t0, t1, t2 = n1, -n0, 0.0
         else:
@@ -304,7 +309,7 @@ def _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, in
         largest_change = 0.0
         largest = 0.0
         for j in range(len(idx)):
-            if K[j, 0, 0] <= 0.0:
+            if not K[j, 0, 0] > 0.0:    # no effective mass (both sides immovable): no row
                 continue
             k = idx[j]
             _relative_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups, u)
@@ -358,7 +363,9 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     if apply_lam:       # warm start: the impulses lam holds act first
         for j in range(len(idx)):
             k = idx[j]
-            if K[j, 0, 0] > 0.0:
+            if not K[j, 0, 0] > 0.0:    # a guess on a contact nothing can move: it takes none
+                lam[k] = 0.0
+            else:
                 _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
                             scale_b, inv_m, invI, v, w, groups)
     _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,

@@ -1,7 +1,7 @@
 """Contact detection of the coupled step: rigid bodies among themselves and with planes; surface
 nodes of deformable bodies against planes, rigid shapes and other deformable bodies' faces; rigid
 corners and edges against deformable faces."""
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -52,18 +52,50 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     e = np.array([b.restitution for b in bodies])[nodes.body]
     sweep = np.linalg.norm(nodes.v, axis=1) * h
     c_nodes = detect_points(rm, rs.position, R, nodes.x, sweep, rigid_sweep, margin, mu, e)
-    c_nodes.normal, c_nodes.gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
-    c_nodes = c_nodes.take(front)
+    c_nodes = _edge_normals(model, state, nodes, c_nodes)
+    anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)])
+    c_nodes = c_nodes.take(~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
+    pairs = _movable(pairs, anchored[pairs.a], anchored)
     on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, bodies,
                                    nodes.offset, sweep, margin)
+    fixed = rm.body_fixed[on_faces.a] if rm.body_count else np.zeros(on_faces.count, bool)
+    on_faces = _movable(on_faces, fixed, anchored)
     corners = np.concatenate([pairs.corners, on_faces.corners])
     weights = np.concatenate([pairs.weights, on_faces.weights])
     return Found(rigid=c_rigid, nodes=c_nodes, nodes_static=static_side(rm, c_nodes.body_b),
                  pairs=pairs, on_faces=on_faces, corners=corners, weights=weights,
                  in_others=np.concatenate([pairs.a, corners[weights > 0]]))
+
+
+def _edge_normals(model, state, nodes, c_nodes):
+    """The node contacts met from the front, with the normals and gaps of
+    :func:`hybrid.coupling.fem_contact.edge_normals` where the node has a face normal of its own:
+    a node whose surface triangles cancel (an edge node or a vertex on the front of a crack that
+    has not crossed the body, between its two opened faces) has none, and there the rigid
+    body's normal and gap stay (its own, zero, made the contact's normal zero, and the contact
+    solver divided by the length of the tangent built from it)."""
+    normal, gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
+    own = np.abs(np.einsum("ij,ij->i", normal, normal) - 1.0) < 1e-6
+    c_nodes.normal = np.where(own[:, None], normal, c_nodes.normal)
+    c_nodes.gap = np.where(own, gap, c_nodes.gap)
+    return c_nodes.take(front)
+
+
+def _movable(found, a_immovable, anchored):
+    """The contacts of ``found`` (:class:`SurfaceContacts` with places on side b) that can move:
+    not those whose side a (``a_immovable`` (c,) bool: an anchored node, a fixed rigid body) and
+    whose place (every corner it has weight on anchored, stacked nodes ``anchored``) are both
+    held, which no impulse can move (no effective mass); nor those without a unit normal (a
+    place on an edge between two faces turned opposite ways)."""
+    held_place = np.all(anchored[found.corners] | (found.weights <= 0.0), axis=1)
+    unit = np.abs(np.einsum("ij,ij->i", found.normal, found.normal) - 1.0) < 1e-6
+    keep = unit & ~(a_immovable & held_place)
+    if keep.all():
+        return found
+    return type(found)(*(getattr(found, f.name)[keep] for f in fields(found)))
 
 
 def static_side(rigid_model, body_b):
