@@ -16,7 +16,7 @@ import numpy as np
 
 from .app import geometry, observe
 from .app.build import build
-from .app.run import Progress, Recorder, forwarded, overlapping_bodies, summary
+from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hints, summary
 from .app.scene import SceneError, load_scene
 from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
@@ -74,6 +74,8 @@ class Simulation:
         self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
                                           for a, b in overlapping_bodies(self.model, self.state)]
         self.events, self.timings = [], {}
+        # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
+        self.fem_time, self.stepped_time = {}, 0.0
 
     @classmethod
     def from_toml(cls, path):
@@ -108,9 +110,19 @@ class Simulation:
         Raises InstabilityError (naming the body, the time and the quantity) when a body's state
         diverges; the simulation is then left at the last finite state."""
         self.model, self.state, happened = advance(self.model, self.state, self.timings,
-                                                   self._stepped)
+                                                   self._took)
         self.events.extend(happened)
         return happened
+
+    def _took(self, model, state):
+        """After each step (before its events): count the step's time as FEM time for the bodies
+        it stepped as FEM."""
+        h = model.dt
+        self.stepped_time += h
+        for k in model.fem_ids:
+            name = model.names[k]
+            self.fem_time[name] = self.fem_time.get(name, 0.0) + h
+        self._stepped(model, state)
 
     def _stepped(self, model, state):
         """Called after each step with its model and state, before the events between steps
@@ -137,7 +149,10 @@ class Simulation:
             bar.done()
             wall = clock.perf_counter() - wall0
             result = summary(self.scene, self.model, self.state, wall, recorder, failure,
-                             self.events[first_event:], self.timings)
+                             self.events[first_event:], self.timings,
+                             (self.fem_time, self.stepped_time))
+            for line in rigid_hints(self.model, recorder):
+                log(line)
             recorder.close(result)
         if failure is not None:
             raise failure

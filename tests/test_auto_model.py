@@ -1,7 +1,10 @@
 """model = "auto": bodies stepped as rigid while their deformation does not change and as FEM while
 a load would deform them (hybrid.coupling.auto, hybrid.coupling.switch), checked against the same
 scenes run all-FEM and against exact conservation at the switches."""
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from fem.momentum import rigid_part
 from hybrid.app import observe
@@ -153,3 +156,67 @@ def test_a_body_resting_under_a_steady_load_does_not_chatter():
         assert 1 <= len(steps) <= 10, f"{name} switched {len(steps)} times in 10 s"
         assert np.all(np.diff(steps) > 1), f"{name} switched on consecutive steps: {steps}"
     assert sim.body("low").kind == "rigid" and sim.body("high").kind == "rigid"
+
+
+DENT = """
+[simulation]
+dt = 0.0005
+[[bodies]]
+name = "plate"
+model = "{model}"
+young = 1e8
+density = 2700
+yield_stress = 2e5
+shape = {{ type = "box", size = [0.2, 0.2, 0.02], resolution = 0.02 }}
+damping = {{ stiffness = 0.0005 }}
+[[bodies.anchors]]
+box = [[-0.11, -0.11, -0.02], [-0.09, 0.11, 0.02]]
+[[bodies.anchors]]
+box = [[0.09, -0.11, -0.02], [0.11, 0.11, 0.02]]
+[[bodies]]
+name = "ball"
+shape = {{ type = "sphere", radius = 0.02 }}
+density = 7800
+position = [0.0, 0.0, 0.09]
+velocity = [0, 0, -4.0]
+"""
+
+
+def _dent(model):
+    sim = Sim(DENT.format(model=model)).advance(0.06)
+    plate = sim.body("plate")
+    centre = np.argmin(np.linalg.norm(plate.points[:, :2], axis=1) + 10 * (0.01 - plate.points[:, 2]))
+    rest = sim.model.parked[0].fem.rest_points if plate.kind == "rigid" else sim.model.fem[0].rest_points
+    return sim, plate.plastic_strain.max(), rest[centre, 2] - plate.points[centre, 2]
+
+
+def test_a_resting_plastic_plate_struck_by_a_ball_dents_as_the_all_fem_one():
+    auto, strain, depth = _dent("auto")
+    _, fem_strain, fem_depth = _dent("fem")
+    events = [e.event for e in auto.events]
+    assert events[:2] == ["rigidify", "elastify"], events     # rigid at rest, deformable for the blow
+    assert fem_strain > 1e-4 and fem_depth > 0                # the blow does yield the plate
+    assert strain == pytest.approx(fem_strain, rel=0.05)
+    assert depth == pytest.approx(fem_depth, rel=0.05)
+
+
+def _crack(model):
+    text = (Path(__file__).parent / "scenes" / "shatter.toml").read_text()
+    text = text.replace("position = [0.0, 0.0, 0.36]", "position = [0.0, 0.0, 0.56]") \
+        .replace("velocity = [0.0, 0.0, -20.0]", "velocity = [0.0, 0.0, -8.0]") \
+        .replace('model = "fem"', f'model = "{model}"')
+    sim = Sim(text)
+    for _ in range(40):
+        if any(getattr(e, "cracks", 0) for e in sim.step()):
+            return sim, sim.time, sim.body("ball").velocity
+    raise AssertionError("the plate did not crack")
+
+
+def test_an_auto_plate_struck_to_fracture_cracks_at_the_same_load_as_the_all_fem_one():
+    auto, t, ball = _crack("auto")
+    _, fem_t, fem_ball = _crack("fem")
+    switched = [e.event for e in auto.events if hasattr(e, "event")]
+    assert switched[:2] == ["rigidify", "elastify"], switched
+    assert t == fem_t
+    # the ball has given the plate the same impulse by the time it cracks
+    assert np.linalg.norm(ball - fem_ball) < 0.05 * np.linalg.norm([0, 0, -8.0] - fem_ball)

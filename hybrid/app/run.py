@@ -118,6 +118,7 @@ class Recorder:
         self.writer = RunWriter(out_dir, scene_name) if out_dir is not None else None
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.frames = 0
+        self.strains = {}       # per FEM or auto body: its largest strain over the frames
 
     def __enter__(self):
         return self
@@ -137,6 +138,8 @@ class Recorder:
         e, p, l = observe.totals(model, state)
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
         self.carried.append(observe.momentum_scales(model, state))
+        for name, strain in observe.largest_strains(model, state).items():
+            self.strains[name] = max(strain, self.strains.get(name, 0.0))
         self.frames += 1
 
     def close(self, summary):
@@ -162,8 +165,37 @@ class Recorder:
         }
 
 
-def summary(scene, model, state, wall, recorder, failure, events, timings):
-    """The run's ``summary.json`` content."""
+def stepping(model, recorder, fem_time, simulated):
+    """The summary's ``models`` section: per FEM or auto body how it was modelled, the fraction
+    of the run's simulated time (``simulated`` s) it was stepped as FEM (``fem_time``: seconds by
+    name) and the largest strain it reached over the written frames."""
+    scene_models = {b.name: b.model for b in model.scene.bodies}
+    return {name: {"model": scene_models.get(name, "fem"),
+                   "fem_time_fraction": fem_time.get(name, 0.0) / simulated if simulated > 0 else None,
+                   "largest_strain": strain}
+            for name, strain in recorder.strains.items()}
+
+
+def rigid_hints(model, recorder):
+    """Log lines suggesting ``model = "rigid"`` for FEM or auto bodies whose largest strain over
+    the frames stayed below the strain an auto body would turn deformable at (its elastify
+    threshold; the default for an FEM body)."""
+    from hybrid.coupling.auto import elastify_threshold
+    lines = []
+    for body in model.scene.bodies:
+        strain = recorder.strains.get(body.name)
+        if body.model in ("fem", "auto") and strain is not None and model.fragment_of[
+                model.names.index(body.name)] == model.names.index(body.name):
+            limit = elastify_threshold(body)
+            if strain < limit:
+                lines.append(f"note: '{body.name}' never strained beyond {limit:.0e} (largest "
+                             f"{strain:.1e}): model = \"rigid\" would step it as fast as a rigid body")
+    return lines
+
+
+def summary(scene, model, state, wall, recorder, failure, events, timings, fem_time=None):
+    """The run's ``summary.json`` content. ``fem_time``: ``(seconds stepped as FEM by body name,
+    seconds simulated)``, for the ``models`` section."""
     return {
         "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
         "scene_file": str(scene.source_path),
@@ -180,6 +212,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings):
                                     "yield_stress, since the start; 0 when no body has one",
         "conservation": recorder.conservation(model),
         "events": [e.as_dict() for e in events],
+        "models": stepping(model, recorder, *(fem_time or ({}, 0.0))),
         "fracture": {
             "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
             "bodies_at_end": len(model.names),

@@ -99,16 +99,22 @@ def settings(model, index):
     return body.auto if body is not None and body.model == "auto" else None
 
 
-def thresholds(model, index):
-    """``(rigidify, elastify)`` strains in use for auto body ``index``: the scene's, elastify at
-    most half the body's yield and fracture strains (it turns deformable before anything yields
-    or cracks), rigidify at most a tenth of that."""
-    auto, body = settings(model, index), model.scene.bodies[index]
-    elastify = auto.elastify_strain
+def elastify_threshold(body):
+    """The strain at which scene ``body`` (FEM or auto) would turn deformable: its ``auto``
+    table's ``elastify_strain``, at most half its yield and fracture strains (it turns deformable
+    before anything yields or cracks)."""
+    elastify = body.auto.elastify_strain
     for stress in (body.yield_stress, body.fracture_stress):
         if stress is not None:
             elastify = min(elastify, 0.5 * stress / body.young)
-    return min(auto.rigidify_strain, 0.1 * elastify), elastify
+    return elastify
+
+
+def thresholds(model, index):
+    """``(rigidify, elastify)`` strains in use for auto body ``index``: :func:`elastify_threshold`
+    and the scene's ``rigidify_strain``, at most a tenth of it."""
+    elastify = elastify_threshold(model.scene.bodies[index])
+    return min(settings(model, index).rigidify_strain, 0.1 * elastify), elastify
 
 
 def response_time(fem, h):
@@ -133,12 +139,19 @@ def may_be_rigid(fem):
     return not np.any(fem.load_force)
 
 
-def _calm(model, state, j, auto):
-    """Whether FEM body ``j`` is calm enough this step to count towards becoming rigid."""
+def _may_turn(model, state, j):
+    """Whether FEM body ``j`` may turn rigid now, however it moves: it can be rigid at all
+    (:func:`may_be_rigid`), nothing in it yields and no crack face of it waits to open."""
     m, s = model.fem[j], state.fem[j]
     if not may_be_rigid(m) or (s.tet_yielded is not None and s.tet_yielded.any()):
         return False
-    if state.fracture_pending is not None and len(state.fracture_pending[j]):
+    return state.fracture_pending is None or not len(state.fracture_pending[j])
+
+
+def _calm(model, state, j):
+    """Whether FEM body ``j`` is calm enough this step to count towards becoming rigid."""
+    m, s = model.fem[j], state.fem[j]
+    if not _may_turn(model, state, j):
         return False
     rigidify = thresholds(model, model.fem_ids[j])[0]
     if strain_measure(m, s.x, s.v, model.dt) >= rigidify or _approaching(model, state, j, rigidify):
@@ -147,7 +160,7 @@ def _calm(model, state, j, auto):
     if strength is None:
         return True
     sigma = element_stress(m, s, s.tet_plastic_strain)
-    return float(principal_stress_max(sigma).max()) < auto.fracture_margin * strength
+    return float(principal_stress_max(sigma).max()) < settings(model, model.fem_ids[j]).fracture_margin * strength
 
 
 def _approaching(model, state, j, rigidify):
@@ -168,18 +181,17 @@ def _approaching(model, state, j, rigidify):
 def rigid_due(model, state):
     """``(calm, due)``: every FEM auto body's count of calm steps in a row (scene index ->
     steps) and the FEM bodies (indices into model.fem) to turn rigid now: those calm for their
-    ``window``, and fracture pieces smaller than ``rigid_fragment_tets`` as soon as they are
-    calm (the size hint of ``fragment_model = "auto"``)."""
+    ``window``, and fracture pieces smaller than ``rigid_fragment_tets`` at once (the size hint
+    of ``fragment_model = "auto"``: a few elements flying off are not worth an FEM body)."""
     calm, due = {}, []
     for j, k in enumerate(model.fem_ids):
         auto = settings(model, k)
         if auto is None:
             continue
-        calm[k] = state.calm.get(k, 0) + 1 if _calm(model, state, j, auto) else 0
-        body = model.scene.bodies[k]
+        calm[k] = state.calm.get(k, 0) + 1 if _calm(model, state, j) else 0
         small = model.fragment_of is not None and model.fragment_of[k] != k \
-            and model.fem[j].tet_count < body.rigid_fragment_tets
-        if calm[k] >= auto.window or (small and calm[k]):
+            and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets
+        if calm[k] >= auto.window or (small and _may_turn(model, state, j)):
             due.append(j)
     return calm, due
 

@@ -16,8 +16,9 @@ other body keeps its model and factorisation.
   ``HybridModel.names`` (and to ``scene.bodies``, so per-body scene data such as friction is found).
 - Node velocities are copied to the duplicated nodes and node masses are recomputed from each
   piece's own tets, so total mass and linear and angular momentum are unchanged.
-- ``fragment_model = "rigid"`` (every piece but the largest) or ``"auto"`` (pieces with fewer
-  than ``rigid_fragment_tets`` tets) makes unanchored pieces rigid bodies.
+- ``fragment_model = "rigid"`` makes every unanchored piece but the largest a rigid body;
+  ``"auto"`` makes the pieces auto bodies (hybrid.coupling.auto: rigid while calm, FEM while
+  struck; those under ``rigid_fragment_tets`` tets rigid at once), as are an auto body's pieces.
 - ``HybridModel.fragment_of`` (one entry per name): the original scene body each body came from
   (itself for scene bodies). ``HybridModel.fracture``: per FEM body :class:`FractureBody` (None
   when the body cannot break), what depends only on the body's mesh: built once from the scene
@@ -196,11 +197,10 @@ class _Piece:
 
 
 def _turns_rigid(fem_model, data, frag, node_origin):
-    """Whether a piece other than the largest becomes rigid: unanchored, and ``fragment_model``
-    "rigid", or "auto" with fewer than ``rigid_fragment_tets`` tets."""
+    """Whether a piece other than the largest becomes a rigid body for good: unanchored, and
+    ``fragment_model = "rigid"`` (``"auto"`` pieces are auto bodies, see hybrid.coupling.auto)."""
     anchored = np.any(fem_model.node_anchor[node_origin[frag.node_index]] >= 0)
-    return not anchored and (data.fragment_model == "rigid" or (
-        data.fragment_model == "auto" and len(frag.tet_index) < data.rigid_fragment_tets))
+    return not anchored and data.fragment_model == "rigid"
 
 
 def _fragment_data(data, fem_model, frag, cut):
@@ -286,7 +286,10 @@ class _Bodies:
             self.rigid_new.append((name, parent_body, piece.rigid))
             self.rigid_ids.append(new_id)
         else:
-            self.scene_bodies.append(replace(parent_body, name=name))
+            # pieces of an auto body, or of fragment_model = "auto", are auto bodies
+            auto = "auto" in (parent_body.model, parent_body.fragment_model)
+            self.scene_bodies.append(replace(parent_body, name=name,
+                                             model="auto" if auto else parent_body.model))
             self.fem.append(piece.model)
             self.fem_states.append(piece.state)
             self.fem_ids.append(new_id)
