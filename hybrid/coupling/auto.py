@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fem import dynamics as fem_dyn
+from fem.momentum import rigid_part
 from fem.stress import element_strain_rate, element_stress, principal_stress_max
 from fem.system import system_factorisation
 from rigid import quaternion as quat
@@ -154,13 +155,30 @@ def _calm(model, state, j):
     if not _may_turn(model, state, j):
         return False
     rigidify = thresholds(model, model.fem_ids[j])[0]
-    if strain_measure(m, s.x, s.v, model.dt) >= rigidify or _approaching(model, state, j, rigidify):
+    if _restless(m, s, rigidify, model.dt) or _approaching(model, state, j, rigidify):
+        return False
+    if strain_measure(m, s.x, s.v, model.dt) >= rigidify:
         return False
     strength = model.scene.bodies[model.fem_ids[j]].fracture_stress
     if strength is None:
         return True
     sigma = element_stress(m, s, s.tet_plastic_strain)
     return float(principal_stress_max(sigma).max()) < settings(model, model.fem_ids[j]).fracture_margin * strength
+
+
+# a body whose velocities depart from a rigid motion by more than this many times the rigidify
+# strain over its response time, times its size, is not calm (a cheap test before the strain
+# rates: a field of strain rate d across a body of size L departs from rigid by about d L, more
+# for a thin flexing sheet, which then only turns rigid later)
+RESTLESS = 10.0
+
+
+def _restless(m, s, rigidify, h):
+    """Whether FEM body (model ``m``, state ``s``) certainly moves too far from rigidly to be
+    calm (see RESTLESS)."""
+    u = s.v if m.has_anchors else s.v - rigid_part(m, s.x, s.v)
+    extent = float(np.ptp(m.rest_points, axis=0).max())
+    return float(np.abs(u).max()) > RESTLESS * rigidify * extent / response_time(m, h)
 
 
 def _approaching(model, state, j, rigidify):
@@ -222,6 +240,41 @@ def impulse_change(before, after, k):
     return np.concatenate(points), np.concatenate(changes)
 
 
+# surface nodes (the lightest, which answer an impulse most) whose unit impulses along each axis
+# measure how much strain a body turned rigid takes per N s (Parked.unit_strain); a step's change
+# of impulses under a third of its elastify strain by that measure is not solved for
+PROBE_NODES = 6
+PROBE_MARGIN = 3.0
+
+
+def _velocity_change(fem, rest, node_impulse, h):
+    """Velocity change ``(n, 3)`` (world when parked) of node impulses ``(n, 3)`` N s (same
+    frame) through the body's FEM system."""
+    j_b = (node_impulse @ rest.R).ravel()
+    dv = np.zeros_like(j_b)
+    solve = system_factorisation(fem, h).solve
+    if fem.anchored:
+        dv[fem.free_dofs] = solve(j_b[fem.free_dofs])
+    else:
+        dv = solve(j_b)
+    return dv.reshape(-1, 3) @ rest.R.T
+
+
+def unit_strain(fem, rest, inverse_F, h):
+    """Largest strain measure per N s of a unit impulse along an axis at one of the body's
+    PROBE_NODES lightest free surface nodes (its FEM model ``fem``, state ``rest``)."""
+    free = fem.surface_nodes[fem.node_anchor[fem.surface_nodes] < 0]
+    nodes = free[np.argsort(fem.node_mass[free], kind="stable")[:PROBE_NODES]]
+    largest = 0.0
+    for node in nodes:
+        for axis in range(3):
+            impulse = np.zeros((fem.node_count, 3))
+            impulse[node, axis] = 1.0
+            dv = _velocity_change(fem, rest, impulse, h)
+            largest = max(largest, strain_measure(fem, rest.x, dv, h, inverse_F))
+    return largest
+
+
 def predicted_strain(parked, position, rotation, points, impulses, h):
     """The strain measure of the velocity change the impulses ``(r, 3)`` N s (world) at
     ``points`` (r, 3) m would give the parked body's FEM system (each at its nearest surface
@@ -233,14 +286,8 @@ def predicted_strain(parked, position, rotation, points, impulses, h):
     # world now -> world when parked (turn back by the rotation since), -> the FEM body's frame
     turn = rotation @ parked.rotation.T
     np.add.at(node_impulse, nodes, impulses @ turn)
-    j_b = (node_impulse @ rest.R).ravel()
-    dv = np.zeros_like(j_b)
-    solve = system_factorisation(fem, h).solve
-    if fem.anchored:
-        dv[fem.free_dofs] = solve(j_b[fem.free_dofs])
-    else:
-        dv = solve(j_b)
-    return strain_measure(fem, rest.x, dv.reshape(-1, 3) @ rest.R.T, h, parked.inverse_F)
+    return strain_measure(fem, rest.x, _velocity_change(fem, rest, node_impulse, h), h,
+                          parked.inverse_F)
 
 
 def fem_due(model, before, after):
@@ -253,10 +300,13 @@ def fem_due(model, before, after):
         change = impulse_change(before.touches, after.touches, k)
         if change is None or not len(change[0]):
             continue
+        elastify = thresholds(model, k)[1]
+        if PROBE_MARGIN * parked.unit_strain * np.linalg.norm(change[1], axis=1).sum() < elastify:
+            continue            # far too small a change to matter: not solved for
         i = int(np.flatnonzero(model.rigid_ids == k)[0])
         R = quat.to_matrix(before.rigid.orientation[i])
         strain = predicted_strain(parked, before.rigid.position[i], R, *change, model.dt)
-        if strain > thresholds(model, k)[1]:
+        if strain > elastify:
             due.append(k)
     return due
 

@@ -25,7 +25,7 @@ from rigid.compose import append_bodies, take_bodies
 from rigid.model import angular_velocity, reported_velocity
 from rigid.trimesh import compact
 
-from .auto import Switch
+from .auto import Switch, unit_strain
 from .fracture import fracture_data
 
 
@@ -43,6 +43,7 @@ class Parked:
     body's pose then. local: (n, 3) m its nodes in the rigid body's frame. surface_nodes (s,) and
     tree (a cKDTree of their ``local``): to find the node nearest a contact point. inverse_F
     (t, 3, 3): its elements' inverse deformation gradients then (the predicted strain's).
+    unit_strain: the strain measure a unit impulse gives it at most (hybrid.coupling.auto.unit_strain).
     """
     fem: object
     state: object
@@ -53,6 +54,7 @@ class Parked:
     surface_nodes: np.ndarray
     tree: object
     inverse_F: np.ndarray
+    unit_strain: float
 
     def nodes_at(self, position, rotation):
         """The nodes ``(n, 3)`` m where the rigid body at pose (position, rotation) has them."""
@@ -104,9 +106,10 @@ def rigidify(model, state, bodies):
         m, s = model.fem[j], state.fem[j]
         R = quat.to_matrix(rs.orientation[i])
         local = (s.x - rs.position[i]) @ R
+        inverse_F = inverse_deformation_gradients(m, s.x)
         parked[model.fem_ids[j]] = Parked(m, s, model.fracture[j], rs.position[i].copy(), R, local,
                                           m.surface_nodes, cKDTree(local[m.surface_nodes]),
-                                          inverse_deformation_gradients(m, s.x))
+                                          inverse_F, unit_strain(m, s, inverse_F, model.dt))
     rigid, rigid_state = append_bodies(model.rigid, state.rigid, rm, rs)
     gone = set(bodies)
     keep = [j for j in range(len(model.fem)) if j not in gone]
