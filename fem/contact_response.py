@@ -113,7 +113,7 @@ def _solve_columns(model, dt, nodes):
         cols = np.nonzero(free_index[dofs] >= 0)[0]       # held DOFs do not respond
         rhs = np.zeros((len(model.free_dofs), len(dofs)))
         rhs[free_index[dofs[cols]], cols] = 1.0
-        out[model.free_dofs] = fact.solve(rhs).reshape(len(model.free_dofs), -1)
+        out[model.free_dofs] = fact.solve(rhs).reshape(rhs.shape)
     else:
         rhs = np.zeros((n3, len(dofs)))
         rhs[dofs, np.arange(len(dofs))] = 1.0

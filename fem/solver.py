@@ -47,7 +47,8 @@ class Factorisation:
 
     matrix: the CSC matrix factorised ``(m, m)``. solve(rhs) accepts ``(m,)`` or ``(m, k)``.
     backend: ``"cholmod"`` or ``"superlu"`` (:data:`LINEAR_SOLVERS`); CHOLMOD falls back to SuperLU
-    for a matrix it finds not positive definite (``backend`` then reads ``"superlu"``).
+    for a matrix it finds not positive definite (``backend`` then reads ``"superlu"``); a ``(0, 0)``
+    matrix (a body whose every node is anchored) reads ``"empty"`` and solves to empty arrays.
     solve_cost: the time of one back-substitution, in entries of a dense matrix-vector product
     (SuperLU: the nonzeros of L and U it reads); callers compare it with products they could use
     instead.
@@ -58,6 +59,11 @@ class Factorisation:
         self.backend = backend
         if self.backend not in LINEAR_SOLVERS:
             raise ValueError(f"unknown sparse solver backend {self.backend!r}: 'cholmod' or 'superlu'")
+        if self.matrix.shape[0] == 0:
+            # nothing to solve (every node of the body anchored): CHOLMOD given an empty matrix
+            # corrupted the heap and killed the process later
+            self.backend, self.solve_cost = "empty", 0
+            return
         if self.backend == "cholmod":
             if CholeskySolverD is None:
                 raise ImportError("the 'cholmod' backend needs the cholespy package (pip install cholespy)")
@@ -82,6 +88,8 @@ class Factorisation:
     def solve(self, rhs):
         """The solution of ``matrix x = rhs`` for ``rhs`` ``(m,)`` or ``(m, k)`` (k right-hand sides)."""
         rhs = np.asarray(rhs, dtype=float)
+        if self.backend == "empty":
+            return rhs.copy()
         if self.backend == "superlu":
             return self._lu.solve(rhs)
         rhs = np.ascontiguousarray(rhs)

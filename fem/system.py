@@ -169,9 +169,18 @@ def _corotated_solver(model, dt, A, state):
 
     guess = state.v.ravel()[model.free_dofs] if model.anchored else state.v.ravel()
 
+    direct = []      # this step's factorisation, made only if CG fails to converge
+
     def solve(rhs):
-        x, its = cg_solve(A_ff, rhs, guess, precondition)
-        iterations[0] += its
-        return x
+        if not direct:
+            try:
+                x, its = cg_solve(A_ff, rhs, guess, precondition)
+                iterations[0] += its
+                return x
+            except RuntimeError:
+                # a body crushed far from its best-fit frame (an order-2 pane at 60 m/s) left the
+                # preconditioner too poor: this step solves directly instead
+                direct.append(Factorisation(A_ff, model.linear_solver))
+        return direct[0].solve(rhs)
 
     return solve, iterations

@@ -232,3 +232,27 @@ def test_split_of_a_quadratic_mesh_keeps_one_edge_node_per_edge():
     model = build_fem_model(split.points, split.tets, order=2, density=2500.0, young=7e10,
                             poisson=0.22, dt=1e-4)
     assert np.all(model.node_mass > 0)
+
+
+def test_a_body_whose_every_node_is_anchored_stays_put_and_stops_a_ball(sim):
+    """Its free system is empty (0 x 0): nothing to factorise (CHOLMOD given one corrupted the
+    heap), the body does not move and a ball landing on it stops as on a fixed body."""
+    s = sim("""
+[simulation]
+dt = 0.001
+[[bodies]]
+name = "block"
+model = "fem"
+young = 1e6
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.025 }
+[[bodies.anchors]]
+box = [[-1, -1, -1], [1, 1, 1]]
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.02 }
+position = [0, 0, 0.075]
+velocity = [0, 0, -1]
+""").advance(0.05)
+    assert np.array_equal(s.body("block").points, s.model.fem[0].rest_points)
+    assert s.body("ball").position[2] == pytest.approx(0.07, abs=2e-3)
+    assert abs(s.body("ball").velocity[2]) < 1e-6
