@@ -132,18 +132,32 @@ def angular_velocity(model, state):
                      state.angular_momentum)
 
 
-def reported_velocity(model, state, gravity):
-    """Velocity at the state's time (leapfrog stores the mid-step velocity).
+def report_offset(model, state, gravity):
+    """What :func:`reported_velocity` adds to the stored mid-step velocities, ``(b, 3)`` m/s.
 
-    Half a step of gravity plus half of the last step's contact velocity change, so a body at rest
-    on the ground reports zero and a falling one the exact ballistic velocity.
+    Half the last step of gravity, less the part of the last step's contact velocity change that
+    held the body against gravity (along the upward direction, at most a step of gravity's worth):
+    a body at rest on the ground reports zero, a falling one the exact ballistic velocity, and a
+    collision's velocity change counts whole, at the frame's time, as it does for FEM bodies
+    (whose end-of-step velocities hold the whole impulse), so momentum summed over the bodies of
+    a frame is the momentum the solver conserves.
     """
-    if state.last_dt == 0.0:
-        return state.velocity.copy()
+    out = np.zeros_like(state.velocity)
+    g = np.asarray(gravity, float)
+    step = float(np.linalg.norm(g)) * state.last_dt
+    if state.last_dt == 0.0 or step == 0.0:
+        return out
+    up = -g / np.linalg.norm(g)
+    support = np.clip(state.contact_dv @ up, 0.0, step)
     free = ~model.body_fixed
-    out = state.velocity.copy()
-    out[free] += 0.5 * (np.asarray(gravity) * state.last_dt + state.contact_dv[free])
+    out[free] = 0.5 * (g * state.last_dt + support[free, None] * up)
     return out
+
+
+def reported_velocity(model, state, gravity):
+    """Velocity at the state's time (leapfrog stores the mid-step velocity): the stored velocity
+    plus :func:`report_offset`."""
+    return state.velocity + report_offset(model, state, gravity)
 
 
 def kinetic_energy(model, state, velocity=None):

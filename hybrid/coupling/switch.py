@@ -22,7 +22,7 @@ from fem.stress import inverse_deformation_gradients
 from rigid import quaternion as quat
 from rigid.build import RigidBodyDesc, build_rigid
 from rigid.compose import append_bodies, take_bodies
-from rigid.model import angular_velocity, reported_velocity
+from rigid.model import angular_velocity, report_offset, reported_velocity
 from rigid.trimesh import compact
 
 from .auto import Switch, unit_strain
@@ -84,12 +84,13 @@ def _rigid_bodies(model, state, bodies):
         if rm.body_fixed[i]:
             continue
         momentum = fem_dyn.mass_weights(m) @ s.v
-        # leapfrog keeps the mid-step velocity and the last step's contact velocity change, half
-        # of each added back when the velocity is reported (rigid.model.reported_velocity): a
-        # body resting on the ground goes on taking its weight's impulse each step
+        # leapfrog keeps the mid-step velocity; what reporting adds to it (half a step of gravity
+        # less the contact's support against it, rigid.model.report_offset) is taken off, so the
+        # body reports its FEM momentum; a body resting on the ground goes on taking its weight
         touched = state.touches.of_body(model.fem_ids[j])[2] if state.touches is not None else ()
         rs.contact_dv[i] = np.sum(touched, axis=0) / rm.body_mass[i] if len(touched) else 0.0
-        rs.velocity[i] = momentum / rm.body_mass[i] - 0.5 * (model.gravity * last_dt + rs.contact_dv[i])
+        rs.last_dt = last_dt
+        rs.velocity[i] = momentum / rm.body_mass[i] - report_offset(rm, rs, model.gravity)[i]
         rs.angular_momentum[i] = fem_dyn.mass_moments(m, s.x - rs.position[i], s.v)[1]
     return rm, rs
 
