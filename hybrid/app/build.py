@@ -6,7 +6,7 @@ from rigid.step import ContactSettings
 
 from hybrid.coupling.model import HybridModel, HybridState
 
-from . import geometry
+from . import deformable, geometry
 
 
 def _shape_dict(shape):
@@ -31,18 +31,34 @@ def rigid_desc(body):
     return desc
 
 
+def _build_rigid(bodies, planes, index):
+    """build_rigid of the scene's rigid bodies; ValueError naming the body and field that cannot be
+    built (found by building each body alone, on this failure path only)."""
+    descs = [rigid_desc(b) for b in bodies]
+    try:
+        return build_rigid(descs, planes)
+    except ValueError:
+        for body, desc in zip(bodies, descs):
+            try:
+                build_rigid([desc], [])
+            except ValueError as error:
+                field = "mesh" if body.mesh is not None else "shape"
+                raise ValueError(f"{deformable.body_label(body, index[body.name])}: field '{field}' "
+                                 f"gives an unusable body: {error}") from None
+        raise
+
+
 def build(scene):
     """HybridModel and initial HybridState of ``scene``."""
     sim = scene.simulation
     rigid_bodies = [b for b in scene.bodies if b.model == "rigid"]
     fem_bodies = [b for b in scene.bodies if b.model != "rigid"]
     planes = [PlaneDesc(p.point, p.normal, p.friction, p.restitution) for p in scene.planes]
-    rigid_model, rigid_state = build_rigid([rigid_desc(b) for b in rigid_bodies], planes)
     index = {b.name: i for i, b in enumerate(scene.bodies)}
-    from . import deformable  # FEM bodies are built by their own module
+    rigid_model, rigid_state = _build_rigid(rigid_bodies, planes, index)
     fem_models, fem_states = deformable.build_bodies(
         fem_bodies, sim.dt, linear_solver=sim.solver.linear_solver,
-        corotated_solver=sim.solver.corotated_solver)
+        corotated_solver=sim.solver.corotated_solver, indices=[index[b.name] for b in fem_bodies])
     settings = ContactSettings(iterations=sim.solver.iterations,
                                deformable_iterations=sim.solver.deformable_iterations,
                                margin=sim.solver.contact_margin,

@@ -17,6 +17,8 @@ import numpy as np
 from fem.mesh import check_tets, index_list
 from rigid import trimesh
 
+from .scene.schema import LARGEST_LENGTH
+
 # meshio cell types whose first 3 (triangles) or 4 (quads, tets) nodes are the corners
 _TET_TYPES = {"tetra": 1, "tetra10": 2}
 _TRIANGLE_TYPES = ("triangle", "triangle6", "triangle7")
@@ -40,17 +42,19 @@ class MeshWarning(UserWarning):
 def caught_mesh_warnings():
     """Collect the MeshWarning messages raised inside the block into the yielded list (for the
     command line to print as ``warning: ...``); other warnings pass through."""
-    messages = []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", MeshWarning)
-        try:
+    messages, caught = [], []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MeshWarning)
             yield messages
-        finally:
-            for w in caught:
-                if issubclass(w.category, MeshWarning):
-                    messages.append(str(w.message))
-                else:
-                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    finally:
+        # passed on once the block has ended: inside it the recorder is the warning printer, and
+        # passing one on appended it to the list being read, forever (a hang on any STL file)
+        for w in caught:
+            if issubclass(w.category, MeshWarning):
+                messages.append(str(w.message))
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def read_mesh(path):
@@ -63,7 +67,10 @@ def read_mesh(path):
     printed = io.StringIO()
     try:
         # meshio prints reader errors to stdout, then calls sys.exit(1) when every reader failed
-        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
+        # and warns on files it reads correctly (its STL reader overflows trying the binary layout)
+        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed), \
+                warnings.catch_warnings():
+            warnings.simplefilter("ignore")
             mesh = meshio.read(path)
     # format readers raise anything from ReadError to IndexError on corrupt input
     except (Exception, SystemExit) as error:  # noqa: BLE001
@@ -78,6 +85,10 @@ def read_mesh(path):
         points = np.column_stack([points, np.zeros(len(points))])
     if not np.all(np.isfinite(points)):
         raise MeshError(path, "point coordinates are not all finite")
+    span = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    if span > LARGEST_LENGTH:        # a unit mistake (volumes overflow from about 1e60 m)
+        raise MeshError(path, f"the points span {span:.3g} m; at most {LARGEST_LENGTH:g} m is allowed "
+                              f"(check the file's units)")
     mesh.points = points
     return mesh
 
@@ -98,7 +109,7 @@ def tets_from_mesh(mesh, path):
         raise MeshError(path, "mixes tetra and tetra10 cells; use one element order")
     kind = present[0]
     order = _TET_TYPES[kind]
-    tets = np.concatenate(blocks[kind]).astype(np.int64)
+    tets = _node_indices(np.concatenate(blocks[kind]), len(mesh.points), kind, path)
     used = np.unique(tets)
     remap = -np.ones(len(mesh.points), dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -127,7 +138,7 @@ def surface_from_mesh(mesh, path):
         parts += [c.data[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3) for c in mesh.cells if c.type in _QUAD_TYPES]
         if not parts:
             raise MeshError(path, f"no triangle, quad or tetra cells (found: {_cell_summary(mesh)})")
-        triangles = np.concatenate(parts).astype(np.int64)
+        triangles = _node_indices(np.concatenate(parts), len(points), "surface", path)
     vertices, triangles, _ = trimesh.compact(points, triangles)
     _check_closed(triangles, path)
     volume = trimesh.signed_volume(vertices, triangles)
@@ -173,6 +184,17 @@ def _check_closed(triangles, path):
     if same_direction:
         raise MeshError(path, f"surface is not consistently oriented: {same_direction} edges are "
                               "traversed twice in the same direction")
+
+
+def _node_indices(cells, point_count, kind, path):
+    """``cells`` as int64 node indices; MeshError if any names no point of the file."""
+    cells = np.asarray(cells).astype(np.int64)
+    bad = (cells < 0) | (cells >= point_count)
+    if np.any(bad):
+        raise MeshError(path, f"{int(np.any(bad, axis=1).sum())} {kind} cells name nodes that do not "
+                              f"exist (indices must be 0 to {point_count - 1}, found "
+                              f"{int(cells[bad][0])})")
+    return cells
 
 
 def _cell_summary(mesh):

@@ -3,16 +3,23 @@ and the reference docs alike."""
 from .schema import REQUIRED
 
 
+def printable(text):
+    """``text`` with the characters a terminal would not show as themselves (control characters,
+    line breaks) escaped as TOML escapes them (``\\u000A``): one problem stays on one line."""
+    return "".join(c if c.isprintable() else f"\\u{ord(c):04X}" if ord(c) < 0x10000 else f"\\U{ord(c):08X}"
+                   for c in text)
+
+
 def toml_text(value):
-    """A value as it would be written in TOML."""
+    """A value as it would be written in TOML (strings escaped, on one line)."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return '"' + printable(value.replace("\\", "\\\\").replace('"', '\\"')) + '"'
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(toml_text(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {toml_text(v)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{printable(str(k))} = {toml_text(v)}" for k, v in value.items()) + " }"
     if isinstance(value, float):
         return repr(value)
     return str(value)

@@ -4,13 +4,14 @@ import math
 import tomllib
 from pathlib import Path
 
-from hybrid.app import geometry
+from hybrid.app import deformable, geometry
+from rigid.shapes import CIRCLE_DEFAULT_SEGMENTS
 
 from .describe import describe, toml_text
 from .records import (Anchor, Auto, Body, Damping, Load, Plane, Scene, Shape, Simulation, Solver,
                       Unbreakable)
-from .schema import (ANCHOR, AUTO, BODY, DAMPING, FEM_MODELS, INVALID, LOAD, MAX_ELEMENTS, MAX_STEPS, PLANE,
-                     SHAPE, SIMULATION, SOLVER, TOP, UNBREAKABLE)
+from .schema import (ANCHOR, AUTO, BODY, DAMPING, FEM_MODELS, INVALID, LARGEST_LENGTH, LOAD, MAX_ELEMENTS,
+                     MAX_STEPS, PLANE, SHAPE, SIMULATION, SOLVER, TOP, UNBREAKABLE)
 from .tables import Where, read_table, table_entries, valid
 
 
@@ -59,12 +60,12 @@ def parse_scene(data, source, base_dir):
         if isinstance(body.name, str):
             if body.name in first_index:
                 problems.append(_body_where(source, i, body.name).problem(
-                    "name", f"must be unique, got \"{body.name}\" again "
+                    "name", f"must be unique, got {toml_text(body.name)} again "
                             f"(first used by bodies[{first_index[body.name]}])"))
             first_index.setdefault(body.name, i)
         bodies.append(body)
     if not bodies and isinstance(top["bodies"], (list, tuple)):       # none given (a bad value is reported)
-        problems.append(Where(source, "top level").general("needs at least one [[bodies]] table"))
+        problems.append(Where(source, "top level").problem("bodies", "needs at least one [[bodies]] table"))
     if problems:
         raise SceneError(problems)
     return Scene(simulation.name, Path(source), simulation, planes, tuple(bodies), data)
@@ -92,13 +93,13 @@ def _parse_simulation(table, source, problems):
 def _parse_plane(table, source, index, problems):
     values = read_table(table, PLANE, Where(source, f"[planes] (planes[{index}])"), problems)
     if valid(values["normal"]):
-        length = math.sqrt(sum(c * c for c in values["normal"]))
+        length = math.hypot(*values["normal"])      # no squares: they underflow (1e-300) or overflow
         values["normal"] = tuple(c / length for c in values["normal"])
     return Plane(**values)
 
 
 def _body_where(source, index, name):
-    label = f"[bodies] \"{name}\" (bodies[{index}])" if isinstance(name, str) else f"[bodies] (bodies[{index}])"
+    label = f"[bodies] {toml_text(name)} (bodies[{index}])" if isinstance(name, str) else f"[bodies] (bodies[{index}])"
     return Where(source, label)
 
 
@@ -149,7 +150,7 @@ def _parse_body(table, source, index, base_dir, problems):
         values[key] = ()
         if fem_model and entries:
             entries = table_entries(entries, key, source, problems, where=where)
-            named = f" \"{name}\"" if isinstance(name, str) else ""
+            named = f" {toml_text(name)}" if isinstance(name, str) else ""
             values[key] = tuple(
                 kind(**read_table(entry, section, Where(
                     source, f"[bodies.{key}]{named} (bodies[{index}].{key}[{i}])"), problems))
@@ -190,6 +191,12 @@ def _parse_shape(table, where, problems):
             problems.append(shape_where.problem(key, f"is not used by shape type \"{kind}\" "
                                                      f"(it takes: {takes})"))
     values = read_table(table, SHAPE, shape_where, problems, only=used)
+    for key in ("size", "radius", "height"):
+        value = values.get(key)
+        if valid(value) and max(value if isinstance(value, tuple) else (value,)) > LARGEST_LENGTH:
+            problems.append(shape_where.problem(key, f"must be at most {LARGEST_LENGTH:g} m (a larger "
+                                                     f"length is a unit mistake), got {toml_text(value)}"))
+            values[key] = INVALID
     height, radius = values.get("height"), values.get("radius")
     if kind == "capsule" and valid(height, radius) and height < 2 * radius:
         problems.append(shape_where.problem("height", f"must be >= 2 radius ({toml_text(2 * radius)} m) "
@@ -198,25 +205,45 @@ def _parse_shape(table, where, problems):
 
 
 def _check_element_count(shape, fem_model, where, problems):
-    """Record a problem if meshing the shape at its ``resolution`` would make more elements than
-    MAX_ELEMENTS (tetrahedra for a deformable body, surface triangles for a rigid one)."""
-    h = shape.resolution
-    if not valid(h) or h is None:
-        return
+    """Record a problem if meshing the shape at its ``resolution`` (or the builder's default) would
+    make more elements than MAX_ELEMENTS (tetrahedra for a deformable body, surface triangles for a
+    rigid one)."""
     r = shape.radius
+    sizes = {"box": (shape.size,), "sphere": (r,)}.get(shape.type, (r, shape.height))
+    if not valid(*sizes) or shape.resolution is INVALID:     # reported already
+        return
+    h = _mesh_resolution(shape, fem_model)
+    if h is None:
+        return
+    # in floats, capped, so no size or resolution overflows an integer (inf counts are rejected)
     if shape.type == "box":
-        cells = [math.ceil(a / h - 1e-9) for a in shape.size]
+        cells = [max(1.0, math.ceil(min(a / h, 1e18) - 1e-9)) for a in shape.size]
         count = 6 * cells[0] * cells[1] * cells[2] if fem_model else \
             4 * (cells[0] * cells[1] + cells[1] * cells[2] + cells[2] * cells[0])
     else:
         length = 2 * r if shape.type == "sphere" else shape.height
-        count = 6 * (2 * r / h) ** 2 * (length / h) if fem_model else \
-            2 * (2 * math.pi * r * length + 4 * math.pi * r * r) / h ** 2
+        across = 2 * r / h
+        count = 6 * across * across * (length / h) if fem_model else \
+            2 * (2 * math.pi * r * length + 4 * math.pi * r * r) / h / h
     if count > MAX_ELEMENTS:
         kind = "tetrahedra" if fem_model else "surface triangles"
+        given = f"= {toml_text(h)} m" if shape.resolution is not None else \
+            f"is not given, and its default ({h:.3g} m for this shape)"
         problems.append(where.nested("shape").problem(
-            "resolution", f"= {toml_text(h)} m would mesh the shape into about {count:.2g} {kind}; at "
+            "resolution", f"{given} would mesh the shape into about {count:.2g} {kind}; at "
                           f"most {MAX_ELEMENTS:.0e} are allowed (use a coarser resolution)"))
+
+
+def _mesh_resolution(shape, fem_model):
+    """The edge length (m) a shape is meshed at: its ``resolution``, else the builder's default;
+    None for rigid boxes and spheres, whose default meshes are small whatever their size."""
+    if shape.resolution is not None:
+        return shape.resolution
+    if fem_model:
+        return deformable.default_resolution(shape)
+    if shape.type in ("cylinder", "capsule"):        # rigid.shapes: segments of the default circle
+        return 2 * math.pi * shape.radius / CIRCLE_DEFAULT_SEGMENTS
+    return None
 
 
 def _check_mesh(written, resolved, model, where, problems):

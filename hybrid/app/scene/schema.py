@@ -15,6 +15,10 @@ MAX_STEPS = 1e9
 # most elements a shape may be meshed into (a mistyped resolution would otherwise exhaust memory
 # before any message: 1e-4 m on a 0.1 m box asked for 7.5 GiB in one array)
 MAX_ELEMENTS = 2e6
+# largest length (m) of a shape or extent of a mesh file: beyond it doubles resolve positions more
+# coarsely than 0.1 mm (a contact margin is 5 mm), so it is a mistaken unit or a typo; and from
+# about 1e60 m volumes and inertias (cubes and fifth powers of lengths) overflow
+LARGEST_LENGTH = 1e12
 
 
 class _Marker:
@@ -138,8 +142,12 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
           "`capsule`; `height` with `cylinder`, `capsule`.",
           "A capsule's `height` must be >= 2 `radius`.",
-          "A `resolution` that would mesh the shape into more than 2e6 elements (tetrahedra for a "
-          "deformable body, surface triangles for a rigid one) is rejected."))
+          "`size`, `radius` and `height` must be at most 1e12 m.",
+          "A shape that would be meshed into more than 2e6 elements (tetrahedra for a deformable "
+          "body, surface triangles for a rigid one) is rejected: at its `resolution` or, when none "
+          "is given, at the builder's default (for a deformable box a third of its shortest side, "
+          "for a deformable sphere or cylinder half its radius, for a rigid cylinder or capsule "
+          "1/32 of its circumference)."))
 
 DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = mass M + stiffness K` "
                   "(FEM only).", (
@@ -152,8 +160,8 @@ AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body 
                "element's strain rate times the body's response time, the longer of its elastic wave "
                "transit time (largest extent over sqrt(young / density)) and the step: dimensionless, "
                "so the defaults hold from rubber to steel and centimetres to metres.", (
-    _positive("rigidify_strain", 1e-4, "", "An FEM auto body becomes rigid once its largest measured "
-              "strain stays below this for `window` steps (and nothing yields, its largest "
+    _positive("rigidify_strain", 1e-4, "", "An FEM auto body becomes rigid once its measured strain "
+              "(root mean square over its volume) stays below this for `window` steps (and nothing yields, its largest "
               "principal stress is below `fracture_margin` of `fracture_stress`, its anchors are "
               "still and it has no load unless anchored). At most a tenth of the elastify "
               "threshold in use."),
@@ -239,11 +247,12 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
               default_text="none (unbreakable)"),
     _positive("tearing_strain", None, "", "Equivalent plastic strain at which an element tears "
               "(ductile fracture); needs `yield_stress`.", fem=True, default_text="none"),
-    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid`, or `auto` "
-          "(fragments with fewer than `rigid_fragment_tets` elements become rigid).",
+    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid` (for good), "
+          "or `auto` (auto bodies, rigid while calm and FEM while struck; those with fewer than "
+          "`rigid_fragment_tets` elements rigid at once). An auto body's fragments are auto.",
           choices=("fem", "rigid", "auto"), fem=True),
     Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
-          "becomes rigid.", low=1, fem=True),
+          "turns rigid at once.", low=1, fem=True),
     Field("max_cracks_per_step", "integer", 16, "", "Most elements that crack in one step (the most "
           "overstressed first).", low=1, fem=True),
     Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
@@ -259,7 +268,11 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "cells: `order = 2` on a tetra mesh adds a node at the middle of every (straight) edge, "
           "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "
           "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
-          "listing them by index.",
+          "listing them by index. Every cell must name nodes the file has, and the points may span "
+          "at most 1e12 m.",
+          "A body whose fields give no usable body is rejected naming the field: a shape so small "
+          "that its volume underflows, or a deformable body placed so far from the origin that its "
+          "elements lose their volume in double precision.",
           "`auto` needs `model = \"auto\"` or `fragment_model = \"auto\"`.",
           "Every anchor and load box must hold at least one node of the body's mesh (checked when "
           "the body is built, by `run` and `validate`).",

@@ -4,7 +4,7 @@ import difflib
 import math
 from pathlib import Path
 
-from .describe import describe, toml_text
+from .describe import describe, printable, toml_text
 from .schema import INVALID, QUATERNION_TOLERANCE, REQUIRED
 
 
@@ -64,7 +64,7 @@ def read_table(table, section, where, problems, base_dir=None, only=None):
         if key not in allowed:
             close = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f" (did you mean '{close[0]}'?)" if close else ""
-            problems.append(where.general(f"unknown key '{where.prefix}{key}'{hint}; allowed: "
+            problems.append(where.general(f"unknown key '{where.prefix}{printable(str(key))}'{hint}; allowed: "
                                           + ", ".join(allowed)))
     values = {}
     for f in fields:
@@ -178,6 +178,8 @@ def _choice(f, value, _):
 def _path(f, value, base_dir):
     if not isinstance(value, str) or not value.strip():
         raise _Bad()
+    if "\0" in value:          # no file system takes one (os calls raise ValueError)
+        raise _Bad(" (a path cannot contain a NUL character)")
     path = Path(value).expanduser()
     return path if path.is_absolute() else (Path(base_dir or ".") / path).resolve()
 
