@@ -12,7 +12,7 @@ scene with them `model = "fem"`), alternating so both see the same machine:
 - ringing (the worst case): an undamped Newmark block in zero gravity set vibrating, which never
   calms, so auto gains nothing and costs its checks (0.5 s, dt = 1 ms).
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/auto_model.py [--seconds 5] [--repeat 1]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/auto_model.py [--seconds 5] [--repeat 1] [--scenes pile plate ringing]
 
 Prints a table; writes outputs/bench/auto_model.csv.
 """
@@ -177,10 +177,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="simulated time of the pile")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each scene (medians)")
+    parser.add_argument("--scenes", nargs="+", default=["pile", "plate", "ringing"],
+                        help="which scenes to run")
     args = parser.parse_args()
     rows = []
     scenes = (("pile", pile_scene(args.seconds)), ("plate", plate_scene()), ("ringing", ringing_scene()))
-    for name, text in scenes:
+    for name, text in [(n, t) for n, t in scenes if n in args.scenes]:
         results = [run(text) for _ in range(args.repeat)]
         auto = float(np.median([w["auto"] for w, _ in results]))
         fem = float(np.median([w["fem"] for w, _ in results]))

@@ -126,8 +126,19 @@ def response_time(fem, h):
 
 def strain_measure(fem, x, v, h, inverse_F=None):
     """Largest element strain rate of velocities ``v`` at shape ``x`` times the response time
-    (``inverse_F``: see fem.stress.element_strain_rate)."""
+    (``inverse_F``: see fem.stress.element_strain_rate): how much a load deforms the body
+    anywhere, the elastify test."""
     return float(element_strain_rate(fem, x, v, inverse_F).max()) * response_time(fem, h)
+
+
+def body_strain_measure(fem, x, v, h):
+    """Root mean square over the body's volume of its element strain rates of velocities ``v`` at
+    shape ``x``, times the response time: how much the body as a whole is still deforming, the
+    rigidify test (the contact solver's jitter at a few elements under a resting contact does not
+    keep a settled body deformable, as the largest element's rate would)."""
+    rate = element_strain_rate(fem, x, v)
+    volume = fem.elements.tet_volume
+    return float(np.sqrt(volume @ (rate * rate) / volume.sum())) * response_time(fem, h)
 
 
 # --- rigidify ----------------------------------------------------------------------------------
@@ -157,7 +168,7 @@ def _calm(model, state, j):
     rigidify = thresholds(model, model.fem_ids[j])[0]
     if _restless(m, s, rigidify, model.dt) or _approaching(model, state, j, rigidify):
         return False
-    if strain_measure(m, s.x, s.v, model.dt) >= rigidify:
+    if body_strain_measure(m, s.x, s.v, model.dt) >= rigidify:
         return False
     strength = model.scene.bodies[model.fem_ids[j]].fracture_stress
     if strength is None:
