@@ -1,5 +1,5 @@
 """Command line: ``hybrid run [SCENE | NAME] [--out DIR]``, ``hybrid scenes``, ``hybrid render DIR``,
-``hybrid validate SCENE``.
+``hybrid validate SCENE``, ``hybrid sweep`` and ``hybrid converge`` (:mod:`.study_cli`).
 
 Exit codes: 0 success, 2 bad input (scene or mesh problems, missing run folder), 3 the
 simulation went unstable (frames written so far are kept), 4 rendering unavailable.
@@ -128,7 +128,8 @@ def _render(args):
 
 
 def main(argv=None):
-    """Run the ``hybrid`` command line (``run``, ``render``, ``scenes``, ``validate``) on ``argv``
+    """Run the ``hybrid`` command line (``run``, ``render``, ``scenes``, ``validate``, ``sweep``,
+    ``converge``) on ``argv``
     (default ``sys.argv[1:]``) and return its exit code: 0 ok, 2 bad input, 3 unstable, 4
     rendering unavailable, 130 interrupted."""
     parser = argparse.ArgumentParser(
@@ -156,12 +157,15 @@ def main(argv=None):
     sub.add_parser("scenes", help="list the built-in scenes")
     p = sub.add_parser("validate", help="check a scene file and report every problem")
     p.add_argument("scene")
+    from .study_cli import add_commands, run_command
+    add_commands(sub)                   # sweep, converge: batch studies on Dask
     args = parser.parse_args(argv)
     if args.command == "validate":
         from .build import build     # meshes and regions are checked on the built bodies
         return validate_command(args.scene, check=build)
     try:
-        return {"run": _run, "render": _render, "scenes": _scenes}[args.command](args)
+        return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
+                "converge": run_command}[args.command](args)
     except KeyboardInterrupt:
         print("\ninterrupted; whole frames written so far are kept", file=sys.stderr)
         return 130

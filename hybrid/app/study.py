@@ -1,0 +1,227 @@
+"""The batch engine: many variants of one scene run in parallel on Dask, each an ordinary run in
+its own folder, and ``hybrid sweep``'s table of them.
+
+    from hybrid import sweep
+    rows = sweep("dent", {"bodies.plate.yield_stress": [2e8, 3e8]}, out="outputs/study")
+
+A study folder holds ``runs/<id>/`` (the variant's scene file and the files ``hybrid run``
+writes; ``hybrid run runs/<id>/<scene>.toml`` reruns one alone) and ``results.csv``. Runs go to a
+local cluster of worker processes (one thread each, BLAS pinned to one thread) or to an existing
+Dask scheduler; its workers must see the study folder at the same path (a shared file system).
+A run whose ``summary.json`` says ``ok`` for the same scene file is kept and skipped when the
+study runs again; an unstable or failed run is recorded and does not stop the others.
+"""
+import csv
+import os
+import sys
+import time as clock
+import traceback
+from pathlib import Path
+
+from .output import BODIES_CSV, read_summary
+from .variants import combinations, make_variants, parse_setting
+
+# one BLAS / OpenMP / numba thread per worker process: workers do not oversubscribe the cores
+PINNED_THREADS = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
+                  "NUMBA_NUM_THREADS": 1}
+FIGURES = ("wall_s", "steps_per_s", "simulated_time", "energy_drift", "linear_momentum_drift",
+           "angular_momentum_drift", "plastic_dissipation", "cracks", "fragments")
+
+
+def run_variant(scene_file, out_dir):
+    """Run the scene file ``scene_file`` into ``out_dir`` as ``hybrid run`` does (a worker's task).
+    Returns ``{"status": "ok" | "unstable" | "failed", "error": message or None, "wall_s"}``;
+    never raises for a failed run."""
+    from hybrid.coupling.step import InstabilityError
+    from ..simulation import Simulation
+    start = clock.perf_counter()
+    try:
+        summary = Simulation.from_toml(scene_file).run(out=out_dir, progress=False,
+                                                       log=lambda message: None)
+        status, error = summary["status"], summary["error"]
+    except InstabilityError as failure:
+        status, error = "unstable", str(failure)
+    except Exception as failure:        # noqa: BLE001 (one run's failure must not end the study)
+        status = "failed"
+        error = f"{type(failure).__name__}: {failure}".strip()
+        Path(out_dir, "error.txt").write_text(traceback.format_exc())
+    return {"status": status, "error": error, "wall_s": clock.perf_counter() - start}
+
+
+def finished(run_dir, scene_text, scene_name):
+    """Whether ``run_dir`` holds a finished ``ok`` run of exactly the scene file ``scene_text``."""
+    run_dir = Path(run_dir)
+    scene_file = run_dir / scene_name
+    try:
+        summary = read_summary(run_dir)
+        return (summary is not None and summary.get("status") == "ok"
+                and scene_file.read_text() == scene_text)
+    except (OSError, ValueError):
+        return False
+
+
+class StudyProgress:
+    """One line on stderr: runs done, running and failed (quiet when disabled)."""
+
+    def __init__(self, total, slots, enabled=True, stream=sys.stderr):
+        self.total, self.slots, self.enabled, self.stream = total, max(1, slots), enabled, stream
+        self.done = self.failed = self.skipped = 0
+        self.tty = hasattr(stream, "isatty") and stream.isatty()
+
+    def show(self, final=False):
+        """Write the line (on a terminal over the last one)."""
+        if not self.enabled:
+            return
+        running = 0 if final else min(self.slots, self.total - self.done - self.failed)
+        text = (f"runs: {self.done + self.failed}/{self.total} done ({self.skipped} kept from "
+                f"before), {running} running, {self.failed} failed")
+        self.stream.write(("\r" + text + ("\n" if final else "")) if self.tty else text + "\n")
+        self.stream.flush()
+
+
+def _client(workers, scheduler):
+    """A Dask client: to ``scheduler`` (an address) or to a new local cluster of ``workers``
+    single-threaded worker processes (default: the number of cores). Returns (client, cluster)."""
+    import dask
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        return Client(scheduler, timeout="20s"), None
+    n = int(workers or os.cpu_count() or 1)
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ | PINNED_THREADS}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=40)
+    return Client(cluster), cluster
+
+
+def execute(variants, out, workers=None, scheduler=None, progress=True):
+    """Run ``variants`` (from :func:`hybrid.app.variants.make_variants`) under ``out/runs/``,
+    skipping those finished before. Returns one record per variant, in order: ``id``, ``folder``,
+    ``scene_file``, ``status``, ``error``, ``wall_s``, ``kept`` (finished before)."""
+    runs = Path(out) / "runs"
+    records, todo = [], []
+    for v in variants:
+        folder = runs / v.id
+        scene_file = folder / v.file_name
+        text = v.text()
+        record = {"id": v.id, "folder": str(folder), "scene_file": str(scene_file), "kept": False}
+        if finished(folder, text, v.file_name):
+            summary = read_summary(folder)
+            record.update(status="ok", error=None, wall_s=summary["wall_time"], kept=True)
+        else:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "summary.json").unlink(missing_ok=True)
+            scene_file.write_text(text)
+            todo.append(record)
+        records.append(record)
+    _dispatch(todo, len(records), workers, scheduler, progress)
+    return records
+
+
+def _dispatch(todo, total, workers, scheduler, progress):
+    """Run the records' scene files on Dask, filling in status, error and wall time."""
+    bar = StudyProgress(total, 1, enabled=progress)
+    bar.done = bar.skipped = total - len(todo)
+    if not todo:
+        bar.show(final=True)
+        return
+    from dask.distributed import as_completed
+    client, cluster = _client(workers, scheduler)
+    try:
+        bar.slots = max(1, sum(client.nthreads().values()))
+        futures = {client.submit(run_variant, r["scene_file"], r["folder"], pure=False,
+                                 key=f"hybrid-run-{r['id']}-{os.urandom(4).hex()}"): r for r in todo}
+        bar.show()
+        for future in as_completed(futures):
+            record = futures[future]
+            try:
+                record.update(future.result())
+            except Exception as failure:    # noqa: BLE001 (a lost worker: recorded, not fatal)
+                record.update(status="failed", error=f"{type(failure).__name__}: {failure}", wall_s=None)
+            bar.failed += record["status"] != "ok"
+            bar.done += record["status"] == "ok"
+            bar.show()
+        bar.show(final=True)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def final_positions(folder):
+    """``{body: (x, y, z)}`` of each body's centre of mass at the last frame of a run folder."""
+    path = Path(folder) / BODIES_CSV
+    if not path.exists():
+        return {}
+    last = {}
+    with open(path, newline="") as stream:
+        for row in csv.DictReader(stream):
+            last[row["body"]] = (float(row["x"]), float(row["y"]), float(row["z"]))
+    return last
+
+
+def result_row(record, settings):
+    """A ``results.csv`` row: the swept values, status, error and the summary's figures."""
+    row = dict(id=record["id"], **settings, status=record["status"], error=record["error"] or "")
+    summary = read_summary(record["folder"]) if record["status"] != "failed" else None
+    row.update({k: "" for k in FIGURES})
+    row["wall_s"] = record.get("wall_s") or ""
+    if summary:
+        c, f = summary["conservation"], summary["fracture"]
+        row.update(wall_s=summary["wall_time"], steps_per_s=summary["steps_per_second"],
+                   simulated_time=summary["simulated_time"],
+                   energy_drift=c["energy_relative_drift"],
+                   linear_momentum_drift=c["linear_momentum_relative_drift"],
+                   angular_momentum_drift=c["angular_momentum_relative_drift"],
+                   plastic_dissipation=summary["plastic_dissipation"],
+                   cracks=f["cracks"], fragments=f["fragments"])
+    for body, xyz in final_positions(record["folder"]).items():
+        row.update({f"{body}.{axis}": value for axis, value in zip("xyz", xyz)})
+    row["folder"] = record["folder"]
+    return row
+
+
+def write_table(rows, path):
+    """Write records (dicts; columns in first-seen order, missing cells empty) as CSV."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    with open(path, "w", newline="") as stream:
+        writer = csv.DictWriter(stream, columns, restval="", lineterminator="\n")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _cell(v) for k, v in row.items()})
+
+
+def _cell(value):
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, list):
+        return ";".join(map(str, value))
+    return value
+
+
+def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, progress=False,
+          plot=None):
+    """Run every variant of ``scene`` (a scene file or built-in name) that ``settings`` makes
+    (``{key: [values]}`` or ``["KEY=V1,V2", ...]``; the full grid, or with ``zipped`` the i-th
+    values together) under ``out/runs/`` on Dask (``workers`` local processes, or the scheduler
+    at address ``scheduler``), write ``out/results.csv`` and return its rows (a list of dicts).
+    ``plot``: ``"FIGURE"`` or ``"FIGURE:KEY"`` draws ``out/FIGURE.png`` against the first (or
+    that) swept key. Raises SettingError or SceneError before anything runs for bad input."""
+    from ..simulation import scene_path
+    pairs = [parse_setting(s) for s in settings] if isinstance(settings, (list, tuple)) \
+        else [(k, list(v) if isinstance(v, (list, tuple)) else [v]) for k, v in settings.items()]
+    path = scene_path(scene)
+    if plot:
+        from .plots import check_sweep_plot
+        check_sweep_plot(plot, [k for k, _ in pairs])
+    rows = combinations(pairs, zipped)
+    variants = make_variants(path, rows)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    records = execute(variants, out, workers, scheduler, progress)
+    table = [result_row(r, v.settings) for r, v in zip(records, variants)]
+    write_table(table, out / "results.csv")
+    if plot:
+        from .plots import plot_sweep
+        plot_sweep(table, [k for k, _ in pairs], plot, out)
+    return table

@@ -1,0 +1,231 @@
+"""Variants of one scene: ``--set KEY=V1,V2`` settings, the grid (or zip) of them, and each
+variant written back as a scene file of its own.
+
+A KEY addresses a field of the scene file by its path: ``simulation.dt``,
+``simulation.solver.iterations``, ``bodies.<name>.<field>`` (``bodies.plate.yield_stress``),
+``bodies.<name>.shape.resolution``, ``bodies.<name>.anchors.<k>.velocity`` (the k-th anchor,
+from 0), ``planes.<k>.friction``. Values are TOML values (``1e-3``, ``true``, ``"corotated"``;
+a bare word is a string) separated by commas; a vector is written ``[0, 0, 1]`` or with
+semicolons, ``0;0;1``. Every variant is validated (the scene loader's checks) before any runs.
+"""
+import copy
+import hashlib
+import itertools
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from .scene import SceneError, parse_scene
+
+
+class SettingError(ValueError):
+    """A ``--set`` that cannot be applied: the message names the key and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One scene of a study. id: its folder name under ``runs/``. settings: ``{key: value}`` it
+    was made with (in ``--set`` order). data: the scene's TOML data with those settings applied
+    and mesh paths made absolute. file_name: the scene file's name (the original's)."""
+    id: str
+    settings: dict
+    data: dict
+    file_name: str
+
+    def text(self):
+        """The variant's scene file (TOML text)."""
+        return toml_text(self.data)
+
+
+def split_values(text):
+    """``"1,2,[0,0,1]"`` -> ``["1", "2", "[0,0,1]"]``: commas outside brackets and quotes."""
+    out, depth, quote, start = [], 0, None, 0
+    for i, ch in enumerate(text):
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            out.append(text[start:i].strip())
+            start = i + 1
+    out.append(text[start:].strip())
+    return out
+
+
+def parse_value(text):
+    """One ``--set`` value: a TOML value, else ``;``-separated components of a vector, else the
+    bare text as a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        pass
+    if ";" in text:
+        return [parse_value(part.strip()) for part in text.split(";")]
+    return text
+
+
+def parse_setting(text):
+    """``"KEY=V1,V2"`` -> ``(KEY, [v1, v2])``; SettingError when it has no ``=`` or no value."""
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    if not sep or not key or not values.strip():
+        raise SettingError(f"--set {text}: give KEY=V1,V2,... (for example simulation.dt=1e-3,5e-4)")
+    parts = split_values(values)
+    if any(p == "" for p in parts):
+        raise SettingError(f"--set {key}: empty value in '{values}'")
+    return key, [parse_value(p) for p in parts]
+
+
+def _child(node, part, key, walked):
+    """The table ``part`` names inside ``node`` (a table or a list of tables), created empty when
+    it is a table the scene left out."""
+    if isinstance(node, list):
+        if walked == "bodies":
+            named = [b for b in node if isinstance(b, dict) and b.get("name") == part]
+            if not named:
+                names = ", ".join(str(b.get("name")) for b in node if isinstance(b, dict))
+                raise SettingError(f"--set {key}: no body '{part}'; bodies: {names}")
+            return named[0]
+        if not part.isdigit() or int(part) >= len(node):
+            raise SettingError(f"--set {key}: '{walked}' has {len(node)} entries; give an index "
+                               f"0 to {len(node) - 1} after it, got '{part}'")
+        return node[int(part)]
+    if part not in node:
+        node[part] = {}
+    if not isinstance(node[part], (dict, list)):
+        raise SettingError(f"--set {key}: '{part}' is a value, not a table")
+    return node[part]
+
+
+def apply_setting(data, key, value):
+    """Set the field ``key`` (a dotted path, see the module docs) of scene data ``data`` to
+    ``value`` in place; SettingError naming the key when the path leads nowhere."""
+    parts = key.split(".")
+    if len(parts) < 2 or parts[0] not in ("simulation", "bodies", "planes"):
+        raise SettingError(f"--set {key}: a key starts with simulation., bodies.<name>. or "
+                           f"planes.<index>. and ends with a field name")
+    node, walked = data, ""
+    for part in parts[:-1]:
+        node = _child(node, part, key, walked)
+        walked = part
+    if isinstance(node, list):
+        raise SettingError(f"--set {key}: '{walked}' is a list of tables; name an entry and a field")
+    node[parts[-1]] = copy.deepcopy(value)
+
+
+def combinations(settings, zipped=False):
+    """The variants' settings: every combination of the values (``settings``: ``[(key,
+    values)]``), or with ``zipped`` the i-th value of each key together (all lists equally
+    long). A list of ``{key: value}``."""
+    if not settings:
+        return [{}]
+    keys = [k for k, _ in settings]
+    if zipped:
+        lengths = {k: len(v) for k, v in settings}
+        if len(set(lengths.values())) > 1:
+            raise SettingError("--zip needs as many values for every --set key; got "
+                               + ", ".join(f"{k}: {n}" for k, n in lengths.items()))
+        rows = zip(*(v for _, v in settings))
+    else:
+        rows = itertools.product(*(v for _, v in settings))
+    return [dict(zip(keys, row)) for row in rows]
+
+
+def _absolute_meshes(data, base_dir):
+    """Mesh paths made absolute (resolved from the original scene's folder), so the variant's
+    file loads from any folder."""
+    for body in data.get("bodies", []) if isinstance(data.get("bodies"), list) else []:
+        if isinstance(body, dict) and isinstance(body.get("mesh"), str):
+            body["mesh"] = str((Path(base_dir) / body["mesh"]).resolve())
+
+
+def _label(settings):
+    """A short file-name-safe label of the settings (``dt=0.001_young=1e6``)."""
+    text = "_".join(f"{k.rsplit('.', 1)[-1]}={_plain(v)}" for k, v in settings.items())
+    return re.sub(r"[^A-Za-z0-9._=+-]", "-", text)[:60]
+
+
+def _plain(value):
+    """A value as the user would write it in ``--set`` (vectors with ``;``)."""
+    if isinstance(value, list):
+        return ";".join(_plain(v) for v in value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def make_variants(scene_path, rows):
+    """Variants of the scene file ``scene_path``, one per ``{key: value}`` in ``rows``; each is
+    validated. Raises SettingError for a key that leads nowhere, SceneError (problems prefixed
+    with the variant's settings) for values the scene loader rejects."""
+    scene_path = Path(scene_path)
+    try:
+        base = tomllib.loads(scene_path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
+        raise SceneError([f"{scene_path}: cannot read scene file ({error})"]) from None
+    variants, problems = [], []
+    for index, settings in enumerate(rows):
+        data = copy.deepcopy(base)
+        for key, value in settings.items():
+            apply_setting(data, key, value)
+        _absolute_meshes(data, scene_path.parent)
+        digest = hashlib.sha1(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:6]
+        label = _label(settings)
+        variant_id = f"{index:03d}_{label}" if label else f"{index:03d}_{digest}"
+        try:
+            parse_scene(data, str(scene_path), scene_path.parent)
+        except SceneError as error:
+            where = ", ".join(f"{k}={_plain(v)}" for k, v in settings.items()) or "the scene"
+            problems += [f"--set {where}: {p}" for p in error.problems]
+        variants.append(Variant(variant_id, dict(settings), data, scene_path.name))
+    if problems:
+        raise SceneError(problems)
+    return variants
+
+
+# ------------------------------------------------------------------------------ writing TOML
+def _toml_scalar(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)          # round-trips exactly: a variant runs with the same numbers
+    if isinstance(value, str):
+        return json.dumps(value)    # TOML basic strings take JSON's escapes
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_scalar(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_scalar(v)}" for k, v in value.items()) + " }"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def _toml_key(key):
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
+def toml_text(data):
+    """Scene data as TOML text: top-level tables as ``[name]``, lists of tables as ``[[name]]``,
+    anything nested inline. ``tomllib.loads(toml_text(d)) == d`` for the scene files' values."""
+    lines = []
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)
+              or (isinstance(v, list) and v and all(isinstance(e, dict) for e in v))}
+    for key, value in data.items():
+        if key not in tables:
+            lines.append(f"{_toml_key(key)} = {_toml_scalar(value)}")
+    for key, value in tables.items():
+        for entry in [value] if isinstance(value, dict) else value:
+            header = f"[{_toml_key(key)}]" if isinstance(value, dict) else f"[[{_toml_key(key)}]]"
+            lines += ["", header] + [f"{_toml_key(k)} = {_toml_scalar(v)}" for k, v in entry.items()]
+    return "\n".join(lines).lstrip("\n") + "\n"

@@ -1,0 +1,171 @@
+"""Batch studies on Dask (``hybrid sweep``): variants run in parallel give the numbers they give
+alone, a rerun keeps finished runs, bad settings are refused before anything runs, a failed run
+does not stop the others, and the same command runs on a real scheduler and worker."""
+import csv
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hybrid import sweep
+from hybrid.app.cli import main
+from hybrid.app.variants import parse_value, toml_text
+
+DROP = """[simulation]
+duration = 0.25
+dt = 0.004
+output_fps = 40
+
+[[planes]]
+restitution = 0.3
+
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.05 }
+position = [0.0, 0.0, 0.3]
+"""
+BEAM = """[simulation]
+duration = 0.02
+dt = 0.01
+gravity = [0.0, 0.0, -9.81]
+
+[[bodies]]
+name = "beam"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.05, 0.05], resolution = 0.05 }
+young = 1e7
+
+[[bodies.anchors]]
+box = [[-0.11, -1.0, -1.0], [-0.09, 1.0, 1.0]]
+"""
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """A 2 x 2 sweep (time step x restitution) of a dropped ball on two local workers."""
+    folder = tmp_path_factory.mktemp("study")
+    scene = folder / "drop.toml"
+    scene.write_text(DROP)
+    rows = sweep(scene, ["simulation.dt=0.004,0.002", "bodies.ball.restitution=0.2,0.8"],
+                 out=folder / "out", workers=2)
+    return scene, folder / "out", rows
+
+
+def test_two_by_two_sweep_on_two_workers_matches_each_variant_run_alone(study, tmp_path):
+    scene, out, rows = study
+    assert [r["status"] for r in rows] == ["ok"] * 4
+    assert {(r["simulation.dt"], r["bodies.ball.restitution"]) for r in rows} == \
+        {(0.004, 0.2), (0.004, 0.8), (0.002, 0.2), (0.002, 0.8)}
+    table = list(csv.DictReader(open(out / "results.csv")))
+    assert [t["id"] for t in table] == [r["id"] for r in rows]
+    heights = {}
+    for row in rows:
+        folder = Path(row["folder"])
+        alone = tmp_path / row["id"]
+        assert main(["run", str(folder / "drop.toml"), "--out", str(alone), "--quiet"]) == 0
+        assert (alone / "bodies.csv").read_bytes() == (folder / "bodies.csv").read_bytes()
+        heights[row["bodies.ball.restitution"]] = float(row["ball.z"])
+    # the sweep changed what it says it changed: the livelier ball is higher when it ends
+    assert heights[0.8] > heights[0.2] + 0.01
+
+
+def test_a_rerun_keeps_finished_runs_and_reruns_the_interrupted_one(study):
+    scene, out, rows = study
+    summaries = {r["id"]: Path(r["folder"]) / "summary.json" for r in rows}
+    stamps = {k: p.stat().st_mtime_ns for k, p in summaries.items()}
+    interrupted = rows[1]["id"]
+    summaries[interrupted].unlink()             # as a run stopped part way leaves it
+    again = sweep(scene, ["simulation.dt=0.004,0.002", "bodies.ball.restitution=0.2,0.8"],
+                  out=out, workers=1)
+    assert [r["status"] for r in again] == ["ok"] * 4
+    for key, path in summaries.items():
+        if key == interrupted:
+            assert path.exists()
+        else:
+            assert path.stat().st_mtime_ns == stamps[key], f"{key} was run again"
+    assert [r["ball.z"] for r in again] == [r["ball.z"] for r in rows]
+
+
+@pytest.mark.parametrize("setting, named", [
+    ("bodies.nobody.restitution=0.1", "no body 'nobody'"),
+    ("simulation.dtt=0.1,0.2", "dtt"),
+    ("simulation.dt=0.01,-1", "dt"),
+    ("planes.3.friction=0.1", "planes"),
+    ("restitution=0.1", "restitution"),
+])
+def test_a_bad_set_is_an_exit_2_error_naming_the_key_and_nothing_runs(tmp_path, capsys, setting, named):
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    code = main(["sweep", str(scene), "--set", setting, "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert named in err and "nothing was run" in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "runs").exists()
+
+
+def test_set_values_and_variant_files_round_trip():
+    assert parse_value("0;0;1.5") == [0, 0, 1.5]
+    assert parse_value("[1, 2]") == [1, 2]
+    assert parse_value("corotated") == "corotated"
+    assert parse_value("true") is True
+    data = {"simulation": {"dt": 0.1 / 3, "name": 'a "b"', "solver": {"iterations": 5}},
+            "planes": [{"normal": [0.0, 0.0, 1.0]}],
+            "bodies": [{"name": "x", "shape": {"type": "box", "size": [1.0, 2.0, 3.0]},
+                        "anchors": [{"box": [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]}]}]}
+    import tomllib
+    assert tomllib.loads(toml_text(data)) == data
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_port(port, process, seconds=30):
+    end = time.time() + seconds
+    while time.time() < end:
+        assert process.poll() is None, "the Dask process ended"
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise AssertionError(f"nothing listens on port {port}")
+
+
+def test_sweep_through_a_real_scheduler_and_worker_records_a_failed_run_and_runs_the_rest(tmp_path, capsys):
+    port = _free_port()
+    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    env = os.environ | {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    scheduler = subprocess.Popen(dask + ["--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    worker = None
+    try:
+        _wait_for_port(port, scheduler)
+        address = f"tcp://127.0.0.1:{port}"
+        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address,
+                                   "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+        scene = tmp_path / "beam.toml"
+        scene.write_text(BEAM)
+        # the second anchor box holds no node: that variant fails when its bodies are built
+        code = main(["sweep", str(scene), "--set",
+                     "bodies.beam.anchors.0.box=[[-0.11,-1,-1],[-0.09,1,1]],[[5,5,5],[6,6,6]]",
+                     "--scheduler", address, "--out", str(tmp_path / "out"), "--quiet"])
+        assert code == 0
+        rows = list(csv.DictReader(open(tmp_path / "out" / "results.csv")))
+        assert [r["status"] for r in rows] == ["ok", "failed"]
+        assert "anchor" in rows[1]["error"]
+        summary = json.loads((Path(rows[0]["folder"]) / "summary.json").read_text())
+        assert summary["status"] == "ok" and summary["steps"] == 2
+        assert "1 of 2 runs ok" in capsys.readouterr().out
+    finally:
+        for process in (worker, scheduler):
+            if process is not None:
+                process.terminate()
+                process.wait(timeout=30)
