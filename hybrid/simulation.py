@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .app import geometry, observe
+from .app import checkpoint, geometry, observe
 from .app.build import build
 from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hints, summary
 from .app.scene import SceneError, load_scene
@@ -76,6 +76,7 @@ class Simulation:
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
         self.fem_time, self.stepped_time = {}, 0.0
+        self.resumed = None     # what the next run continues from (set by resume)
 
     @classmethod
     def from_toml(cls, path):
@@ -83,6 +84,16 @@ class Simulation:
         scenes`` lists them). Raises SceneError listing every problem (a missing file among them),
         KeyError for a name that is no built-in scene."""
         return cls(load_scene(scene_path(path)))
+
+    @classmethod
+    def resume(cls, path, out):
+        """The scene file ``path`` (or built-in scene name) as the checkpoint in folder ``out``
+        left it (``out/checkpoint.npz``, see :mod:`hybrid.app.checkpoint`); :meth:`run` with that
+        ``out`` then continues the run there, ending as the run would have without the stop.
+        Raises SceneError for a scene file with problems and
+        :class:`hybrid.app.checkpoint.CheckpointError` for a checkpoint that is missing, of
+        another scene, truncated or corrupted, or of another format version."""
+        return checkpoint.restore(cls.__new__(cls), load_scene(scene_path(path)), out)
 
     @property
     def time(self):
@@ -128,50 +139,81 @@ class Simulation:
         """Called after each step with its model and state, before the events between steps
         (a hook for subclasses; nothing here)."""
 
-    def run(self, until=None, out=None, progress=True, log=print):
+    def run(self, until=None, out=None, progress=True, log=print, checkpoint_every=None,
+            stop=None):
         """Step until simulated time ``until`` (s; default the scene's ``duration``), recording a
         frame at the scene's ``output_fps`` (and one at the current time). With ``out`` (a
         folder), write the frames (.vtu and a .pvd index), bodies.csv, regions.csv and
-        summary.json there, as ``hybrid run`` does. Messages (warnings, events) go to ``log``.
+        summary.json there, as ``hybrid run`` does, and checkpoints (``out/checkpoint.npz``,
+        :mod:`hybrid.app.checkpoint`) every ``checkpoint_every`` simulated seconds (None: every
+        tenth of the duration or five minutes of wall time, whichever comes first; 0: only when
+        stopped); the last one is removed when the run ends well. A simulation made by
+        :meth:`resume` continues its run instead (``until`` is then the stopped run's).
+        ``stop``: a :class:`hybrid.app.checkpoint.StopRequest`; once set (by a signal, see
+        :func:`hybrid.app.checkpoint.stop_on_signals`) the run finishes its step, writes a
+        checkpoint and the summary (status ``stopped``) and raises
+        :class:`hybrid.app.checkpoint.Stopped`. Messages (warnings, events) go to ``log``.
         Returns the summary (a dict). On instability the frames so far and the summary are kept
         and the InstabilityError is raised again."""
-        sim = self.scene.simulation
-        until = sim.duration if until is None else float(until)
-        steps_total = int(round((until - self.time) / sim.dt))
+        position, snapshot = self._position(until)
         for message in self.warnings:
             log(f"warning: {message}")
         self.warnings = []
-        bar = Progress(until, enabled=progress)
-        failure, first_event, wall0 = None, len(self.events), clock.perf_counter()
+        bar = Progress(position.until, enabled=progress)
+        wall0 = clock.perf_counter() - position.wall
         with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder:
-            failure = self._steps(steps_total, recorder, bar, log)
+            if snapshot is None:
+                recorder.record(self.model, self.state)
+            else:
+                checkpoint.resume_recorder(recorder, snapshot, out)
+            saver = checkpoint.Checkpoints(self, out, checkpoint_every, position, wall0, stop, log)
+            failure = self._steps(position, recorder, bar, log, saver)
             bar.update(self.time, self.steps, force=True)
             bar.done()
             wall = clock.perf_counter() - wall0
             result = summary(self.scene, self.model, self.state, wall, recorder, failure,
-                             self.events[first_event:], self.timings,
+                             self.events[position.first_event:], self.timings,
                              (self.fem_time, self.stepped_time))
+            if saver.stopped is not None:
+                result["status"] = "stopped"
             for line in rigid_hints(self.model, recorder):
                 log(line)
             recorder.close(result)
         if failure is not None:
             raise failure
+        if saver.stopped is not None:
+            raise saver.stopped
+        saver.finished()
         return result
 
-    def _steps(self, count, recorder, bar, log):
-        """Take ``count`` steps, recording frames at the output rate; the InstabilityError that
-        stopped them, or None."""
+    def _position(self, until):
+        """``(Position, recorder snapshot)`` the run starts from: a new run's (snapshot None),
+        or the checkpoint's of a resumed simulation."""
+        if self.resumed is not None:
+            position, snapshot = self.resumed
+            self.resumed = None
+            return position, snapshot
+        sim = self.scene.simulation
+        until = sim.duration if until is None else float(until)
+        end_step = self.steps + int(round((until - self.time) / sim.dt))
+        return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,
+                                   len(self.events)), None
+
+    def _steps(self, position, recorder, bar, log, saver):
+        """Take steps until ``position.end_step``, recording frames at the output rate and
+        writing checkpoints (``saver``, which also ends the steps when a stop was asked); the
+        InstabilityError that stopped them, or None."""
         frame_every = 1.0 / self.scene.simulation.output_fps
-        recorder.record(self.model, self.state)
-        next_frame = self.time + frame_every
         try:
-            for _ in range(count):
+            while self.steps < position.end_step:
                 for event in self.step():
                     log(event.message)
-                if self.time >= next_frame - 1e-9 * self.dt:
+                if self.time >= position.next_frame - 1e-9 * self.dt:
                     recorder.record(self.model, self.state)
-                    next_frame += frame_every
+                    position.next_frame += frame_every
                 bar.update(self.time, self.steps)
+                if saver.after_step(recorder):
+                    break
         except InstabilityError as error:
             return error
         except Exception as error:      # noqa: BLE001 (the run's boundary)

@@ -1,10 +1,14 @@
 """Command line: ``hybrid run [SCENE | NAME] [--out DIR]``, ``hybrid scenes``, ``hybrid render DIR``,
 ``hybrid validate SCENE``, ``hybrid sweep`` and ``hybrid converge`` (:mod:`.study_cli`).
 
-Exit codes: 0 success, 2 bad input (scene or mesh problems, missing run folder), 3 the
-simulation went unstable (frames written so far are kept), 4 rendering unavailable.
+Exit codes: 0 success, 2 bad input (scene or mesh problems, missing run folder, a checkpoint
+that cannot be resumed from), 3 the simulation went unstable (frames written so far are kept), 4
+rendering unavailable, 130 / 143 stopped by SIGINT / SIGTERM (``hybrid run`` writes a
+checkpoint first and says how to resume).
 """
 import argparse
+import math
+import shlex
 import sys
 from importlib import metadata
 from importlib import resources
@@ -70,20 +74,29 @@ def _run(args):
         print(f"{path}: --out {out}: {blocking} is a file; give a folder (it is created if missing)",
               file=sys.stderr)
         return 2
+    from .checkpoint import CheckpointError, Stopped, stop_on_signals
     try:
-        sim = Simulation(scene)
+        sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
     except SceneError as err:           # problems only the built bodies show
         return _rejected(path, err)
-    except (MeshError, ValueError) as err:
+    except (MeshError, ValueError, CheckpointError) as err:
         print(f"{path}: {err}", file=sys.stderr)
         return 2
-    print(f"running '{scene.name}' ({len(scene.bodies)} bodies, {scene.simulation.duration} s at "
-          f"dt = {scene.simulation.dt:g} s) -> {out}")
+    print(f"{'resuming' if args.resume else 'running'} '{scene.name}' ({len(scene.bodies)} bodies, "
+          f"{scene.simulation.duration} s at dt = {scene.simulation.dt:g} s"
+          f"{f', from t = {sim.time:.6g} s' if args.resume else ''}) -> {out}")
     try:
-        summary = sim.run(out=out, progress=not args.quiet, log=lambda m: print(m, file=sys.stderr))
+        with stop_on_signals() as stop:
+            summary = sim.run(out=out, progress=not args.quiet, log=lambda m: print(m, file=sys.stderr),
+                              checkpoint_every=args.checkpoint_every, stop=stop)
     except InstabilityError as err:
         print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
         return 3
+    except CheckpointError as err:      # the run folder changed since the checkpoint
+        print(f"{path}: {err}", file=sys.stderr)
+        return 2
+    except Stopped as stopped:
+        return _stopped(args, out, stopped)
     c = summary["conservation"]
     print(f"done: {summary['steps']} steps, {summary['frames']} frames in {summary['wall_time']:.1f} s "
           f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g} "
@@ -92,6 +105,35 @@ def _run(args):
     print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv, summary.json")
     print(f"render it with: hybrid render {out}")
     return 0
+
+
+def _stopped(args, out, stopped):
+    """Say where a run stopped by a signal is kept and the command that resumes it; its exit code
+    (128 + the signal's number)."""
+    if stopped.checkpoint is None:
+        print(f"\n{out}: {stopped}; no checkpoint could be written; whole frames written so far "
+              f"are kept", file=sys.stderr)
+        return stopped.exit_code
+    command = ["hybrid", "run", *([args.scene] if args.scene else []), "--out", str(out), "--resume"]
+    if args.checkpoint_every is not None:
+        command += ["--checkpoint-every", repr(args.checkpoint_every)]
+    command += ["--quiet"] if args.quiet else []
+    print(f"\n{out}: {stopped}; checkpoint written to {stopped.checkpoint}, whole frames so far "
+          f"kept. Resume with:\n  {shlex.join(command)}", file=sys.stderr)
+    return stopped.exit_code
+
+
+def _seconds(text):
+    """A ``--checkpoint-every`` value: simulated seconds, finite and not negative (0: only the
+    checkpoint a stop writes)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: give simulated seconds, 0 or more (0: a "
+                                         f"checkpoint only when stopped)")
+    return value
 
 
 def _render(args):
@@ -138,13 +180,20 @@ def main(argv=None):
                     "VTK frames, tables and renders out.",
         epilog=f"built-in scenes (hybrid run NAME):\n{_scenes_text()}\n\n"
                "exit codes: 0 ok, 2 bad input, 3 unstable (frames so far kept), 4 rendering "
-               "unavailable, 130 interrupted")
+               "unavailable, 130 / 143 stopped by SIGINT / SIGTERM (run: checkpoint written)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="simulate a scene (the built-in default scene if none is given)")
     p.add_argument("scene", nargs="?", help="scene file (TOML) or the name of a built-in scene")
     p.add_argument("--out", help="output folder (default outputs/<scene name>/)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--checkpoint-every", type=_seconds, metavar="T",
+                   help="write DIR/checkpoint.npz every T simulated seconds (default: every tenth "
+                        "of the duration or 5 minutes of wall time, whichever comes first, none "
+                        "in the first 10 s; 0: only when stopped). SIGINT or SIGTERM stops a run cleanly "
+                        "with a checkpoint (exit 130 / 143)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in DIR from its checkpoint (same scene file)")
     p = sub.add_parser("render", help="render a finished run off-screen to PNG frames and a movie")
     p.add_argument("dir", help="run folder written by 'hybrid run'")
     p.add_argument("--size", type=int, nargs=2, default=[960, 540], metavar=("W", "H"))

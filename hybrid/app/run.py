@@ -15,7 +15,7 @@ from rigid.contacts import detect, detect_points
 from rigid import quaternion as quat
 
 from . import observe
-from .output import RunWriter
+from .output_resume import ResumableWriter
 
 
 class Progress:
@@ -110,12 +110,13 @@ def forwarded(logger, log):
 
 
 class Recorder:
-    """Frames of one run: written to ``out_dir`` (a :class:`RunWriter`) when it is given, and the
-    totals (energy, momenta, the momentum the bodies carry) of every recorded frame kept for the
-    summary. Use it as a context manager so the files are closed on error."""
+    """Frames of one run: written to ``out_dir`` (a
+    :class:`hybrid.app.output_resume.ResumableWriter`) when it is given, and the totals (energy,
+    momenta, the momentum the bodies carry) of every recorded frame kept for the summary. Use it
+    as a context manager so the files are closed on error."""
 
     def __init__(self, out_dir, scene_name):
-        self.writer = RunWriter(out_dir, scene_name) if out_dir is not None else None
+        self.writer = ResumableWriter(out_dir, scene_name) if out_dir is not None else None
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.frames = 0
         self.strains = {}       # per FEM or auto body: its largest strain over the frames
@@ -141,6 +142,23 @@ class Recorder:
         for name, strain in observe.largest_strains(model, state).items():
             self.strains[name] = max(strain, self.strains.get(name, 0.0))
         self.frames += 1
+
+    def snapshot(self):
+        """What :meth:`restore` needs to continue this recorder (a checkpoint keeps it): the
+        totals so far and where the files stand."""
+        return {"energies": list(self.energies), "momenta": list(self.momenta),
+                "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
+                "strains": dict(self.strains),
+                "files": None if self.writer is None else self.writer.snapshot()}
+
+    def restore(self, snapshot):
+        """Continue from a :meth:`snapshot`: its totals, and the files taken back to it
+        (hybrid.app.output_resume.ResumableWriter.resume)."""
+        self.energies, self.momenta = list(snapshot["energies"]), list(snapshot["momenta"])
+        self.angular, self.carried = list(snapshot["angular"]), list(snapshot["carried"])
+        self.frames, self.strains = snapshot["frames"], dict(snapshot["strains"])
+        if self.writer is not None and snapshot["files"] is not None:
+            self.writer.resume(snapshot["files"])
 
     def close(self, summary):
         """Write ``summary.json`` and close the tables (nothing without an output folder)."""

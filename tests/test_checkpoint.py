@@ -1,0 +1,235 @@
+"""A long run survives being stopped (issue 25): SIGTERM stops ``hybrid run`` after a whole step
+with a checkpoint, ``--resume`` continues it to the files an uninterrupted run writes, bit for
+bit; checkpoints of another scene, damaged ones and ones of another format version are refused."""
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+
+from hybrid import Simulation
+from hybrid.app import checkpoint
+from hybrid.app.cli import main
+
+# contacts (a ball and a soft block on the ground), plasticity with two reference-shape updates
+# (t = 0.027 and 0.042 s) and a tear that splits the bar in two (t = 0.05 s), then 0.2 s more
+SCENE = """\
+[simulation]
+name = "split"
+duration = 0.25
+dt = 0.001
+output_fps = 200
+
+[[planes]]
+friction = 0.5
+
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.02, 0.02], resolution = 0.01 }
+position = [0.0, 0.0, 0.3]
+young = 1.0e8
+poisson = 0.3
+density = 1000.0
+yield_stress = 1.0e6
+tearing_strain = 0.05
+fracture_stress = 1.5e6
+
+[[bodies.anchors]]
+box = [[-1, -1, -1], [-0.099999, 1, 1]]
+
+[[bodies.anchors]]
+box = [[0.099999, -1, -1], [1, 1, 1]]
+velocity = [0.2, 0.0, 0.0]
+
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.06, 0.06, 0.06], resolution = 0.03 }
+position = [0.3, 0.0, 0.05]
+young = 2.0e5
+density = 500.0
+
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.03 }
+position = [-0.3, 0.0, 0.04]
+velocity = [0.0, 0.0, -1.0]
+"""
+
+# a quick scene for the refusals: one ball falling onto the ground
+QUICK = """\
+[simulation]
+name = "quick"
+duration = 0.05
+dt = 0.005
+
+[[planes]]
+
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.05 }
+position = [0.0, 0.0, 0.2]
+"""
+
+
+def hybrid(*args, cwd, **popen):
+    """``python -m hybrid ARGS`` in ``cwd``, started (a Popen)."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "hybrid", *map(str, args)], cwd=cwd, env=env,
+                            text=True, **popen)
+
+
+def stopped_after_split(root):
+    """``hybrid run`` of SCENE into ``root/stopped`` sent SIGTERM once the bar has split: (exit
+    code, stderr lines)."""
+    run = hybrid("run", "scene.toml", "--out", "stopped", "--quiet", "--checkpoint-every", "0.02",
+                 cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    lines = []
+    for line in run.stderr:
+        lines.append(line)
+        if "split off" in line:
+            run.send_signal(signal.SIGTERM)
+            break
+    lines += run.stderr.readlines()
+    return run.wait(timeout=120), lines
+
+
+def test_a_run_stopped_by_sigterm_after_a_fracture_resumes_to_the_uninterrupted_files(tmp_path):
+    (tmp_path / "scene.toml").write_text(SCENE)
+    whole = hybrid("run", "scene.toml", "--out", "whole", "--quiet", "--checkpoint-every", "0",
+                   cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    code, lines = stopped_after_split(tmp_path)
+    assert whole.wait(timeout=120) == 0, whole.stderr.read()
+    text = "".join(lines)
+    assert code == 143, text
+    assert any("took its plastic deformation" in line for line in lines)     # before the split
+    split = float(next(line for line in lines if "split off" in line).split()[2])
+    stopped = tmp_path / "stopped"
+    manifest = json.loads(np.load(stopped / "checkpoint.npz")["manifest"].tobytes())
+    assert split - 1e-4 < manifest["time"] < 0.2 and manifest["version"] == checkpoint.VERSION
+    assert json.loads((stopped / "summary.json").read_text())["status"] == "stopped"
+    command = shlex.split(text.split("Resume with:")[1].strip().splitlines()[0])
+    assert command[:2] == ["hybrid", "run"] and "--resume" in command
+    # what a run killed after its checkpoint leaves is dropped: a frame and half a row more
+    frames = sorted((stopped / "frames").glob("frame_*.vtu"))
+    (stopped / "frames" / f"frame_{len(frames):05d}.vtu").write_bytes(frames[-1].read_bytes())
+    with open(stopped / "bodies.csv", "a") as f:
+        f.write("0.3,bar,1.0,2.")
+    resumed = hybrid(*command[1:], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    output = resumed.communicate(timeout=120)[0]
+    assert resumed.returncode == 0, output
+    whole = tmp_path / "whole"
+    for name in ("bodies.csv", "regions.csv", "split.pvd"):
+        assert (stopped / name).read_bytes() == (whole / name).read_bytes(), name
+    last = sorted((whole / "frames").glob("frame_*.vtu"))
+    assert [p.name for p in sorted((stopped / "frames").glob("frame_*.vtu"))] == [p.name for p in last]
+    assert (stopped / "frames" / last[-1].name).read_bytes() == last[-1].read_bytes()
+    assert "bar.1" in (whole / "bodies.csv").read_text()
+    summary = json.loads((stopped / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["steps"] == 250
+    assert summary["events"] == json.loads((whole / "summary.json").read_text())["events"]
+    assert not (stopped / "checkpoint.npz").exists()          # a finished run leaves none
+
+
+@pytest.fixture
+def stopped_quick(tmp_path):
+    """A checkpoint of QUICK after one step (a stop asked before the run): (folder, scene)."""
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK)
+    request = checkpoint.StopRequest()
+    request.signal = signal.SIGINT
+    with pytest.raises(checkpoint.Stopped) as stopped:
+        Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lambda m: None,
+                                        stop=request)
+    assert stopped.value.exit_code == 130 and stopped.value.checkpoint.is_file()
+    return tmp_path / "run", scene
+
+
+def resume_code(capsys, scene, out):
+    """``hybrid run SCENE --out OUT --resume`` in this process: (exit code, stderr)."""
+    code = main(["run", str(scene), "--out", str(out), "--resume", "--quiet"])
+    return code, capsys.readouterr().err
+
+
+def test_a_checkpoint_resumes_to_the_end_of_its_run(capsys, stopped_quick):
+    out, scene = stopped_quick
+    code, err = resume_code(capsys, scene, out)
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["steps"] == 10
+
+
+def test_a_checkpoint_of_another_scene_is_refused(capsys, stopped_quick):
+    out, scene = stopped_quick
+    scene.write_text(QUICK.replace("0.2]", "0.3]"))
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "checkpoint.npz" in err and "content differs" in err, err
+    assert "Traceback" not in err
+
+
+def test_a_truncated_checkpoint_is_refused(capsys, stopped_quick):
+    out, scene = stopped_quick
+    data = (out / "checkpoint.npz").read_bytes()
+    (out / "checkpoint.npz").write_bytes(data[:len(data) // 2])
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "truncated or corrupted" in err, err
+
+
+def test_a_corrupted_checkpoint_is_refused(capsys, stopped_quick):
+    out, scene = stopped_quick
+    data = bytearray((out / "checkpoint.npz").read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 16] = bytes(255 - b for b in data[middle:middle + 16])
+    (out / "checkpoint.npz").write_bytes(bytes(data))
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "truncated or corrupted" in err, err
+
+
+def rewritten(path, change):
+    """Rewrite checkpoint ``path`` with its manifest passed through ``change``."""
+    with np.load(path) as z:
+        arrays = {name: z[name] for name in z.files}
+    manifest = change(json.loads(arrays.pop("manifest").tobytes()))
+    data = np.frombuffer(json.dumps(manifest).encode(), dtype=np.uint8)
+    with open(path, "wb") as f:
+        np.savez(f, manifest=data, **arrays)
+
+
+def test_a_checkpoint_of_another_format_version_is_refused(capsys, stopped_quick):
+    out, scene = stopped_quick
+    rewritten(out / "checkpoint.npz", lambda m: m | {"version": checkpoint.VERSION + 1})
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and f"format version {checkpoint.VERSION + 1}" in err, err
+
+
+def test_a_checkpoint_naming_a_class_outside_the_project_is_refused_without_importing_it(
+        capsys, stopped_quick):
+    out, scene = stopped_quick
+
+    def evil(manifest):
+        manifest["content"]["dict"][0][1] = {"id": 999, "dataclass": "subprocess:Popen",
+                                             "fields": {"args": "touch pwned"}, "rebuilt": []}
+        return manifest
+
+    rewritten(out / "checkpoint.npz", evil)
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "subprocess:Popen" in err and "not one a checkpoint may hold" in err, err
+    assert not (out.parent / "pwned").exists()
+
+
+def test_a_missing_checkpoint_and_an_object_array_are_refused(capsys, stopped_quick):
+    out, scene = stopped_quick
+    with zipfile.ZipFile(out / "checkpoint.npz") as z:
+        assert "manifest.npy" in z.namelist()
+    with open(out / "checkpoint.npz", "wb") as f:
+        np.savez(f, manifest=np.array([object()], dtype=object))
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "truncated or corrupted" in err, err
+    (out / "checkpoint.npz").unlink()
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "no checkpoint to resume from" in err, err
