@@ -210,7 +210,7 @@ def _approaching(model, state, j, rigidify):
 def rigid_due(model, state):
     """``(calm, due)``: every FEM auto body's count of calm steps in a row (scene index ->
     steps) and the FEM bodies (indices into model.fem) to turn rigid now: those calm for their
-    ``window``, and fracture pieces smaller than ``rigid_fragment_tets`` at once (the size hint
+    ``window`` (stretched by ``state.backoff``), and fracture pieces smaller than ``rigid_fragment_tets`` at once (the size hint
     of ``fragment_model = "auto"``: a few elements flying off are not worth an FEM body)."""
     calm, due = {}, []
     for j, k in enumerate(model.fem_ids):
@@ -220,7 +220,7 @@ def rigid_due(model, state):
         calm[k] = state.calm.get(k, 0) + 1 if _calm(model, state, j) else 0
         small = model.fragment_of is not None and model.fragment_of[k] != k \
             and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets
-        if calm[k] >= auto.window or (small and _may_turn(model, state, j)):
+        if calm[k] >= auto.window * state.backoff.get(k, 1) or (small and _may_turn(model, state, j)):
             due.append(j)
     return calm, due
 

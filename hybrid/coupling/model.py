@@ -70,7 +70,11 @@ class HybridState:
     faces; reference-shape updates keep the tets, so the rows stay valid.
     Auto bodies (hybrid.coupling.auto): touches: the last step's contact impulses on rigid auto
     bodies (:class:`hybrid.coupling.auto.Touches`, None without any); calm: per FEM auto body
-    (scene index), how many steps in a row it has been calm enough to become rigid.
+    (scene index), how many steps in a row it has been calm enough to become rigid. backoff: per
+    auto body, the factor its calm window is stretched by (doubled each time it turns deformable
+    again within a window of turning rigid, so a body whose contacts settle differently as a
+    rigid body does not switch back and forth); rigid_since: per rigid auto body, the step count
+    when it turned rigid.
     """
     rigid: object
     fem: list = field(default_factory=list)
@@ -82,3 +86,5 @@ class HybridState:
     fracture_pending: tuple = None
     touches: object = None
     calm: dict = field(default_factory=dict)
+    backoff: dict = field(default_factory=dict)
+    rigid_since: dict = field(default_factory=dict)

@@ -25,7 +25,7 @@ from rigid.compose import append_bodies, take_bodies
 from rigid.model import angular_velocity, report_offset, reported_velocity
 from rigid.trimesh import compact
 
-from .auto import Switch, unit_strain
+from .auto import Switch, settings, unit_strain
 from .fracture import fracture_data
 
 
@@ -118,8 +118,9 @@ def rigidify(model, state, bodies):
         [model.rigid_ids, [model.fem_ids[j] for j in bodies]]).astype(int),
         fem=[model.fem[j] for j in keep], fem_ids=[model.fem_ids[j] for j in keep],
         fracture=_drop(model.fracture, gone), parked=parked)
+    since = dict(state.rigid_since) | {model.fem_ids[j]: state.steps for j in bodies}
     new_state = replace(state, rigid=rigid_state, fem=[state.fem[j] for j in keep],
-                        contact_memory=None, resting=_drop(state.resting, gone),
+                        contact_memory=None, rigid_since=since, resting=_drop(state.resting, gone),
                         contact_sets=_drop(state.contact_sets, gone),
                         fracture_pending=_drop(state.fracture_pending, gone))
     events = [Switch(float(state.time), model.names[model.fem_ids[j]], "rigidify") for j in bodies]
@@ -140,6 +141,22 @@ def fem_state(parked, rm, rs, i, gravity):
     turn = R @ parked.rotation.T
     return s.replace(x=x, v=v_c + (x - position) @ skew(w).T, R=turn @ s.R,
                      c=position + turn @ (s.c - parked.position), time=rs.time)
+
+
+# most a body's calm window is stretched by when it keeps turning back soon after turning rigid
+MAX_BACKOFF = 64
+
+
+def _backoff(model, state, indices):
+    """``state.backoff`` after the bodies ``indices`` turn deformable: doubled (at most
+    MAX_BACKOFF) for one that turns back within its window of turning rigid, reset for one that
+    stayed rigid longer."""
+    out = dict(state.backoff)
+    for k in indices:
+        window = settings(model, k).window * out.get(k, 1)
+        soon = state.steps - state.rigid_since.get(k, -10 ** 9) <= window
+        out[k] = min(2 * out.get(k, 1), MAX_BACKOFF) if soon else 1
+    return out
 
 
 def elastify(model, state, indices):
@@ -166,6 +183,7 @@ def elastify(model, state, indices):
                         resting=None if state.resting is None else tuple(state.resting) + more,
                         contact_sets=None if state.contact_sets is None else tuple(state.contact_sets) + more,
                         fracture_pending=pending,
-                        calm={k: c for k, c in state.calm.items() if k not in indices})
+                        calm={k: c for k, c in state.calm.items() if k not in indices},
+                        backoff=_backoff(model, state, indices))
     events = [Switch(float(state.time), model.names[k], "elastify") for k in indices]
     return new_model, new_state, events
