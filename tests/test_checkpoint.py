@@ -7,6 +7,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import time
 import zipfile
 
 import numpy as np
@@ -16,8 +17,11 @@ from hybrid import Simulation
 from hybrid.app import checkpoint
 from hybrid.app.cli import main
 
-# contacts (a ball and a soft block on the ground), plasticity with two reference-shape updates
-# (t = 0.027 and 0.042 s) and a tear that splits the bar in two (t = 0.05 s), then 0.2 s more
+# plasticity with two reference-shape updates (t = 0.027 and 0.04 s) and a tear that splits the
+# bar in two (t = 0.047 s), then 0.2 s more; meanwhile a ball rolls over a soft slab, whose contact
+# response the solver learns node by node as the ball reaches them (a run resumed at t = 0.1 s
+# without what was learnt drifts from t = 0.119 s: CHOLMOD's columns solved in other batches
+# differ in the last bits)
 SCENE = """\
 [simulation]
 name = "split"
@@ -48,18 +52,18 @@ box = [[0.099999, -1, -1], [1, 1, 1]]
 velocity = [0.2, 0.0, 0.0]
 
 [[bodies]]
-name = "block"
+name = "slab"
 model = "fem"
-shape = { type = "box", size = [0.06, 0.06, 0.06], resolution = 0.03 }
-position = [0.3, 0.0, 0.05]
-young = 2.0e5
+shape = { type = "box", size = [0.3, 0.1, 0.02], resolution = 0.02 }
+position = [0.3, 0.0, 0.0105]
+young = 1.0e6
 density = 500.0
 
 [[bodies]]
 name = "ball"
 shape = { type = "sphere", radius = 0.03 }
-position = [-0.3, 0.0, 0.04]
-velocity = [0.0, 0.0, -1.0]
+position = [0.2, 0.0, 0.052]
+velocity = [2.0, 0.0, 0.0]
 """
 
 # a quick scene for the refusals: one ball falling onto the ground
@@ -86,18 +90,19 @@ def hybrid(*args, cwd, **popen):
 
 
 def stopped_after_split(root):
-    """``hybrid run`` of SCENE into ``root/stopped`` sent SIGTERM once the bar has split: (exit
+    """``hybrid run`` of SCENE into ``root/stopped`` sent SIGTERM once it has written its first
+    checkpoint (t = 0.1 s, after the split; the ball is still rolling over the slab): (exit
     code, stderr lines)."""
-    run = hybrid("run", "scene.toml", "--out", "stopped", "--quiet", "--checkpoint-every", "0.02",
-                 cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    lines = []
-    for line in run.stderr:
-        lines.append(line)
-        if "split off" in line:
-            run.send_signal(signal.SIGTERM)
-            break
-    lines += run.stderr.readlines()
-    return run.wait(timeout=120), lines
+    with open(root / "stopped.log", "w") as log:
+        run = hybrid("run", "scene.toml", "--out", "stopped", "--quiet", "--checkpoint-every",
+                     "0.1", cwd=root, stdout=subprocess.DEVNULL, stderr=log)
+        deadline = time.monotonic() + 120
+        while not (root / "stopped" / "checkpoint.npz").exists() and run.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.02)
+        run.send_signal(signal.SIGTERM)
+        code = run.wait(timeout=120)
+    return code, (root / "stopped.log").read_text().splitlines(keepends=True)
 
 
 def test_a_run_stopped_by_sigterm_after_a_fracture_resumes_to_the_uninterrupted_files(tmp_path):
@@ -112,7 +117,7 @@ def test_a_run_stopped_by_sigterm_after_a_fracture_resumes_to_the_uninterrupted_
     split = float(next(line for line in lines if "split off" in line).split()[2])
     stopped = tmp_path / "stopped"
     manifest = json.loads(np.load(stopped / "checkpoint.npz")["manifest"].tobytes())
-    assert split - 1e-4 < manifest["time"] < 0.2 and manifest["version"] == checkpoint.VERSION
+    assert split < 0.1 <= manifest["time"] < 0.2 and manifest["version"] == checkpoint.VERSION
     assert json.loads((stopped / "summary.json").read_text())["status"] == "stopped"
     command = shlex.split(text.split("Resume with:")[1].strip().splitlines()[0])
     assert command[:2] == ["hybrid", "run"] and "--resume" in command
