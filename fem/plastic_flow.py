@@ -10,9 +10,13 @@ Only bodies with a yield stress (``model.plastic``) ever reach this module:
   return of ``fem.plasticity.return_map`` at the points outside the yield surface, the plastic
   work, and the updated plastic force for the next step.
 
-The plastic strain is therefore explicit by one step (a staggered scheme): the force of the strain
-found at the end of step n acts during step n + 1. The return map itself is exact, so the stress
-never leaves the yield surface by more than one step's elastic increment.
+The plastic strain is therefore explicit (a staggered scheme): the force of the strain found at
+the end of step n acts during step n + 1. Alone, that is one step late: in steady flow every solve
+carries the stress of one step's strain increment above the yield surface (a bar pulled at 7% of
+its yield strain per step read 7% above Y A, P1 or P2 alike). So the force also carries the
+increment the next step is predicted to make, the last one, where the flow continues (elements
+that flowed in both of the last two steps; IMPL-EX, Oliver, Huespe and Cante 2008), and anchored
+floating bodies report the reaction on the end-of-step stress. The return map itself is exact.
 
 Both passes work on per-point tensors (point ``k = q e + p`` is quadrature point p of element e)
 with the point index last, ``(3, 3, t q)`` ("component-major"): each tensor component is one
@@ -43,7 +47,7 @@ def initial_plastic_fields(model):
     t, q = model.elements.tet_weights.shape
     return dict(tet_plastic_strain=np.zeros((t, q, 3, 3)), tet_peeq=np.zeros((t, q)),
                 tet_yielded=np.zeros(t, dtype=bool),
-                node_plastic_force=None if model.frame == "corotated" else np.zeros((model.node_count, 3)),
+                node_plastic_force=np.zeros((model.node_count, 3)),
                 plastic_dissipation=0.0)
 
 
@@ -208,19 +212,25 @@ def rest_frame_plastic_force(model, eps_p):
 def plastic_force(model, state, tet_R=None):
     """Plastic node force ``(n, 3)`` (N) in world coordinates for the right-hand side of a step.
 
-    Floating and anchored bodies rotate the cached body-frame force by ``R``; corotated bodies
-    rotate each point's stress by its element's rotation ``tet_R`` ``(t, 3, 3)`` (default: those of
-    ``state.x``), ``sum_e int B^T (R_e C : eps_p)``.
+    Floating and anchored bodies rotate the cached body-frame ``node_plastic_force`` by ``R``.
+    Corotated bodies rotate each point's stress by its element's rotation ``tet_R`` ``(t, 3, 3)``
+    (default: those of ``state.x``), ``sum_e int B^T (R_e C : eps_p)``, and the force of the
+    predicted increment (``node_plastic_force`` less the rest-frame force of ``eps_p``, see
+    :func:`plastic_update`) by the body's best-fit ``R``.
     """
     if state.tet_plastic_strain is None:
         return np.zeros_like(state.x)
-    if model.frame == "corotated":
-        tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
-        # R_e (C : eps_p), both operands component-major (10x faster than point-major)
-        sigma = _component_major(isotropic_stress(state.tet_plastic_strain, model.mu, model.lam))
-        R = _component_major(_point_rotations(model, tet_R))
-        return nodal_force(model, np.einsum("imk,mjk->ijk", R, sigma))
-    return state.node_plastic_force @ state.R.T
+    if model.frame != "corotated":
+        return state.node_plastic_force @ state.R.T
+    tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
+    # R_e (C : eps_p), both operands component-major (10x faster than point-major)
+    sigma = _component_major(isotropic_stress(state.tet_plastic_strain, model.mu, model.lam))
+    R = _component_major(_point_rotations(model, tet_R))
+    force = nodal_force(model, np.einsum("imk,mjk->ijk", R, sigma))
+    if state.node_plastic_force is not None and state.tet_yielded is not None and state.tet_yielded.any():
+        # a predicted increment is only made where the last step flowed
+        force += (state.node_plastic_force - nodal_force(model, sigma)) @ state.R.T
+    return force
 
 
 # ---------------------------------------------------------------------------------------------
@@ -230,8 +240,18 @@ def plastic_force(model, state, tet_R=None):
 def plastic_update(model, state):
     """Return-map the end-of-step state onto the yield surface; returns the new state.
 
-    Updates ``tet_plastic_strain``, ``tet_peeq``, ``tet_yielded``, ``plastic_dissipation`` and
-    (floating/anchored) ``node_plastic_force``. Only points outside the yield surface are touched.
+    Updates ``tet_plastic_strain``, ``tet_peeq``, ``tet_yielded``, ``plastic_dissipation`` (only
+    points outside the yield surface flow), ``node_plastic_force`` and, for anchored bodies in the
+    floating frame, ``node_reaction``.
+
+    ``node_plastic_force`` is the rest-frame force the next step applies: that of the new plastic
+    strain plus the force of this step's increment at the points of elements that flowed in the
+    last step too, the increment the next step is predicted to make (IMPL-EX, Oliver, Huespe and
+    Cante 2008): without it the staggered scheme is one step late, and steady flow carries the
+    stress of one step's strain increment above the yield surface in every solve (a bar pulled
+    at 7% of its yield strain per step pulled 7% above Y A). ``node_reaction`` becomes the
+    anchors' reaction on the end-of-step stress (as if the step had applied the new plastic
+    strain's force), not on the trial stress of the step's solve.
     """
     fields = _plastic_fields(model, state)
     eps_p = fields["tet_plastic_strain"]
@@ -250,12 +270,52 @@ def plastic_update(model, state):
     dev_norm2 = np.einsum("ck,ck->k", dev, dev)
     yielded = (dev_norm2 > (2.0 / 3.0) * (model.yield_stress / (2.0 * model.mu)) ** 2).reshape(t, q)
     fields["tet_yielded"] = yielded.any(axis=1)
-    if not fields["tet_yielded"].any():
-        return state.replace(**fields)
+    flowed = np.flatnonzero(yielded)
+    d_eps_p = _flow(model, fields, dev, trace, flowed) if len(flowed) else np.zeros((0, 3, 3))
+    was_flowing = state.tet_yielded is not None and state.tet_plastic_strain is not None \
+        and state.tet_yielded.any()
+    force = _committed_force(model, fields, state, d_eps_p, flowed, was_flowing)
+    if model.anchored and model.frame != "corotated" and state.node_plastic_force is not None:
+        fields["node_reaction"] = _end_of_step_reaction(model, state, force)
+    if was_flowing and len(flowed):
+        steady = state.tet_yielded[flowed // q]        # flowed in the last step too
+        force = force + nodal_force(model, _component_major(isotropic_stress(
+            d_eps_p[steady], model.mu, model.lam)), flowed[steady])
+    fields["node_plastic_force"] = force
+    return state.replace(**fields)
+
+
+def _committed_force(model, fields, state, d_eps_p, flowed, was_flowing):
+    """Rest-frame force ``(n, 3)`` N of the new plastic strain: summed anew after a step that
+    applied a predicted increment (its elements flowed in the last step), else the last force
+    plus that of this step's increments (the force is linear in eps_p)."""
+    if was_flowing or state.node_plastic_force is None:
+        return rest_frame_plastic_force(model, fields["tet_plastic_strain"])
+    if not len(flowed):
+        return state.node_plastic_force
+    return state.node_plastic_force + nodal_force(
+        model, _component_major(isotropic_stress(d_eps_p, model.mu, model.lam)), flowed)
+
+
+def _end_of_step_reaction(model, state, force):
+    """``node_reaction`` ``(n, 3)`` N as if the step had applied the rest-frame plastic force
+    ``force`` ``(n, 3)`` instead of ``state.node_plastic_force``: the anchors' reaction on the
+    end-of-step stress (the step's own is that of the stress before this step's return map)."""
+    change = (force - state.node_plastic_force) @ state.R.T
+    reaction = state.node_reaction.copy()
+    fixed = model.fixed_nodes
+    reaction[fixed] -= change[fixed]
+    return reaction
+
+
+def _flow(model, fields, dev, trace, flowed):
+    """Radial return at the points ``flowed`` ``(k,)`` from the elastic strain's deviator ``dev``
+    ``(9, t q)`` and trace ``(t q,)``; updates ``fields`` and returns the increments (k, 3, 3)."""
+    eps_p = fields["tet_plastic_strain"]
+    t, q = eps_p.shape[:2]
     # return map at the yielded points only (Bridson's radial return, fem.plasticity.return_map);
     # their tensors are gathered component-major, (9, k), and passed on as (k, 3, 3) views
     # (_tensors), so that its whole-array operations run along the contiguous point axis too
-    flowed = np.flatnonzero(yielded)
     old = _tensors(np.take(eps_p.reshape(t * q, 9), flowed, axis=0).T.copy())
     # trial stress C : eps_e = 2 mu dev + (lam + 2 mu / 3) tr I
     sigma_trial = np.take(dev, flowed, axis=1)
@@ -272,11 +332,7 @@ def plastic_update(model, state):
     fields.update(tet_plastic_strain=eps_p, tet_peeq=peeq,
                   plastic_dissipation=fields["plastic_dissipation"]
                   + plastic_dissipation_increment(sigma_new, d_eps_p, weights))
-    if fields["node_plastic_force"] is not None:
-        # the force is linear in eps_p: add the increments of the points that flowed
-        fields["node_plastic_force"] = fields["node_plastic_force"] + nodal_force(
-            model, _component_major(isotropic_stress(d_eps_p, model.mu, model.lam)), flowed)
-    return state.replace(**fields)
+    return d_eps_p
 
 
 def elastic_energy(model, state):

@@ -90,7 +90,11 @@ def update_reference(model, state, dt=None):
                                  reference_peeq=state.tet_peeq.copy(),
                                  reference_updates=model.reference_updates + 1)
     R, c = body_frame(new_model, state.x)
-    force = None if model.frame == "corotated" else rest_frame_plastic_force(new_model, eps_p_new)
+    # the plastic force of the reset strain, and the increment the next step is predicted to make
+    # (fem.plastic_flow.plastic_update) carried over, so that an update does not change the flow
+    force = rest_frame_plastic_force(new_model, eps_p_new)
+    if state.node_plastic_force is not None:
+        force += state.node_plastic_force - rest_frame_plastic_force(model, eps_p)
     return new_model, state.replace(R=R, c=c, tet_plastic_strain=eps_p_new, node_plastic_force=force)
 
 
