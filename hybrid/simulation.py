@@ -167,7 +167,10 @@ class Simulation:
             else:
                 checkpoint.resume_recorder(recorder, snapshot, out)
             saver = checkpoint.Checkpoints(self, out, checkpoint_every, position, wall0, stop, log)
-            failure = self._steps(position, recorder, bar, log, saver)
+            # a state running away (absurd scene values) overflows on its way to the finiteness
+            # check, which names the body: numpy's warnings about it would only be noise before it
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                failure = self._steps(position, recorder, bar, log, saver)
             bar.update(self.time, self.steps, force=True)
             bar.done()
             wall = clock.perf_counter() - wall0
