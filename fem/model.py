@@ -184,7 +184,9 @@ class FemState:
     tet_peeq: ``(t, q)`` accumulated equivalent plastic strain ``sum sqrt(2/3) |d eps_p|`` (-).
     tet_yielded: ``(t,)`` bool, the element yielded in the last step.
     node_plastic_force: ``(n, 3)`` equivalent plastic force ``f_p = sum_e int B^T C eps_p`` (N),
-        body (rest) frame; None for corotated bodies (rotated per element in ``predict``).
+        body (rest) frame, including the predicted increment of elements still flowing
+        (IMPL-EX, ``fem.plastic_flow``); zeros for corotated bodies, whose stored strain is
+        rotated per element in ``predict`` (the predicted part only is kept here).
     plastic_dissipation: plastic work dissipated since the start (J).
     energy_slack: Newmark bodies only, how far (J) the body's energy (kinetic and elastic) is
         below what it may hold: its energy when created plus the work done on it by its steps
