@@ -118,9 +118,13 @@ restitution = {e}
     assert main(["converge", str(tmp_path / "ball.toml"), "--dt", "3", "--scheduler", scheduler, "--out",
                  str(out), "--quiet", "--tol", "1e-6"]) == 0
     printed = capsys.readouterr().out
-    assert "recommended: dt = 0.004 s" in printed
+    # every dt is exact, so the cheapest by wall time is recommended: which one that is depends on
+    # the machine's load (measured, not assumed)
+    assert "recommended: dt = " in printed, printed
     rows = list(csv.DictReader(open(out / "convergence.csv")))
     assert {"dt", "resolution", "wall_s", "wall_per_sim_s", "error:ball.com", "order:ball.com"} <= set(rows[0])
+    picked = [r for r in rows if r["recommended"] == "True"]
+    assert len(picked) == 1 and f"recommended: dt = {float(picked[0]['dt']):.4g} s" in printed
     first_bounce = math.sqrt(2 * h / G)
     for row in rows:
         t, x = _trajectory(row["folder"], "ball")
