@@ -20,7 +20,8 @@ class RigidBodyDesc:
     (rad/s) is world-frame. point_masses: ``(points (n, 3) m, masses (n,) kg)`` in the shape frame,
     whose mass, centre and inertia the body takes instead of its solid's (a deformable body
     turned rigid keeps the momentum and energy of its lumped node masses exactly); None: the
-    solid of ``density``. grid_cells: cells across the largest extent of a mesh body's
+    solid of ``density``. contact_points: ``(p, 3)`` shape-frame points of a mesh body that meet
+    planes and other bodies' surfaces (None: all its vertices). grid_cells: cells across the largest extent of a mesh body's
     signed-distance grid (None: the grid's default; fewer build faster, for bodies made during a
     run).
     """
@@ -38,6 +39,7 @@ class RigidBodyDesc:
     fixed: bool = False
     point_masses: tuple = None
     grid_cells: int = None
+    contact_points: np.ndarray = None
 
 
 @dataclass
@@ -74,7 +76,8 @@ def _geometry(desc):
         vertices, triangles = np.asarray(desc.vertices, float), np.asarray(desc.triangles, np.int64)
         kind = "mesh"
     params = np.zeros(4)
-    points, radius = vertices, np.zeros(len(vertices))
+    points = vertices if desc.contact_points is None else np.asarray(desc.contact_points, float)
+    radius = np.zeros(len(points))
     grid = None
     if kind == "sphere":
         r = float(desc.shape["radius"])
