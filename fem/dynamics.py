@@ -125,13 +125,18 @@ def apply_impulse(model, state, step, node_impulse):
     factorisation); anchored nodes do not respond. Returns a new :class:`StepData`.
     """
     j = np.asarray(node_impulse, dtype=float)
-    j_b = (j @ step.R).ravel()
-    dv = np.zeros_like(j_b)
-    if model.anchored:
-        dv[model.free_dofs] = step.solve(j_b[model.free_dofs])
-    else:
-        dv = step.solve(j_b)
+    dv = impulse_velocity(model, step.solve, (j @ step.R).ravel())
     return replace(step, v=step.v + dv.reshape(-1, 3) @ step.R.T, impulse=step.impulse + j)
+
+
+def impulse_velocity(model, solve, j_b):
+    """Velocity change ``(3n,)`` (body frame) of node impulses ``j_b`` ``(3n,)`` N s (body frame)
+    through a factorised system ``solve`` on the free DOFs; prescribed DOFs do not respond."""
+    if not model.anchored:
+        return solve(j_b)
+    dv = np.zeros_like(j_b)
+    dv[model.free_dofs] = solve(j_b[model.free_dofs])
+    return dv
 
 
 def finish(model, state, step, dt):

@@ -118,10 +118,14 @@ def thresholds(model, index):
     return min(settings(model, index).rigidify_strain, 0.1 * elastify), elastify
 
 
+def extent(fem):
+    """The body's largest extent (m), of its rest shape."""
+    return float(np.ptp(fem.rest_points, axis=0).max())
+
+
 def response_time(fem, h):
     """The body's response time (s): its elastic wave transit time or the step ``h``, the longer."""
-    extent = float(np.ptp(fem.rest_points, axis=0).max())
-    return max(extent / np.sqrt(fem.young / fem.density), h)
+    return max(extent(fem) / np.sqrt(fem.young / fem.density), h)
 
 
 def strain_measure(fem, x, v, h, inverse_F=None):
@@ -188,8 +192,7 @@ def _restless(m, s, rigidify, h):
     """Whether FEM body (model ``m``, state ``s``) certainly moves too far from rigidly to be
     calm (see RESTLESS)."""
     u = s.v if m.has_anchors else s.v - rigid_part(m, s.x, s.v)
-    extent = float(np.ptp(m.rest_points, axis=0).max())
-    return float(np.abs(u).max()) > RESTLESS * rigidify * extent / response_time(m, h)
+    return float(np.abs(u).max()) > RESTLESS * rigidify * extent(m) / response_time(m, h)
 
 
 def _approaching(model, state, j, rigidify):
@@ -203,8 +206,7 @@ def _approaching(model, state, j, rigidify):
         return False
     m, s = model.fem[j], state.fem[j]
     speed = float(np.linalg.norm(fem_dyn.mass_weights(m) @ s.v)) / float(m.node_mass.sum())
-    extent = float(np.ptp(m.rest_points, axis=0).max())
-    return speed > rigidify * extent / response_time(m, model.dt)
+    return speed > rigidify * extent(m) / response_time(m, model.dt)
 
 
 def rigid_due(model, state):
@@ -261,13 +263,8 @@ PROBE_MARGIN = 3.0
 def _velocity_change(fem, rest, node_impulse, h):
     """Velocity change ``(n, 3)`` (world when parked) of node impulses ``(n, 3)`` N s (same
     frame) through the body's FEM system."""
-    j_b = (node_impulse @ rest.R).ravel()
-    dv = np.zeros_like(j_b)
-    solve = system_factorisation(fem, h).solve
-    if fem.anchored:
-        dv[fem.free_dofs] = solve(j_b[fem.free_dofs])
-    else:
-        dv = solve(j_b)
+    dv = fem_dyn.impulse_velocity(fem, system_factorisation(fem, h).solve,
+                                  (node_impulse @ rest.R).ravel())
     return dv.reshape(-1, 3) @ rest.R.T
 
 
