@@ -16,6 +16,8 @@ import numpy as np
 
 from .app import checkpoint, geometry, observe
 from .app.build import build
+from .app.peaks import Peaks
+from .app.resolution import ImpactWatch
 from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hints, summary
 from .app.scene import SceneError, load_scene
 from .coupling.stability import StepFailure
@@ -77,6 +79,7 @@ class Simulation:
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
         self.fem_time, self.stepped_time = {}, 0.0
         self.resumed = None     # what the next run continues from (set by resume)
+        self._watch()
 
     @classmethod
     def from_toml(cls, path):
@@ -115,11 +118,21 @@ class Simulation:
         """Every body's name, in scene order (fracture pieces appended as they appear)."""
         return list(self.model.names)
 
+    def _watch(self):
+        """Start watching the steps: :attr:`peaks` (:class:`hybrid.app.peaks.Peaks`, every FEM
+        body's largest stresses and plastic strain over every step) and :attr:`impacts`
+        (:class:`hybrid.app.resolution.ImpactWatch`, under-resolved impacts: its ``warnings``,
+        once per body and kind; the run log gets each as it is found)."""
+        self.peaks, self.impacts, self._said = Peaks(), ImpactWatch(), []
+
     def step(self):
         """Advance every body by one time step, with the events due (reference-shape updates,
         fracture, auto bodies switching between rigid and FEM). Returns this step's events.
         Raises InstabilityError (naming the body, the time and the quantity) when a body's state
         diverges; the simulation is then left at the last finite state."""
+        if not hasattr(self, "peaks"):          # made by resume, without __init__
+            self._watch()
+        self._before = (self.model, self.state)
         self.model, self.state, happened = advance(self.model, self.state, self.timings,
                                                    self._took)
         self.events.extend(happened)
@@ -127,12 +140,15 @@ class Simulation:
 
     def _took(self, model, state):
         """After each step (before its events): count the step's time as FEM time for the bodies
-        it stepped as FEM."""
+        it stepped as FEM, take the step's peaks and look for under-resolved impacts."""
         h = model.dt
         self.stepped_time += h
         for k in model.fem_ids:
             name = model.names[k]
             self.fem_time[name] = self.fem_time.get(name, 0.0) + h
+        if model.fem:
+            self.peaks.update(model, state)
+            self._said += [w.message for w in self.impacts.check(self._before, model, state)]
         self._stepped(model, state)
 
     def _stepped(self, model, state):
@@ -161,7 +177,10 @@ class Simulation:
         self.warnings = []
         bar = Progress(position.until, enabled=progress)
         wall0 = clock.perf_counter() - position.wall
+        if not hasattr(self, "peaks"):          # made by resume, without __init__
+            self._watch()
         with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder:
+            recorder.watch(self.peaks, self.impacts)
             if snapshot is None:
                 recorder.record(self.model, self.state)
             else:
@@ -176,7 +195,7 @@ class Simulation:
             wall = clock.perf_counter() - wall0
             result = summary(self.scene, self.model, self.state, wall, recorder, failure,
                              self.events[position.first_event:], self.timings,
-                             (self.fem_time, self.stepped_time))
+                             (self.fem_time, self.stepped_time), self.peaks, self.impacts)
             if saver.stopped is not None:
                 result["status"] = "stopped"
             for line in rigid_hints(self.model, recorder):
@@ -211,6 +230,9 @@ class Simulation:
             while self.steps < position.end_step:
                 for event in self.step():
                     log(event.message)
+                for message in self._said:
+                    log(message)
+                self._said = []
                 if self.time >= position.next_frame - 1e-9 * self.dt:
                     recorder.record(self.model, self.state)
                     position.next_frame += frame_every

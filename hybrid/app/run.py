@@ -120,6 +120,13 @@ class Recorder:
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.frames = 0
         self.strains = {}       # per FEM or auto body: its largest strain over the frames
+        self.watched = None     # (Peaks, ImpactWatch) of the run's steps, kept in checkpoints
+
+    def watch(self, peaks, impacts):
+        """Keep ``peaks`` (hybrid.app.peaks.Peaks) and ``impacts``
+        (hybrid.app.resolution.ImpactWatch), which watch every step, in this recorder's
+        snapshots, so a resumed run reports the peaks and warnings from before its stop."""
+        self.watched = (peaks, impacts)
 
     def __enter__(self):
         return self
@@ -149,7 +156,8 @@ class Recorder:
         return {"energies": list(self.energies), "momenta": list(self.momenta),
                 "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
                 "strains": dict(self.strains),
-                "files": None if self.writer is None else self.writer.snapshot()}
+                "files": None if self.writer is None else self.writer.snapshot(),
+                "watched": None if self.watched is None else [w.snapshot() for w in self.watched]}
 
     def restore(self, snapshot):
         """Continue from a :meth:`snapshot`: its totals, and the files taken back to it
@@ -157,6 +165,9 @@ class Recorder:
         self.energies, self.momenta = list(snapshot["energies"]), list(snapshot["momenta"])
         self.angular, self.carried = list(snapshot["angular"]), list(snapshot["carried"])
         self.frames, self.strains = snapshot["frames"], dict(snapshot["strains"])
+        if self.watched is not None and snapshot.get("watched") is not None:
+            for watcher, kept in zip(self.watched, snapshot["watched"]):
+                watcher.restore(kept)
         if self.writer is not None and snapshot["files"] is not None:
             self.writer.resume(snapshot["files"])
 
@@ -211,9 +222,12 @@ def rigid_hints(model, recorder):
     return lines
 
 
-def summary(scene, model, state, wall, recorder, failure, events, timings, fem_time=None):
+def summary(scene, model, state, wall, recorder, failure, events, timings, fem_time=None,
+            peaks=None, impacts=None):
     """The run's ``summary.json`` content. ``fem_time``: ``(seconds stepped as FEM by body name,
-    seconds simulated)``, for the ``models`` section."""
+    seconds simulated)``, for the ``models`` section. ``peaks``: the run's
+    :class:`hybrid.app.peaks.Peaks` (the ``peaks`` section), ``impacts``: its
+    :class:`hybrid.app.resolution.ImpactWatch` (``impact_warnings``)."""
     return {
         "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
         "scene_file": str(scene.source_path),
@@ -231,6 +245,12 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
         "conservation": recorder.conservation(model),
         "events": [e.as_dict() for e in events],
         "models": stepping(model, recorder, *(fem_time or ({}, 0.0))),
+        "peaks": {} if peaks is None else peaks.as_dict(),
+        "peaks_note": "per FEM or auto body (fragments counted with the body they broke from): "
+                      "the largest element von Mises stress (Pa), largest principal stress (Pa) "
+                      "and equivalent plastic strain over every step, with the time (s) each was "
+                      "reached; written frames show only the output rate's steps",
+        "impact_warnings": [] if impacts is None else [w.as_dict() for w in impacts.warnings],
         "fracture": {
             "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
             "bodies_at_end": len(model.names),

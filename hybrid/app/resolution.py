@@ -1,0 +1,256 @@
+"""Is an impact resolved? Warnings when a deformable body is struck harder than its mesh or the
+time step can follow.
+
+An impact's answer depends on the mesh and the step more than anything else a scene does, and an
+under-resolved one gives a quiet, plausible and wrong answer: a steel ball at 20 m/s stops dead on
+a coarse aluminium plate without denting it, a brittle slab dropped on the ground does not crack
+because the impact's impulse is spread over a step 25 times longer than the impact. These are the
+model's honest answers at that resolution; :class:`ImpactWatch` says so, once per body and kind:
+
+- in space, when the contact patch is carried by fewer than a few nodes: the patch radius is
+  estimated from Hertz's impact (and, for a body with a yield stress, the fully plastic contact
+  pressure of about 3 Y), with the radius of curvature of the shapes that meet; a flat contact
+  (boxes, planes, meshes) is measured instead, by the nodes that touch;
+- in time, when the step is longer than the impact: an impact lasts about two wave transits
+  across the body along the impact (``2 L / sqrt(E / rho)``), or Hertz's contact time (longer
+  for a body that yields) when curved shapes meet.
+
+It looks at each step's end (through the Simulation's per-step hook) for surface nodes of FEM
+bodies touching rigid bodies or planes, with the velocities of the step's start: an impact is a
+contact approached fast enough that its stress (``rho c v``, the stress of a wave of speed ``v``)
+reaches a quarter of the body's yield or fracture stress, or a strain of 1e-4 for an elastic
+body. Contacts between two FEM bodies are not examined.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from rigid import quaternion as quat
+from rigid.contacts import detect_points
+from rigid.model import angular_velocity, reported_velocity
+
+# an impact is examined when rho c v reaches this share of the body's yield or fracture stress
+STRENGTH_SHARE = 0.25
+# ... or, for a purely elastic body, when v / c reaches this strain
+ELASTIC_STRAIN = 1e-4
+# the patch is resolved when its radius spans this many elements (about 12 nodes under it)
+PATCH_ELEMENTS = 2.0
+# a flat contact is resolved when at least this many nodes touch
+FLAT_NODES = 3
+# the step is resolved when it is at most this share of the impact's duration (the warning fires
+# when the impact is over within one step)
+STEPS_PER_IMPACT = 4
+# nodes closer than this share of their spacing touch; a contact is looked at within CLOSE
+TOUCH = 0.05
+CLOSE = 0.25
+
+
+@dataclass(frozen=True)
+class ImpactWarning:
+    """An under-resolved impact. body: the scene body's name. kind: ``"space"`` or ``"time"``.
+    time: s, the impact's step. partner: what struck it (a body's name or ``"plane"``).
+    speed: m/s, the speed of approach. have / need: the body's surface node spacing and the
+    resolution that would resolve the patch (m, kind space), or the scene's dt and the step that
+    would resolve the impact (s, kind time). message: the run log's line."""
+    body: str
+    kind: str
+    time: float
+    partner: str
+    speed: float
+    have: float
+    need: float
+    message: str
+
+    def as_dict(self):
+        """JSON-ready summary row."""
+        return {"body": self.body, "kind": self.kind, "time": self.time, "partner": self.partner,
+                "impact_speed": self.speed,
+                ("resolution" if self.kind == "space" else "dt"): self.have,
+                ("resolution_needed" if self.kind == "space" else "dt_needed"): self.need,
+                "message": self.message}
+
+
+@dataclass(frozen=True)
+class Impact:
+    """One impact estimate: patch radius ``a`` m (None for a flat contact), duration ``tau`` s."""
+    a: float | None
+    tau: float
+
+
+def impact_estimate(young, poisson, density, yield_stress, extent, radius, mass, speed):
+    """:class:`Impact` of a deformable body (``young`` Pa, ``poisson``, ``density`` kg/m^3,
+    ``yield_stress`` Pa or None; ``extent`` m across it along the impact) struck by a rigid
+    surface at ``speed`` m/s, the curvatures meeting giving ``radius`` m (inf: flat on flat), the
+    two bodies' reduced ``mass`` kg. Hertz (Johnson, Contact Mechanics, ch. 11): largest
+    indentation ``d = (15 m v^2 / (16 E* sqrt(R)))^(2/5)``, patch radius ``sqrt(R d)``, contact time
+    ``2.87 (m^2 / (R E*^2 v))^(1/5)``; a fully plastic patch carries a mean pressure ``3 Y``, so
+    ``1/2 m v^2 = 3 Y pi R d^2`` gives ``d``, a patch radius ``sqrt(2 R d)`` and a loading time
+    of a quarter period of that spring. The duration is at least two wave transits
+    ``2 extent / sqrt(E / rho)``."""
+    transit = extent / np.sqrt(young / density)
+    tau = 2.0 * transit
+    if not np.isfinite(radius):
+        return Impact(None, tau)
+    E_star = young / (1.0 - poisson ** 2)
+    d = (15.0 * mass * speed ** 2 / (16.0 * E_star * np.sqrt(radius))) ** 0.4
+    a = np.sqrt(radius * d)
+    tau = max(tau, 2.87 * (mass ** 2 / (radius * E_star ** 2 * speed)) ** 0.2)
+    if yield_stress is not None:
+        stiffness = 6.0 * np.pi * yield_stress * radius       # F = 3 Y pi (2 R d)
+        a = max(a, np.sqrt(2.0 * radius * speed * np.sqrt(mass / stiffness)))
+        tau = max(tau, 0.5 * np.pi * np.sqrt(mass / stiffness))
+    return Impact(float(a), float(tau))
+
+
+def shape_radius(body):
+    """Radius of curvature (m) of a scene body's surface where it strikes: a sphere's, capsule's
+    or cylinder's radius; inf for boxes and meshes (flat faces)."""
+    shape = body.shape if body is not None else None
+    if shape is not None and shape.type in ("sphere", "capsule", "cylinder"):
+        return float(shape.radius)
+    return np.inf
+
+
+class ImpactWatch:
+    """Watches a run's steps for under-resolved impacts (see the module). ``check`` returns the
+    new warnings; ``warnings`` keeps every one (at most one per scene body and kind)."""
+
+    def __init__(self):
+        self.warnings = []
+        self._spacing = {}
+
+    def check(self, before, model, state):
+        """New :class:`ImpactWarning` of the step from ``before`` (the coupled ``(model, state)``
+        at its start) to ``state`` (``model``: the model it was taken with). Steps taken with
+        another model than they started with (an auto body turned deformable) are skipped."""
+        old_model, old = before
+        if old_model is not model or not model.fem or old.fem is None or len(old.fem) != len(model.fem):
+            return []
+        rm = model.rigid
+        if rm.body_count == 0 and rm.plane_point.shape[0] == 0:
+            return []
+        warned = {(w.body, w.kind) for w in self.warnings}
+        origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
+        new = []
+        for j, (m, s0, s1) in enumerate(zip(model.fem, old.fem, state.fem)):
+            scene_body = model.scene.bodies[origin[int(model.fem_ids[j])]]
+            if (scene_body.name, "space") in warned and (scene_body.name, "time") in warned:
+                continue
+            for found in self._impacts(model, old, state, m, s0, s1, scene_body):
+                if (found.body, found.kind) not in warned:
+                    warned.add((found.body, found.kind))
+                    new.append(found)
+        self.warnings += new
+        return new
+
+    def _impacts(self, model, old, state, m, s0, s1, body):
+        """The warnings (either kind) of FEM body ``m`` (states ``s0`` -> ``s1``, scene ``body``)."""
+        rm, rs = model.rigid, state.rigid
+        spacing = self._node_spacing(m)
+        nodes = m.surface_nodes
+        x = s1.x[nodes]
+        k = len(x)
+        R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
+        c = detect_points(rm, rs.position, R, x, np.zeros(k), np.zeros(rm.body_count), CLOSE * spacing,
+                          np.zeros(k), np.zeros(k))
+        if c.count == 0:
+            return []
+        # the partner's velocity at the contact point, at the step's start
+        v_partner = np.zeros((c.count, 3))
+        if rm.body_count:
+            rigid = c.body_b >= 0
+            b = c.body_b[rigid]
+            v_rigid = reported_velocity(rm, old.rigid, model.gravity)
+            w_rigid = angular_velocity(rm, old.rigid)
+            v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
+        approach = -np.einsum("ci,ci->c", s0.v[nodes[c.body_a]] - v_partner, c.normal)
+        c_wave = np.sqrt(m.young / m.density)
+        out = []
+        for partner in np.unique(c.body_b):
+            on = c.body_b == partner
+            speed = float(approach[on].max())
+            if not self._relevant(m, body, speed, c_wave):
+                continue
+            at = int(np.argmax(np.where(on, approach, -np.inf)))
+            normal = c.normal[at]
+            extent = float(np.ptp(s1.x @ normal))
+            if partner >= 0:
+                scene_index = int(model.rigid_ids[partner])
+                origin = model.fragment_of[scene_index] if model.fragment_of is not None else scene_index
+                partner_body = model.scene.bodies[origin] if origin == scene_index else None
+                partner_name = model.names[scene_index]
+                partner_mass = float(rm.body_mass[partner])
+            else:
+                partner_body, partner_name, partner_mass = None, "plane", np.inf
+            curvature = 1.0 / shape_radius(body) + 1.0 / shape_radius(partner_body)
+            radius = 1.0 / curvature if curvature > 0 else np.inf
+            mass = float(m.node_mass.sum())
+            reduced = mass if not np.isfinite(partner_mass) else mass * partner_mass / (mass + partner_mass)
+            impact = impact_estimate(m.young, m.poisson, m.density, m.yield_stress, extent, radius,
+                                     reduced, speed)
+            touching = int(np.unique(c.body_a[on & (c.gap < TOUCH * spacing)]).size)
+            where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
+                     f"{speed:.3g} m/s")
+            see = "check with `hybrid converge` (docs/studies.md)"
+            if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
+                need = impact.a / (PATCH_ELEMENTS + 1.0)
+                out.append(ImpactWarning(
+                    body.name, "space", state.time, partner_name, speed, spacing, need,
+                    f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) "
+                    f"is carried by fewer than a few nodes ({touching} touching; nodes "
+                    f"{spacing * 1e3:.3g} mm apart), so the stress under it is smeared over the "
+                    f"elements and a dent or crack there is underestimated; a resolution of about "
+                    f"{need:.2g} m would resolve it: {see}"))
+            elif impact.a is None and touching < FLAT_NODES:
+                need = spacing / 2.0
+                out.append(ImpactWarning(
+                    body.name, "space", state.time, partner_name, speed, spacing, need,
+                    f"warning: {where}: the contact is carried by {touching} node(s) (an edge or "
+                    f"corner strikes; nodes {spacing * 1e3:.3g} mm apart), so the stress under it "
+                    f"is smeared over the elements; refine (resolution {need:.2g} m or finer): "
+                    f"{see}"))
+            if model.dt > impact.tau:
+                need = impact.tau / STEPS_PER_IMPACT
+                out.append(ImpactWarning(
+                    body.name, "time", state.time, partner_name, speed, model.dt, need,
+                    f"warning: {where}: the impact lasts about {impact.tau:.2g} s (wave transit "
+                    f"across {extent * 1e3:.3g} mm and contact time), shorter than the step "
+                    f"dt = {model.dt:.2g} s, so its impulse is spread over the step and its peak "
+                    f"stress is lowered about {model.dt / impact.tau:.0f}x; dt = {need:.2g} s "
+                    f"would resolve it: {see}"))
+        return out
+
+    @staticmethod
+    def _relevant(m, body, speed, c_wave):
+        """Whether an approach at ``speed`` m/s matters to body ``m`` (scene ``body``): its wave
+        stress ``rho c v`` reaches a share of its yield or fracture stress, or for an elastic body
+        a strain ``v / c`` of ELASTIC_STRAIN."""
+        if speed <= 0:
+            return False
+        strengths = [v for v in (m.yield_stress, body.fracture_stress) if v is not None]
+        if strengths:
+            return m.density * c_wave * speed >= STRENGTH_SHARE * min(strengths)
+        return speed / c_wave >= ELASTIC_STRAIN
+
+    def _node_spacing(self, m):
+        """Median edge length (m) of a body's surface triangles (its nodes' spacing on its
+        surface; a box mesh's face diagonals do not count), memoised per model."""
+        key = id(m)
+        hit = self._spacing.get(key)
+        if hit is not None and hit[0] is m:
+            return hit[1]
+        p = m.rest_points[m.surface]
+        edges = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
+        spacing = float(np.median(edges))
+        if len(self._spacing) > 256:
+            self._spacing.clear()
+        self._spacing[key] = (m, spacing)
+        return spacing
+
+    def snapshot(self):
+        """Plain data a checkpoint keeps: the warnings so far (see :meth:`restore`)."""
+        return [w.__dict__.copy() for w in self.warnings]
+
+    def restore(self, snapshot):
+        """Continue from a :meth:`snapshot`."""
+        self.warnings = [ImpactWarning(**w) for w in snapshot]
