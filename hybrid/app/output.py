@@ -14,6 +14,11 @@ index and the summary are written to a temporary file in the same folder and mov
 with ``os.replace``; CSV rows of one frame go out in one ``write`` followed by ``flush``, so only
 whole lines reach the disk.
 
+Frames are written off the stepping thread: ``RunWriter.write_frame`` checks its input, merges the
+pieces into one mesh of copied arrays and formats the CSV rows, then hands them to a writer thread
+that writes the ``.vtu``, rewrites the ``.pvd`` and appends the rows, in order, while the stepping
+goes on (docs/output.md, "Writing off the stepping thread").
+
 ``read_run`` is the matching reader used by rendering and tests.
 """
 
@@ -26,6 +31,8 @@ import math
 import os
 import re
 import tempfile
+import threading
+from collections import deque
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -174,7 +181,7 @@ class RunWriter:
     summary is written, so a run that fails validation leaves no directory behind. When it does
     create the run, stale outputs of an earlier run in the same directory (frame files, CSV
     tables, summary) are removed first. Use it as a context manager so the CSV files are closed
-    on error::
+    (and the frames handed over written) on error::
 
         with RunWriter(out_dir, "drop") as writer:
             writer.write_frame(t, pieces, body_rows)
@@ -182,20 +189,72 @@ class RunWriter:
 
     Cell and point field names are discovered from the pieces: once a field has been seen, every
     later frame carries it, with 0 for bodies that do not supply it.
+
+    Writing happens on a writer thread (started when there is work, ended when there is none, so
+    it never keeps the interpreter alive): ``write_frame`` and ``write_regions`` check and copy
+    their input on the caller's thread, raise ValueError for bad input at once, and queue the
+    files' work; at most ``queue_frames`` frames wait, beyond that the caller waits for the disk.
+    The files are written in the order of the calls, exactly as a synchronous writer writes them.
+    An error in the writer thread (a full disk) stops the writing, keeping the frames written
+    before it and the ``.pvd`` that lists them, and is raised on the caller's thread by the next
+    ``write_frame``, ``write_regions``, ``flush`` or ``close``. ``flush()`` waits until every
+    queued frame is on disk; reading ``frames_written`` (or the other file state a subclass
+    reads) does so too, so what is read matches the files. ``background=False`` writes on the
+    caller's thread instead (the same files, byte for byte).
     """
 
-    def __init__(self, out_dir: Path | str, scene_name: str):
+    queue_frames = 8
+
+    def __init__(self, out_dir: Path | str, scene_name: str, background: bool = True):
         self.out_dir = Path(out_dir)
         self.scene_name = str(scene_name)
-        self.frames_written = 0
-        self._times: list[float] = []
-        self._files: list[str] = []
+        self.background = bool(background)
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
-        self._bodies_file: io.TextIOWrapper | None = None
-        self._regions_file: io.TextIOWrapper | None = None
         self._started = False
         self._closed = False
+        # the writer thread's side: files as written so far (read through the properties below)
+        self._count = 0                       # frames on disk
+        self._frame_times: list[float] = []
+        self._frame_files: list[str] = []
+        self._bodies: io.TextIOWrapper | None = None
+        self._regions: io.TextIOWrapper | None = None
+        # hand-over: queued jobs, the caller's frame count, the thread and its first error
+        self._queued = 0                      # frames handed over (written or waiting)
+        self._jobs: deque = deque()
+        self._busy = False                    # the worker is running a job it has taken
+        self._worker: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self._error_raised = False
+        self._lock = threading.Condition()
+
+    # -- file state, as on disk once the queued work is done -----------------------------
+    @property
+    def frames_written(self) -> int:
+        """Frames written so far (waits for the frames handed over to reach the disk)."""
+        self._wait_idle()
+        return self._count
+
+    @frames_written.setter
+    def frames_written(self, value: int) -> None:
+        self._wait_idle()
+        self._count = self._queued = int(value)
+
+    def _state_property(name: str, doc: str):          # noqa: N805 (a property factory)
+        def get(self):
+            self._wait_idle()
+            return getattr(self, name)
+
+        def put(self, value):
+            self._wait_idle()
+            setattr(self, name, value)
+        return property(get, put, doc=doc)
+
+    _times = _state_property("_frame_times", "Times (s) of the frames written.")
+    _files = _state_property("_frame_files", "The .pvd's file entries of the frames written.")
+    _bodies_file = _state_property("_bodies", "bodies.csv, open once its first row is written.")
+    _regions_file = _state_property("_regions", "regions.csv, open once its first row is written.")
+    del _state_property
 
     # -- paths ---------------------------------------------------------------------------
     @property
@@ -235,16 +294,30 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self._close_files()
+        try:
+            self._wait_idle()
+        finally:
+            self._close_files()
+        if exc_type is None:
+            self._raise_error()           # a writer error nobody has seen yet
 
     def _close_files(self) -> None:
-        for f in (self._bodies_file, self._regions_file):
+        for f in (self._bodies, self._regions):
             if f is not None and not f.closed:
                 f.close()
 
+    def flush(self) -> None:
+        """Wait until everything handed over is on disk; raise the writer thread's error if it
+        has not been raised yet."""
+        self._wait_idle()
+        self._raise_error()
+
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
-        """Write ``summary.json`` (if a summary is given) and close the CSV files."""
+        """Wait for the frames handed over, write ``summary.json`` (if a summary is given) and
+        close the CSV files. Raises the writer thread's error (if not raised yet) instead of
+        writing the summary."""
         try:
+            self.flush()
             if summary is not None:
                 self._start()
                 text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
@@ -252,6 +325,67 @@ class RunWriter:
         finally:
             self._close_files()
             self._closed = True
+
+    # -- the writer thread ---------------------------------------------------------------
+    def _submit(self, job) -> None:
+        """Queue ``job`` (a callable without arguments) for the writer thread, starting it if
+        none runs; waits while ``queue_frames`` jobs are waiting. Without ``background``: runs
+        it now."""
+        if not self.background:
+            try:
+                job()
+            except BaseException as error:
+                self._error, self._error_raised = error, True
+                raise
+            return
+        with self._lock:
+            while len(self._jobs) >= self.queue_frames and self._error is None:
+                self._lock.wait()
+            if self._error is not None:
+                return                    # writing stopped; the caller hears of it via _raise_error
+            self._jobs.append(job)
+            if self._worker is None:
+                self._worker = threading.Thread(target=self._work, name="RunWriter", daemon=False)
+                self._worker.start()
+
+    def _work(self) -> None:
+        """The writer thread: run the jobs in order until none is left (or one fails)."""
+        while True:
+            with self._lock:
+                if not self._jobs or self._error is not None:
+                    self._jobs.clear()
+                    self._worker = None
+                    self._lock.notify_all()
+                    return
+                job = self._jobs.popleft()
+                self._busy = True
+                self._lock.notify_all()
+            try:
+                job()
+            except BaseException as error:     # noqa: BLE001 (kept for the caller's thread)
+                with self._lock:
+                    self._error = error
+            finally:
+                with self._lock:
+                    self._busy = False
+
+    def _wait_idle(self) -> None:
+        """Block until the writer thread has nothing left to do."""
+        if self._worker is None:
+            return
+        if self._worker is threading.current_thread():
+            return
+        with self._lock:
+            while self._jobs or self._busy or self._worker is not None:
+                self._lock.wait()
+
+    def _raise_error(self) -> None:
+        """Raise the writer thread's error on the caller's thread, once."""
+        with self._lock:
+            error = None if self._error_raised else self._error
+            self._error_raised = self._error_raised or error is not None
+        if error is not None:
+            raise error
 
     # -- frames --------------------------------------------------------------------------
     def _register(self, registry: dict[str, tuple[int, ...]], name: str, array: np.ndarray, kind: str) -> None:
@@ -261,7 +395,10 @@ class RunWriter:
             raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
 
     def build_mesh(self, pieces: Sequence[FramePiece]) -> meshio.Mesh:
-        """Merge pieces into one meshio mesh (cell data ``body_id`` plus every known field)."""
+        """Merge pieces into one meshio mesh (cell data ``body_id`` plus every known field).
+
+        Every array of the mesh is a new one (concatenated or converted), so the pieces' arrays
+        may change as soon as this returns."""
         arrays = []
         for piece in pieces:
             points = np.asarray(piece.points, dtype=float)
@@ -315,13 +452,20 @@ class RunWriter:
         """Write one frame: the merged ``.vtu``, the updated ``.pvd`` and the frame's body rows.
 
         ``body_rows`` are tuples in the order of ``BODY_COLUMNS`` or dicts with exactly those keys.
-        Returns the path of the written frame file.
+        The input is checked (ValueError) and copied here; the files are written by the writer
+        thread. Returns the path the frame file gets.
         """
+        self._raise_error()
         mesh = self.build_mesh(pieces)
         rows_text = _csv_rows(body_rows, BODY_COLUMNS)
         self._start()
+        path = self.frame_path(self._queued)
+        self._queued += 1
+        self._submit(lambda: self._write_frame_files(float(time), path, mesh, rows_text))
+        return path
 
-        path = self.frame_path(self.frames_written)
+    def _write_frame_files(self, time: float, path: Path, mesh: meshio.Mesh, rows_text: str) -> None:
+        """The writer thread's part of a frame: ``.vtu``, ``.pvd`` and body rows, in that order."""
         fd, tmp = tempfile.mkstemp(dir=self.frames_dir, prefix=f".{path.name}.", suffix=".tmp")
         os.close(fd)
         try:
@@ -331,29 +475,33 @@ class RunWriter:
             Path(tmp).unlink(missing_ok=True)
             raise
 
-        self._times.append(float(time))
-        self._files.append(f"{FRAMES_DIR}/{path.name}")
-        self.frames_written += 1
-        _atomic_write_text(self.pvd_path, _pvd_text(self._times, self._files))
+        self._frame_times.append(time)
+        self._frame_files.append(f"{FRAMES_DIR}/{path.name}")
+        self._count += 1
+        _atomic_write_text(self.pvd_path, _pvd_text(self._frame_times, self._frame_files))
 
-        if self._bodies_file is None:
-            self._bodies_file = open(self.out_dir / BODIES_CSV, "w", encoding="utf-8", newline="")
+        if self._bodies is None:
+            self._bodies = open(self.out_dir / BODIES_CSV, "w", encoding="utf-8", newline="")
             rows_text = ",".join(BODY_COLUMNS) + "\n" + rows_text
-        self._bodies_file.write(rows_text)
-        self._bodies_file.flush()
-        return path
+        self._bodies.write(rows_text)
+        self._bodies.flush()
 
     def write_regions(self, rows: Iterable[Any]) -> None:
         """Append region rows (``REGION_COLUMNS`` order, or dicts); creates regions.csv on first rows."""
+        self._raise_error()
         text = _csv_rows(rows, REGION_COLUMNS)
         if not text:
             return
         self._start()
-        if self._regions_file is None:
-            self._regions_file = open(self.out_dir / REGIONS_CSV, "w", encoding="utf-8", newline="")
+        self._submit(lambda: self._write_region_rows(text))
+
+    def _write_region_rows(self, text: str) -> None:
+        """The writer thread's part of :meth:`write_regions`."""
+        if self._regions is None:
+            self._regions = open(self.out_dir / REGIONS_CSV, "w", encoding="utf-8", newline="")
             text = ",".join(REGION_COLUMNS) + "\n" + text
-        self._regions_file.write(text)
-        self._regions_file.flush()
+        self._regions.write(text)
+        self._regions.flush()
 
 
 def _pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
