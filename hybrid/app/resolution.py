@@ -17,7 +17,7 @@ model's honest answers at that resolution; :class:`ImpactWatch` says so, once pe
 
 It looks at each step's end (through the Simulation's per-step hook) for surface nodes of FEM
 bodies touching rigid bodies or planes, with the velocities of the step's start: an impact is a
-contact approached fast enough that its stress (``rho c v``, the stress of a wave of speed ``v``)
+contact that began in the step, approached fast enough that its stress (``rho c v``, the stress of a wave of speed ``v``)
 reaches a quarter of the body's yield or fracture stress, or a strain of 1e-4 for an elastic
 body. Contacts between two FEM bodies are not examined.
 """
@@ -33,8 +33,10 @@ from rigid.model import angular_velocity, reported_velocity
 STRENGTH_SHARE = 0.25
 # ... or, for a purely elastic body, when v / c reaches this strain
 ELASTIC_STRAIN = 1e-4
-# the patch is resolved when its radius spans this many elements (about 12 nodes under it)
-PATCH_ELEMENTS = 2.0
+# the patch is resolved when its radius spans this many node spacings (about 7 nodes under it)
+PATCH_ELEMENTS = 1.5
+# the resolution suggested puts this many node spacings across the patch's radius
+PATCH_SUGGESTED = 3.0
 # a flat contact is resolved when at least this many nodes touch
 FLAT_NODES = 3
 # the step is resolved when it is at most this share of the impact's duration (the warning fires
@@ -118,6 +120,7 @@ class ImpactWatch:
     def __init__(self):
         self.warnings = []
         self._spacing = {}
+        self.touching = set()       # (FEM body, partner) names in contact at the last step seen
 
     def check(self, before, model, state):
         """New :class:`ImpactWarning` of the step from ``before`` (the coupled ``(model, state)``
@@ -131,20 +134,25 @@ class ImpactWatch:
             return []
         warned = {(w.body, w.kind) for w in self.warnings}
         origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
-        new = []
+        new, touching = [], set()
         for j, (m, s0, s1) in enumerate(zip(model.fem, old.fem, state.fem)):
             scene_body = model.scene.bodies[origin[int(model.fem_ids[j])]]
             if (scene_body.name, "space") in warned and (scene_body.name, "time") in warned:
                 continue
-            for found in self._impacts(model, old, state, m, s0, s1, scene_body):
+            for found in self._impacts(model, old, state, j, scene_body, touching):
                 if (found.body, found.kind) not in warned:
                     warned.add((found.body, found.kind))
                     new.append(found)
         self.warnings += new
+        self.touching = touching
         return new
 
-    def _impacts(self, model, old, state, m, s0, s1, body):
-        """The warnings (either kind) of FEM body ``m`` (states ``s0`` -> ``s1``, scene ``body``)."""
+    def _impacts(self, model, old, state, j, body, touching):
+        """The warnings (either kind) of FEM body ``j`` (scene ``body``) in the step from ``old``
+        to ``state``, of contacts that began in that step; the names of its contact pairs are
+        added to ``touching``."""
+        m, s0, s1 = model.fem[j], old.fem[j], state.fem[j]
+        name = model.names[model.fem_ids[j]]
         rm, rs = model.rigid, state.rigid
         spacing = self._node_spacing(m)
         nodes = m.surface_nodes
@@ -169,7 +177,9 @@ class ImpactWatch:
         for partner in np.unique(c.body_b):
             on = c.body_b == partner
             speed = float(approach[on].max())
-            if not self._relevant(m, body, speed, c_wave):
+            partner_name = model.names[int(model.rigid_ids[partner])] if partner >= 0 else "plane"
+            touching.add((name, partner_name))
+            if (name, partner_name) in self.touching or not self._relevant(m, body, speed, c_wave):
                 continue
             at = int(np.argmax(np.where(on, approach, -np.inf)))
             normal = c.normal[at]
@@ -178,10 +188,9 @@ class ImpactWatch:
                 scene_index = int(model.rigid_ids[partner])
                 origin = model.fragment_of[scene_index] if model.fragment_of is not None else scene_index
                 partner_body = model.scene.bodies[origin] if origin == scene_index else None
-                partner_name = model.names[scene_index]
                 partner_mass = float(rm.body_mass[partner])
             else:
-                partner_body, partner_name, partner_mass = None, "plane", np.inf
+                partner_body, partner_mass = None, np.inf
             curvature = 1.0 / shape_radius(body) + 1.0 / shape_radius(partner_body)
             radius = 1.0 / curvature if curvature > 0 else np.inf
             mass = float(m.node_mass.sum())
@@ -193,7 +202,7 @@ class ImpactWatch:
                      f"{speed:.3g} m/s")
             see = "check with `hybrid converge` (docs/studies.md)"
             if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
-                need = impact.a / (PATCH_ELEMENTS + 1.0)
+                need = impact.a / PATCH_SUGGESTED
                 out.append(ImpactWarning(
                     body.name, "space", state.time, partner_name, speed, spacing, need,
                     f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) "
@@ -213,8 +222,9 @@ class ImpactWatch:
                 need = impact.tau / STEPS_PER_IMPACT
                 out.append(ImpactWarning(
                     body.name, "time", state.time, partner_name, speed, model.dt, need,
-                    f"warning: {where}: the impact lasts about {impact.tau:.2g} s (wave transit "
-                    f"across {extent * 1e3:.3g} mm and contact time), shorter than the step "
+                    f"warning: {where}: the impact lasts about {impact.tau:.2g} s ("
+                    f"{'two wave transits' if impact.a is None else 'contact time, at least two wave transits'}"
+                    f" across {extent * 1e3:.3g} mm), shorter than the step "
                     f"dt = {model.dt:.2g} s, so its impulse is spread over the step and its peak "
                     f"stress is lowered about {model.dt / impact.tau:.0f}x; dt = {need:.2g} s "
                     f"would resolve it: {see}"))
@@ -248,9 +258,12 @@ class ImpactWatch:
         return spacing
 
     def snapshot(self):
-        """Plain data a checkpoint keeps: the warnings so far (see :meth:`restore`)."""
-        return [w.__dict__.copy() for w in self.warnings]
+        """Plain data a checkpoint keeps: the warnings so far and the contacts of the last step
+        (see :meth:`restore`)."""
+        return {"warnings": [w.__dict__.copy() for w in self.warnings],
+                "touching": sorted(list(pair) for pair in self.touching)}
 
     def restore(self, snapshot):
         """Continue from a :meth:`snapshot`."""
-        self.warnings = [ImpactWarning(**w) for w in snapshot]
+        self.warnings = [ImpactWarning(**w) for w in snapshot["warnings"]]
+        self.touching = {tuple(pair) for pair in snapshot["touching"]}
