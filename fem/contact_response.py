@@ -59,6 +59,15 @@ class ResponseCache:
         self.block_columns = None
 
     @property
+    def nbytes(self):
+        """Memory the cache keeps (bytes): the dense block with its room, the kept columns and
+        the last block's columns side by side."""
+        total = self._W.nbytes + sum(c.nbytes for c in self.columns.values())
+        if self.block_columns is not None:
+            total += self.block_columns[1].nbytes
+        return total
+
+    @property
     def W(self):
         """The dense inverse-system block ``(3k, 3k)`` (s/kg) of the ``k`` known nodes, in their order."""
         m3 = 3 * len(self.known)
