@@ -14,15 +14,15 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def _cross(a, b):
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+def _cross3(a0, a1, a2, b0, b1, b2):
+    """a x b of two vectors given by their components."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 @nb.njit(cache=True)
-def _velocity_at(i, r, v, w):
-    if i < 0:
-        return np.zeros(3)
-    return v[i] + _cross(w[i], r)
+def _rigid_velocity(v0, v1, v2, w0, w1, w2, r0, r1, r2):
+    """Velocity v + w x r of a rigid body's point at arm r."""
+    return v0 + w1 * r2 - w2 * r1, v1 + w2 * r0 - w0 * r2, v2 + w0 * r1 - w1 * r0
 
 
 @nb.njit(cache=True)
@@ -40,10 +40,20 @@ def arms(ia, ib, point, x):
 
 @nb.njit(cache=True)
 def normal_velocity(ia, ib, ra, rb, normal, v, w):
+    """(c,) relative normal velocity of side a against side b at each contact (rigid bodies:
+    v + w x r; the static world -1 is at rest)."""
     c = len(ia)
     out = np.empty(c)
     for k in range(c):
-        out[k] = np.dot(_velocity_at(ia[k], ra[k], v, w) - _velocity_at(ib[k], rb[k], v, w), normal[k])
+        a, b = ia[k], ib[k]
+        x0 = x1 = x2 = y0 = y1 = y2 = 0.0
+        if a >= 0:
+            c0, c1, c2 = _cross3(w[a, 0], w[a, 1], w[a, 2], ra[k, 0], ra[k, 1], ra[k, 2])
+            x0, x1, x2 = v[a, 0] + c0, v[a, 1] + c1, v[a, 2] + c2
+        if b >= 0:
+            c0, c1, c2 = _cross3(w[b, 0], w[b, 1], w[b, 2], rb[k, 0], rb[k, 1], rb[k, 2])
+            y0, y1, y2 = v[b, 0] + c0, v[b, 1] + c1, v[b, 2] + c2
+        out[k] = (x0 - y0) * normal[k, 0] + (x1 - y1) * normal[k, 1] + (x2 - y2) * normal[k, 2]
     return out
 
 
@@ -81,85 +91,92 @@ def _block(i, l, W, w_ptr, w_col):
     return np.zeros((3, 3))
 
 
-@nb.njit(cache=True, inline="always")
+# The sweeps' kernels are compiled twice: with ``groups`` the tuple of group arrays (some solver
+# bodies are particles of deformable bodies), and with ``groups`` None (rigid bodies only), in
+# which numba prunes every particle branch. The branches must stay out of the rigid-only code: a
+# per-contact test of group_of, even one never taken, made the 100-box pile's sweeps 5x slower.
+# Arrays are indexed element by element in the per-contact helpers (no row views).
+
+
+@nb.njit(cache=True)
 def _push_group(i, J0, J1, J2, v, groups):
     """Impulse J (world) on particle i: every particle l of its group moves by W[l, i] R^T J
     (group-frame velocities, see pgs). W is symmetric, so W[l, i] = W[i, l]^T is read from row i."""
     group_of, group_R, w_ptr, w_col, W = groups[0], groups[1], groups[2], groups[3], groups[4]
-    R = group_R[group_of[i]]
-    j0 = R[0, 0] * J0 + R[1, 0] * J1 + R[2, 0] * J2
-    j1 = R[0, 1] * J0 + R[1, 1] * J1 + R[2, 1] * J2
-    j2 = R[0, 2] * J0 + R[1, 2] * J1 + R[2, 2] * J2
+    g = group_of[i]
+    j0 = group_R[g, 0, 0] * J0 + group_R[g, 1, 0] * J1 + group_R[g, 2, 0] * J2
+    j1 = group_R[g, 0, 1] * J0 + group_R[g, 1, 1] * J1 + group_R[g, 2, 1] * J2
+    j2 = group_R[g, 0, 2] * J0 + group_R[g, 1, 2] * J1 + group_R[g, 2, 2] * J2
     for p in range(w_ptr[i], w_ptr[i + 1]):
         l = w_col[p]
-        B = W[p]
-        v[l, 0] += B[0, 0] * j0 + B[1, 0] * j1 + B[2, 0] * j2
-        v[l, 1] += B[0, 1] * j0 + B[1, 1] * j1 + B[2, 1] * j2
-        v[l, 2] += B[0, 2] * j0 + B[1, 2] * j1 + B[2, 2] * j2
+        v[l, 0] += W[p, 0, 0] * j0 + W[p, 1, 0] * j1 + W[p, 2, 0] * j2
+        v[l, 1] += W[p, 0, 1] * j0 + W[p, 1, 1] * j1 + W[p, 2, 1] * j2
+        v[l, 2] += W[p, 0, 2] * j0 + W[p, 1, 2] * j1 + W[p, 2, 2] * j2
 
 
-@nb.njit(cache=True, inline="always")
-def _point_velocity(i, r, v, w, groups):
-    """World velocity (x, y, z) of body i at arm r (particles: their group-frame velocity rotated
-    out; places: the weighted sum of their corner particles')."""
+@nb.njit(cache=True)
+def _particle_velocity(i, v, groups):
+    """World velocity of particle or place i: its group-frame velocity rotated out (a place: the
+    weighted sum of its corner particles')."""
     group_of, group_R, corner, corner_w = groups[0], groups[1], groups[5], groups[6]
-    if i < 0:
-        return 0.0, 0.0, 0.0
-    if group_of[i] >= 0:
-        R = group_R[group_of[i]]
-        if corner[i, 0] >= 0:
-            u0 = u1 = u2 = 0.0
-            for c in range(3):
-                q, f = corner[i, c], corner_w[i, c]
-                u0 += f * v[q, 0]
-                u1 += f * v[q, 1]
-                u2 += f * v[q, 2]
-        else:
-            u0, u1, u2 = v[i, 0], v[i, 1], v[i, 2]
-        return (R[0, 0] * u0 + R[0, 1] * u1 + R[0, 2] * u2,
-                R[1, 0] * u0 + R[1, 1] * u1 + R[1, 2] * u2,
-                R[2, 0] * u0 + R[2, 1] * u1 + R[2, 2] * u2)
-    return (v[i, 0] + w[i, 1] * r[2] - w[i, 2] * r[1],
-            v[i, 1] + w[i, 2] * r[0] - w[i, 0] * r[2],
-            v[i, 2] + w[i, 0] * r[1] - w[i, 1] * r[0])
+    g = group_of[i]
+    if corner[i, 0] >= 0:
+        u0 = u1 = u2 = 0.0
+        for c in range(3):
+            q, f = corner[i, c], corner_w[i, c]
+            u0 += f * v[q, 0]
+            u1 += f * v[q, 1]
+            u2 += f * v[q, 2]
+    else:
+        u0, u1, u2 = v[i, 0], v[i, 1], v[i, 2]
+    return (group_R[g, 0, 0] * u0 + group_R[g, 0, 1] * u1 + group_R[g, 0, 2] * u2,
+            group_R[g, 1, 0] * u0 + group_R[g, 1, 1] * u1 + group_R[g, 1, 2] * u2,
+            group_R[g, 2, 0] * u0 + group_R[g, 2, 1] * u1 + group_R[g, 2, 2] * u2)
 
 
-@nb.njit(cache=True, inline="always")
-def _apply(i, r, j0, j1, j2, scale, inv_m, invI, v, w, groups):
-    """Impulse scale * (j0, j1, j2) (world) on body i at arm r (a place: shared among its corners
-    by their weights)."""
-    group_of, corner, corner_w = groups[0], groups[5], groups[6]
+@nb.njit(cache=True)
+def _apply_particle(i, j0, j1, j2, v, groups):
+    """Impulse (j0, j1, j2) (world) on particle i, or on place i shared among its corners by
+    their weights."""
+    corner, corner_w = groups[5], groups[6]
+    if corner[i, 0] >= 0:
+        for c in range(3):
+            f = corner_w[i, c]
+            if f != 0.0:
+                _push_group(corner[i, c], f * j0, f * j1, f * j2, v, groups)
+    else:
+        _push_group(i, j0, j1, j2, v, groups)
+
+
+@nb.njit(cache=True)
+def _apply(i, r, k, j0, j1, j2, scale, inv_m, invI, v, w, groups):
+    """Impulse scale * (j0, j1, j2) (world) on solver body i at arm r[k] (the warm start's; the
+    sweeps spell the same out)."""
     if i < 0 or scale == 0.0:
         return
     j0, j1, j2 = scale * j0, scale * j1, scale * j2
-    if group_of[i] >= 0:
-        if corner[i, 0] >= 0:
-            for c in range(3):
-                f = corner_w[i, c]
-                if f != 0.0:
-                    _push_group(corner[i, c], f * j0, f * j1, f * j2, v, groups)
-        else:
-            _push_group(i, j0, j1, j2, v, groups)
-        return
+    if groups is not None:
+        if groups[0][i] >= 0:
+            _apply_particle(i, j0, j1, j2, v, groups)
+            return
     m = inv_m[i]
     v[i, 0] += m * j0
     v[i, 1] += m * j1
     v[i, 2] += m * j2
-    c0, c1, c2 = r[1] * j2 - r[2] * j1, r[2] * j0 - r[0] * j2, r[0] * j1 - r[1] * j0   # r x J
-    I = invI[i]
-    w[i, 0] += I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
-    w[i, 1] += I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
-    w[i, 2] += I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
+    c0, c1, c2 = _cross3(r[k, 0], r[k, 1], r[k, 2], j0, j1, j2)
+    w[i, 0] += invI[i, 0, 0] * c0 + invI[i, 0, 1] * c1 + invI[i, 0, 2] * c2
+    w[i, 1] += invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
+    w[i, 2] += invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups):
     """Impulse l0 n + l1 t1 + l2 t2 (contact j's basis) on side a of contact k, its opposite on b."""
     J0 = l0 * basis[j, 0, 0] + l1 * basis[j, 1, 0] + l2 * basis[j, 2, 0]
     J1 = l0 * basis[j, 0, 1] + l1 * basis[j, 1, 1] + l2 * basis[j, 2, 1]
     J2 = l0 * basis[j, 0, 2] + l1 * basis[j, 1, 2] + l2 * basis[j, 2, 2]
-    _apply(ia[k], ra[k], J0, J1, J2, scale_a[k], inv_m, invI, v, w, groups)
-    _apply(ib[k], rb[k], -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, groups)
+    _apply(ia[k], ra, k, J0, J1, J2, scale_a[k], inv_m, invI, v, w, groups)
+    _apply(ib[k], rb, k, -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, groups)
 
 
 @nb.njit(cache=True)
@@ -198,25 +215,26 @@ def _add_block(i, l, D, scale, groups, out):
 
 
 @nb.njit(cache=True)
-def _response(i, r, D, scale, inv_m, invI, groups, out):
-    """Add to out (3, 3) the velocity of body i at arm r along the rows of D per unit impulse along
-    them, times scale."""
+def _response(i, r, k, basis, j, scale, inv_m, invI, groups, K):
+    """Add to K[j] (3, 3) the velocity of body i at arm r[k] along the rows of basis[j] per unit
+    impulse along them, times scale."""
     if i < 0 or scale == 0.0:
         return
-    if groups[0][i] >= 0:
-        _add_pair_block(i, i, D, scale, groups, out)
-        return
-    I = invI[i]
+    if groups is not None:
+        if groups[0][i] >= 0:
+            _add_pair_block(i, i, basis[j], scale, groups, K[j])
+            return
+    r0, r1, r2 = r[k, 0], r[k, 1], r[k, 2]
     for e in range(3):
-        d0, d1, d2 = D[e, 0], D[e, 1], D[e, 2]
-        c0, c1, c2 = r[1] * d2 - r[2] * d1, r[2] * d0 - r[0] * d2, r[0] * d1 - r[1] * d0   # r x d
-        a0 = I[0, 0] * c0 + I[0, 1] * c1 + I[0, 2] * c2
-        a1 = I[1, 0] * c0 + I[1, 1] * c1 + I[1, 2] * c2
-        a2 = I[2, 0] * c0 + I[2, 1] * c1 + I[2, 2] * c2
+        d0, d1, d2 = basis[j, e, 0], basis[j, e, 1], basis[j, e, 2]
+        c0, c1, c2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0   # r x d
+        a0 = invI[i, 0, 0] * c0 + invI[i, 0, 1] * c1 + invI[i, 0, 2] * c2
+        a1 = invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
+        a2 = invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
         m = inv_m[i]
-        dv0, dv1, dv2 = m * d0 + a1 * r[2] - a2 * r[1], m * d1 + a2 * r[0] - a0 * r[2], m * d2 + a0 * r[1] - a1 * r[0]
+        dv0, dv1, dv2 = m * d0 + a1 * r2 - a2 * r1, m * d1 + a2 * r0 - a0 * r2, m * d2 + a0 * r1 - a1 * r0
         for f in range(3):
-            out[f, e] += scale * (D[f, 0] * dv0 + D[f, 1] * dv1 + D[f, 2] * dv2)
+            K[j, f, e] += scale * (basis[j, f, 0] * dv0 + basis[j, f, 1] * dv1 + basis[j, f, 2] * dv2)
 
 
 @nb.njit(cache=True)
@@ -236,75 +254,58 @@ def _rotate_particles(v, group_of, group_R, to_group):
 def _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups):
     """(m, 3, 3) response of each active contact's relative velocity, in its basis, per unit
     impulse along its basis (the Delassus block of the contact, both sides' scales applied)."""
-    group_of = groups[0]
     K = np.zeros((len(idx), 3, 3))
     for j in range(len(idx)):
         k = idx[j]
         a, b = ia[k], ib[k]
-        D = basis[j]
-        _response(a, ra[k], D, scale_a[k], inv_m, invI, groups, K[j])
-        _response(b, rb[k], D, scale_b[k], inv_m, invI, groups, K[j])
-        if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
-            # both sides in one deformable body: an impulse on one side moves the other too
-            _add_pair_block(a, b, D, -scale_b[k], groups, K[j])
-            _add_pair_block(b, a, D, -scale_a[k], groups, K[j])
+        _response(a, ra, k, basis, j, scale_a[k], inv_m, invI, groups, K)
+        _response(b, rb, k, basis, j, scale_b[k], inv_m, invI, groups, K)
+        if groups is not None:
+            group_of = groups[0]
+            if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
+                # both sides in one deformable body: an impulse on one side moves the other too
+                _add_pair_block(a, b, basis[j], -scale_b[k], groups, K[j])
+                _add_pair_block(b, a, basis[j], -scale_a[k], groups, K[j])
     return K
 
 
-@nb.njit(cache=True, inline="always")
-def _relative_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups, u):
-    """u (3,) = velocity of side a minus side b at contact k, in contact j's basis."""
-    x0, x1, x2 = _point_velocity(ia[k], ra[k], v, w, groups)
-    y0, y1, y2 = _point_velocity(ib[k], rb[k], v, w, groups)
-    x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
-    for d in range(3):
-        u[d] = basis[j, d, 0] * x0 + basis[j, d, 1] * x1 + basis[j, d, 2] * x2
+@nb.njit(cache=True)
+def _solve_normal(kn, target, lam_n, un):
+    """Normal row (response kn): the accumulated impulse, >= 0, that reaches the target normal
+    velocity from the normal velocity un; returns it and its change."""
+    new = max(lam_n + (target - un) / kn, 0.0)
+    return new, new - lam_n
 
 
-@nb.njit(cache=True, inline="always")
-def _solve_normal(K, j, target, lam, k, u, delta):
-    """Normal row of contact k (response K[j]): reach the target normal velocity, accumulated
-    impulse lam[k, 0] >= 0; u follows."""
-    new = max(lam[k, 0] + (target - u[0]) / K[j, 0, 0], 0.0)
-    delta[0] = new - lam[k, 0]
-    lam[k, 0] = new
-    for e in range(3):
-        u[e] += K[j, e, 0] * delta[0]
-
-
-@nb.njit(cache=True, inline="always")
-def _solve_friction(K, j, mu, lam, k, u, delta):
+@nb.njit(cache=True)
+def _solve_friction(k11, k22, limit, lam1, lam2, u1, u2):
     """Friction rows: both tangents at once, each stopped through the larger of the two
-    tangential responses (never past the answer on either), and the pair projected radially into
-    the Coulomb disk mu * lam[k, 0], so a sliding contact's friction opposes its sliding velocity.
+    tangential responses k11, k22 (never past the answer on either), and the pair projected
+    radially into the Coulomb disk of radius ``limit`` (mu lambda_n), so a sliding contact's
+    friction opposes its sliding velocity (u1, u2). Returns the new accumulated pair.
 
     Clamped one tangent after the other, a sliding node whose lateral vibration asked more than
     the disk held got friction at 45 degrees to its motion, or along it (a Newmark block slid at
     0.90 mu g); through the full 2x2 response, a sliding box's corners (whose response turns with
     their lever arms) pulled askew and it slid 2% too far down a slope."""
-    limit = mu * lam[k, 0]
-    ktt = max(K[j, 1, 1], K[j, 2, 2])
-    f1 = lam[k, 1] - u[1] / ktt if ktt > 0.0 else lam[k, 1]
-    f2 = lam[k, 2] - u[2] / ktt if ktt > 0.0 else lam[k, 2]
+    ktt = max(k11, k22)
+    f1 = lam1 - u1 / ktt if ktt > 0.0 else lam1
+    f2 = lam2 - u2 / ktt if ktt > 0.0 else lam2
     norm = math.sqrt(f1 * f1 + f2 * f2)
     if norm > limit:
         scale = limit / norm if norm > 0.0 else 0.0
         f1, f2 = f1 * scale, f2 * scale
-    step1, step2 = f1 - lam[k, 1], f2 - lam[k, 2]
-    lam[k, 1], lam[k, 2] = f1, f2
-    delta[1] += step1
-    delta[2] += step2
-    for e in range(3):
-        u[e] += K[j, e, 1] * step1 + K[j, e, 2] * step2
+    return f1, f2
 
 
 @nb.njit(cache=True)
 def _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,
             iterations, groups):
     """Gauss-Seidel sweeps over the active contacts (see pgs), until no impulse changes by more
-    than 1e-7 of the largest."""
-    u = np.zeros(3)
-    delta = np.zeros(3)
+    than 1e-7 of the largest. Each contact is a block: normal row, then both friction rows with
+    the normal row's change seen through the 3x3 response K[j]; the sum is applied once.
+    (Written flat: a call that passes arrays costs reference counts per contact, and the rigid
+    bodies' velocities and impulses are spelt out here; particles go through their helpers.)"""
     for sweep in range(iterations):
         largest_change = 0.0
         largest = 0.0
@@ -312,20 +313,95 @@ def _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, in
             if not K[j, 0, 0] > 0.0:    # no effective mass (both sides immovable): no row
                 continue
             k = idx[j]
-            _relative_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups, u)
-            delta[:] = 0.0
-            _solve_normal(K, j, target[k], lam, k, u, delta)
+            a, b = ia[k], ib[k]
+            # relative velocity of side a against side b at the contact, in its basis
+            x0 = x1 = x2 = y0 = y1 = y2 = 0.0
+            if a >= 0:
+                if groups is not None and groups[0][a] >= 0:
+                    x0, x1, x2 = _particle_velocity(a, v, groups)
+                else:
+                    x0, x1, x2 = _rigid_velocity(v[a, 0], v[a, 1], v[a, 2], w[a, 0], w[a, 1],
+                                                 w[a, 2], ra[k, 0], ra[k, 1], ra[k, 2])
+            if b >= 0:
+                if groups is not None and groups[0][b] >= 0:
+                    y0, y1, y2 = _particle_velocity(b, v, groups)
+                else:
+                    y0, y1, y2 = _rigid_velocity(v[b, 0], v[b, 1], v[b, 2], w[b, 0], w[b, 1],
+                                                 w[b, 2], rb[k, 0], rb[k, 1], rb[k, 2])
+            x0, x1, x2 = x0 - y0, x1 - y1, x2 - y2
+            u0 = basis[j, 0, 0] * x0 + basis[j, 0, 1] * x1 + basis[j, 0, 2] * x2
+            u1 = basis[j, 1, 0] * x0 + basis[j, 1, 1] * x1 + basis[j, 1, 2] * x2
+            u2 = basis[j, 2, 0] * x0 + basis[j, 2, 1] * x1 + basis[j, 2, 2] * x2
+            # normal row, then the friction rows seeing its change through the response
+            new, d0 = _solve_normal(K[j, 0, 0], target[k], lam[k, 0], u0)
+            lam[k, 0] = new
+            d1 = d2 = 0.0
             if mu[k] > 0.0:
-                _solve_friction(K, j, mu[k], lam, k, u, delta)
-            largest = max(largest, lam[k, 0])
-            change = max(abs(delta[0]), abs(delta[1]), abs(delta[2]))
+                u1 += K[j, 1, 0] * d0
+                u2 += K[j, 2, 0] * d0
+                f1, f2 = _solve_friction(K[j, 1, 1], K[j, 2, 2], mu[k] * new, lam[k, 1],
+                                         lam[k, 2], u1, u2)
+                d1 += f1 - lam[k, 1]
+                d2 += f2 - lam[k, 2]
+                lam[k, 1], lam[k, 2] = f1, f2
+            largest = max(largest, new)
+            change = max(abs(d0), abs(d1), abs(d2))
             if change == 0.0:
                 continue
             largest_change = max(largest_change, change)
-            _apply_pair(j, k, delta[0], delta[1], delta[2], basis, ia, ib, ra, rb, scale_a, scale_b,
-                        inv_m, invI, v, w, groups)
+            # the block's change of impulse, world, on side a and its opposite on side b
+            J0 = d0 * basis[j, 0, 0] + d1 * basis[j, 1, 0] + d2 * basis[j, 2, 0]
+            J1 = d0 * basis[j, 0, 1] + d1 * basis[j, 1, 1] + d2 * basis[j, 2, 1]
+            J2 = d0 * basis[j, 0, 2] + d1 * basis[j, 1, 2] + d2 * basis[j, 2, 2]
+            for side in range(2):
+                i, r, s = (a, ra, scale_a[k]) if side == 0 else (b, rb, scale_b[k])
+                if i < 0 or s == 0.0:
+                    continue
+                if side == 1:
+                    s = -s
+                j0, j1, j2 = s * J0, s * J1, s * J2
+                if groups is not None and groups[0][i] >= 0:
+                    _apply_particle(i, j0, j1, j2, v, groups)
+                    continue
+                m = inv_m[i]
+                v[i, 0] += m * j0
+                v[i, 1] += m * j1
+                v[i, 2] += m * j2
+                c0, c1, c2 = _cross3(r[k, 0], r[k, 1], r[k, 2], j0, j1, j2)
+                w[i, 0] += invI[i, 0, 0] * c0 + invI[i, 0, 1] * c1 + invI[i, 0, 2] * c2
+                w[i, 1] += invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
+                w[i, 2] += invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
         if sweep > 0 and largest_change <= 1e-7 * largest:
             break
+
+
+@nb.njit(cache=True)
+def _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
+         iterations, groups, apply_lam):
+    """:func:`pgs` with the group arrays as one tuple, or None when no solver body is a particle."""
+    idx = np.nonzero(active)[0]
+    basis = contact_basis(normal[idx])
+    K = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
+    if groups is not None:      # particle velocities stay in their group's frame during the sweeps
+        _rotate_particles(v, groups[0], groups[1], True)
+    if apply_lam:       # warm start: the impulses lam holds act first
+        for j in range(len(idx)):
+            k = idx[j]
+            if not K[j, 0, 0] > 0.0:    # a guess on a contact nothing can move: it takes none
+                lam[k, 0] = lam[k, 1] = lam[k, 2] = 0.0
+            else:
+                _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
+                            scale_b, inv_m, invI, v, w, groups)
+    _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,
+            iterations, groups)
+    if groups is not None:
+        _rotate_particles(v, groups[0], groups[1], False)
+    out = np.full((len(ia), 3), np.nan)
+    for j in range(len(idx)):
+        k = idx[j]
+        for d in range(3):
+            out[k, d] = lam[k, 0] * basis[j, 0, d] + lam[k, 1] * basis[j, 1, d] + lam[k, 2] * basis[j, 2, d]
+    return out
 
 
 @nb.njit(cache=True)
@@ -354,25 +430,10 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
     impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
     """
-    groups = (group_of, group_R, w_ptr, w_col, W, corner, corner_w)
-    idx = np.nonzero(active)[0]
-    basis = contact_basis(normal[idx])
-    K = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
-    # particle velocities stay in their group's frame during the sweeps
-    _rotate_particles(v, group_of, group_R, True)
-    if apply_lam:       # warm start: the impulses lam holds act first
-        for j in range(len(idx)):
-            k = idx[j]
-            if not K[j, 0, 0] > 0.0:    # a guess on a contact nothing can move: it takes none
-                lam[k] = 0.0
-            else:
-                _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
-                            scale_b, inv_m, invI, v, w, groups)
-    _sweeps(idx, K, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m, invI, v, w,
-            iterations, groups)
-    _rotate_particles(v, group_of, group_R, False)
-    out = np.full((len(ia), 3), np.nan)
-    for j in range(len(idx)):
-        k = idx[j]
-        out[k] = lam[k, 0] * basis[j, 0] + lam[k, 1] * basis[j, 1] + lam[k, 2] * basis[j, 2]
-    return out
+    for i in range(len(group_of)):
+        if group_of[i] >= 0:
+            return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
+                        invI, v, w, iterations, (group_of, group_R, w_ptr, w_col, W, corner,
+                                                 corner_w), apply_lam)
+    return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v,
+                w, iterations, None, apply_lam)
