@@ -52,7 +52,7 @@ def test_the_caller_may_change_its_arrays_as_soon_as_write_frame_returns(tmp_pat
     """The writer thread is held until the caller has overwritten every array it passed: the
     frame on disk still holds the values at the call."""
     release = threading.Event()
-    real_write = meshio.write
+    real_write = output.write_vtu
 
     def held_write(*args, **kwargs):
         assert release.wait(10.0)
@@ -63,28 +63,28 @@ def test_the_caller_may_change_its_arrays_as_soon_as_write_frame_returns(tmp_pat
     expected_points, expected_stress = p.points.copy(), p.cell_data["von_mises"].copy()
     writer = RunWriter(tmp_path / "run", "drop")
     try:
-        output.meshio.write = held_write
+        output.write_vtu = held_write
         writer.write_frame(0.0, [p], rows(0.0))
         p.points[:] = -1.0
         p.cell_data["von_mises"][:] = -1.0
         release.set()
         writer.close()
     finally:
-        output.meshio.write = real_write
+        output.write_vtu = real_write
     mesh = meshio.read(tmp_path / "run" / "frames" / "frame_00000.vtu")
     np.testing.assert_array_equal(mesh.points, expected_points)
     np.testing.assert_array_equal(mesh.cell_data["von_mises"][0], expected_stress)
 
 
 def test_a_writer_error_surfaces_on_the_callers_thread_and_the_frames_before_it_stay(tmp_path, monkeypatch):
-    real_write = meshio.write
+    real_write = output.write_vtu
 
     def full_disk(path, *args, **kwargs):
         if "frame_00003" in str(path):
             raise OSError(28, "No space left on device")
         return real_write(path, *args, **kwargs)
 
-    monkeypatch.setattr(output.meshio, "write", full_disk)
+    monkeypatch.setattr(output, "write_vtu", full_disk)
     run_dir = tmp_path / "run"
     rng = np.random.default_rng(3)
     writer = RunWriter(run_dir, "drop")
@@ -105,14 +105,14 @@ def test_a_writer_error_surfaces_on_the_callers_thread_and_the_frames_before_it_
 
 
 def test_an_error_in_the_last_frame_is_raised_by_close_instead_of_a_summary(tmp_path, monkeypatch):
-    real_write = meshio.write
+    real_write = output.write_vtu
 
     def fail_second(path, *args, **kwargs):
         if "frame_00001" in str(path):
             raise OSError(5, "Input/output error")
         return real_write(path, *args, **kwargs)
 
-    monkeypatch.setattr(output.meshio, "write", fail_second)
+    monkeypatch.setattr(output, "write_vtu", fail_second)
     rng = np.random.default_rng(5)
     writer = RunWriter(tmp_path / "run", "drop")
     writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
@@ -122,3 +122,32 @@ def test_an_error_in_the_last_frame_is_raised_by_close_instead_of_a_summary(tmp_
     times, _, summary = read_run(tmp_path / "run")
     assert times == [0.0] and summary is None
     assert not list((tmp_path / "run" / "frames").glob(".*.tmp"))
+
+
+def test_frames_read_back_exactly_when_unchanged_arrays_reuse_the_last_frames_encoding(tmp_path):
+    """The .vtu writer compresses an array again only when its bytes changed: every frame still
+    reads back (meshio) to exactly the arrays given, changed or not, mixed cell types included."""
+    rng = np.random.default_rng(11)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    frames = []
+    with RunWriter(tmp_path / "run", "mixed") as writer:
+        for k in range(4):
+            tets = TETS if k < 2 else TETS[::-1]           # the topology changes at frame 2
+            pieces = [FramePiece(0, rng.normal(size=(4, 3)), [("triangle", triangles)]),
+                      FramePiece(1, TET_POINTS + k, [("tetra", tets)],
+                                 cell_data={"von_mises": np.full(2, 5.0) if k % 2 else rng.normal(size=2)},
+                                 point_data={"velocity": np.ones((5, 3))})]
+            writer.write_frame(0.1 * k, pieces)
+            frames.append(pieces)
+        writer.close()
+    _, paths, _ = read_run(tmp_path / "run")
+    for pieces, path in zip(frames, paths):
+        mesh = meshio.read(path)
+        np.testing.assert_array_equal(mesh.points, np.vstack([p.points for p in pieces]))
+        assert [b.type for b in mesh.cells] == ["triangle", "tetra"]
+        np.testing.assert_array_equal(mesh.cells[0].data, triangles)
+        np.testing.assert_array_equal(mesh.cells[1].data, pieces[1].cells[0][1] + 4)
+        np.testing.assert_array_equal(mesh.cell_data["von_mises"][1], pieces[1].cell_data["von_mises"])
+        np.testing.assert_array_equal(mesh.cell_data["von_mises"][0], np.zeros(4))
+        np.testing.assert_array_equal(mesh.cell_data["body_id"][1], [1, 1])
+        np.testing.assert_array_equal(mesh.point_data["velocity"][4:], np.ones((5, 3)))

@@ -1,0 +1,174 @@
+"""Share of a run's wall time spent writing its output, frames written in place against off the
+stepping thread, side by side in one run.
+
+Scenes: the built-in default scene (rigid bodies, 3 s at 1/240 s, 30 frames/s) and a soft
+1,296-tet cube (0.2 m, 6 x 6 x 6 cells, E = 100 kPa) dropped on the ground (1 s at dt = 1 ms,
+100 frames/s, the rate at which writing frames took 0.4 s of 1.5 s per simulated second). Each
+scene is run through ``Simulation.run`` (what ``hybrid run SCENE --out DIR`` does) in three
+ways, interleaved, ``--repeats`` times:
+
+- ``none``: no output folder (the run still keeps its conserved quantities per frame);
+- ``inline``: frames, tables and summary written on the stepping thread (``RunWriter(...,
+  background=False)``, the writer before issue 24);
+- ``thread``: the same files written by the writer thread (the default).
+
+The output share of a way is (median wall with output - median wall of ``none``) / median wall
+with output. Also printed: the stepping thread's own time in the output calls (the frame's
+fields and rows computed in ``hybrid.app.observe``, and ``write_frame`` / ``write_regions`` /
+``close``), which the writer thread cannot take over. The goal line takes the larger share of the
+two scenes with the writer thread.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/output_share.py [--repeats 5]
+"""
+import argparse
+import functools
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import write_csv  # noqa: E402
+
+from fem.mesh import box_tet_mesh  # noqa: E402
+from hybrid import Simulation  # noqa: E402
+from hybrid.app import observe, output, run as run_module  # noqa: E402
+from hybrid.app.output_resume import ResumableWriter  # noqa: E402
+
+CUBE_SCENE = """
+[simulation]
+name = "cube"
+duration = 1.0
+dt = 0.001
+output_fps = 100
+
+[[planes]]
+friction = 0.5
+
+[[bodies]]
+name = "cube"
+model = "fem"
+mesh = "cube.vtu"
+position = [0.0, 0.0, 0.15]
+density = 1000.0
+young = 1.0e5
+poisson = 0.3
+damping = { mass = 0.0, stiffness = 0.01 }
+"""
+
+OUTPUT_CALLS = ((observe, "frame_pieces"), (observe, "body_rows"), (observe, "region_rows"),
+                (output.RunWriter, "write_frame"), (output.RunWriter, "write_regions"),
+                (output.RunWriter, "close"))
+
+
+def cube_scene(folder):
+    """The 1,296-tet cube scene file in ``folder`` (its mesh written beside it)."""
+    points, tets = box_tet_mesh([0.2, 0.2, 0.2], (6, 6, 6))
+    meshio.write(folder / "cube.vtu", meshio.Mesh(points, [("tetra", tets)]))
+    (folder / "cube.toml").write_text(CUBE_SCENE)
+    return folder / "cube.toml"
+
+
+class OutputClock:
+    """Wall time the calling thread spends in the output calls (wrapped while it is active)."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.saved = []
+
+    def __enter__(self):
+        for owner, name in OUTPUT_CALLS:
+            original = getattr(owner, name)
+            self.saved.append((owner, name, original))
+            setattr(owner, name, self._timed(original))
+        return self
+
+    def __exit__(self, *exc):
+        for owner, name, original in self.saved:
+            setattr(owner, name, original)
+
+    def _timed(self, function):
+        @functools.wraps(function)
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+        return timed
+
+
+def one_run(scene_file, way, out_dir):
+    """``(wall s of Simulation.run, s the stepping thread spent in output calls)``."""
+    sim = Simulation.from_toml(scene_file)
+    writer = functools.partial(ResumableWriter, background=(way == "thread"))
+    saved = run_module.ResumableWriter
+    run_module.ResumableWriter = writer
+    try:
+        with OutputClock() as clock:
+            start = time.perf_counter()
+            sim.run(out=None if way == "none" else out_dir, progress=False, log=lambda message: None,
+                    checkpoint_every=0)
+            wall = time.perf_counter() - start
+    finally:
+        run_module.ResumableWriter = saved
+    return wall, clock.seconds
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5, help="runs of each way (medians)")
+    parser.add_argument("--csv", default="outputs/bench/output_share.csv")
+    args = parser.parse_args(argv)
+    work = Path(tempfile.mkdtemp(prefix="output_share_"))
+    try:
+        scenes = {"default": "default", "cube_1296": cube_scene(work)}
+        ways = ("none", "inline", "thread")
+        rows, shares = [], {}
+        for label, scene in scenes.items():
+            one_run(scene, "thread", work / "warm")            # numba caches and imports loaded
+            walls = {w: [] for w in ways}
+            inside = {w: [] for w in ways}
+            for _ in range(args.repeats):
+                for way in ways:
+                    wall, spent = one_run(scene, way, work / f"{label}_{way}")
+                    walls[way].append(wall)
+                    inside[way].append(spent)
+            sim = Simulation.from_toml(scene)
+            simulated = sim.scene.simulation.duration
+            base = statistics.median(walls["none"])
+            print(f"\n{label}: {simulated:g} s simulated, {sim.scene.simulation.output_fps:g} frames/s, "
+                  f"{args.repeats} runs of each way (medians; machine shared with other jobs)")
+            print(f"  {'way':8s} {'wall s':>8s} {'s/sim s':>8s} {'output share':>13s} "
+                  f"{'stepping thread in output calls':>32s}")
+            for way in ways:
+                wall = statistics.median(walls[way])
+                share = (wall - base) / wall if way != "none" else 0.0
+                spent = statistics.median(inside[way])
+                print(f"  {way:8s} {wall:8.3f} {wall / simulated:8.3f} {share:13.3f} "
+                      f"{spent:9.3f} s ({spent / wall:.3f} of the run)")
+                rows.append({"scene": label, "way": way, "repeats": args.repeats,
+                             "wall_median_s": wall, "wall_per_simulated_s": wall / simulated,
+                             "output_share": share, "stepping_thread_output_s": spent,
+                             "walls": " ".join(f"{w:.4f}" for w in walls[way])})
+                if way == "thread":
+                    shares[label] = share
+            inline = statistics.median(walls["inline"])
+            thread = statistics.median(walls["thread"])
+            print(f"  thread / inline wall: {thread / inline:.3f}")
+        write_csv(args.csv, rows)
+        worst = max(shares.values())
+        print(f"\nwrote {args.csv}")
+        print(f"GOAL output_share_of_run: measured={worst:.3f} target=0.10 "
+              f"{'met' if worst < 0.10 else 'not met'}")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
