@@ -4,7 +4,8 @@ Degrees of freedom are node-major, ``dof = 3 * node + component``, matching ``(n
 flattened in C order. scikit-fem numbers its own DOFs (component-first within a node, vertices
 before edges); the permutation between the two is built once here and nowhere else.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numba as nb
 import numpy as np
@@ -249,3 +250,56 @@ def assemble(points, tets, young, poisson, density):
         pattern_rows=pattern[0], pattern_cols=pattern[1], pattern_indptr=pattern[2],
         block_to_csr=pattern[3])
     return K, M_scalar, data
+
+
+@lru_cache(maxsize=None)
+def _unit_mass(order):
+    """Element mass of unit density over unit volume ``(b, b)``, scikit-fem's local basis order:
+    its mass matrix on one reference tet divided by that tet's volume (affine elements, so every
+    element's mass is its volume times this)."""
+    mesh = skfem.MeshTet(np.array([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0],
+                                   [0.0, 0.0, 0.0, 1.0]]), np.array([[0], [1], [2], [3]]))
+    element = skfem.ElementTetP1() if order == 1 else skfem.ElementTetP2()
+    basis = skfem.Basis(mesh, element, intorder=2 * order)
+
+    @skfem.BilinearForm
+    def mass(u, v, w):
+        return u * v
+
+    dofs = basis.element_dofs[:, 0]
+    return 6.0 * skfem.asm(mass, basis).toarray()[np.ix_(dofs, dofs)]
+
+
+def assemble_subset(data, parent_tets, tet_index, tets, density):
+    """What :func:`assemble` returns for some elements of a mesh assembled before, from that
+    mesh's element data alone (no scikit-fem assembly): a fracture piece's matrices.
+
+    data: :class:`ElementData` of the assembled mesh, whose tets are ``parent_tets`` ``(T, b)``.
+    tet_index: ``(t,)`` the elements kept. tets: ``(t, b)`` those elements' rows (same slots) in
+    the new node numbering ``0 .. n-1`` (every node used). density: kg/m^3.
+    Element blocks, gradients, weights and rest inverses are the kept elements'; stiffness is
+    their blocks summed, the consistent mass each element's volume times the unit element mass.
+    Returns ``(K, M_scalar, element_data)`` as :func:`assemble` does, equal to its result on the
+    new mesh up to round-off (element nodes keep the old mesh's local order).
+    """
+    tet_index = np.asarray(tet_index, dtype=np.int64)
+    tets = np.asarray(tets, dtype=np.int64)
+    n = int(tets.max()) + 1 if tets.size else 0
+    old_nodes = data.tet_nodes[tet_index]
+    # slot of each element node in the element's row of tets (tet_nodes is a permutation of it)
+    slot = np.argmax(old_nodes[:, :, None] == np.asarray(parent_tets)[tet_index][:, None, :], axis=2)
+    tet_nodes = np.take_along_axis(tets, slot, axis=1)
+    rows, cols, indptr, block_to_csr = _csr_pattern(tet_nodes, 3 * n)
+    elements = replace(data, tet_nodes=tet_nodes, tet_gradients=data.tet_gradients[tet_index],
+                       tet_weights=data.tet_weights[tet_index],
+                       tet_volume=data.tet_volume[tet_index],
+                       tet_rest_inverse=data.tet_rest_inverse[tet_index],
+                       tet_stiffness=data.tet_stiffness[tet_index], pattern_rows=rows,
+                       pattern_cols=cols, pattern_indptr=indptr, block_to_csr=block_to_csr)
+    K = assemble_from_blocks(elements, elements.tet_stiffness, 3 * n)
+    K.eliminate_zeros()     # as the scikit-fem product leaves it
+    b = tet_nodes.shape[1]
+    mass = (density * elements.tet_volume)[:, None, None] * _unit_mass(1 if b == 4 else 2)
+    M_scalar = sp.csr_matrix((mass.ravel(), (np.repeat(tet_nodes, b, axis=1).ravel(),
+                                             np.tile(tet_nodes, (1, b)).ravel())), shape=(n, n))
+    return K, M_scalar, elements

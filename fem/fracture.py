@@ -101,6 +101,18 @@ def principal_tension(sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return eigenvalue[:, -1], normal * np.where(lead < 0.0, -1.0, 1.0)
 
 
+def tension_bound(sigma: np.ndarray) -> np.ndarray:
+    """(k,) Pa, an upper bound of the largest principal stress of stresses (k, 3, 3) (their
+    symmetric part): the largest Gershgorin row bound ``s_ii + sum_{j != i} |s_ij|``, raised by
+    1e-10 of the entries' magnitude to cover the eigensolver's rounding. Cheap (no eigensolve),
+    so the checks solve for the principal stress only where it may matter.
+    """
+    sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
+    diagonal = np.diagonal(sym, axis1=1, axis2=2)
+    size = np.abs(sym).sum(axis=2)
+    return (diagonal + size - np.abs(diagonal)).max(axis=1) + 1e-10 * size.sum(axis=1)
+
+
 def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | None = None,
                         unbreakable: np.ndarray | None = None) -> CrackCandidates:
     """Elements whose largest principal stress exceeds the tensile strength.
@@ -118,16 +130,20 @@ def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | No
     threshold = np.broadcast_to(np.asarray(fracture_stress, dtype=float), sigma.shape[:1])
     if np.any(~(threshold > 0.0)):
         raise ValueError("fracture_stress must be positive (tensile strength)")
-    sigma_1, normal = principal_tension(sigma)
-    cracks = sigma_1 > threshold
+    # only elements whose Gershgorin bound passes the strength can crack: the eigensolve runs on
+    # those alone (each matrix is solved on its own, so the values are those of a full solve)
+    maybe = tension_bound(sigma) > threshold
     if unbreakable is not None:
-        cracks &= ~np.asarray(unbreakable, dtype=bool)
-    element = np.flatnonzero(cracks)
-    overstress = (sigma_1[element] - threshold[element]) / threshold[element]
-    element = element[np.argsort(-overstress, kind="stable")]
+        maybe &= ~np.asarray(unbreakable, dtype=bool)
+    maybe = np.flatnonzero(maybe)
+    sigma_1, normal = principal_tension(sigma[maybe])
+    cracks = sigma_1 > threshold[maybe]
+    element, sigma_1, normal = maybe[cracks], sigma_1[cracks], normal[cracks]
+    overstress = (sigma_1 - threshold[element]) / threshold[element]
+    order = np.argsort(-overstress, kind="stable")
     if max_cracks is not None:
-        element = element[:max(int(max_cracks), 0)]
-    return CrackCandidates(element, normal[element], sigma_1[element])
+        order = order[:max(int(max_cracks), 0)]
+    return CrackCandidates(element[order], normal[order], sigma_1[order])
 
 
 def tearing_candidates(sigma: np.ndarray, tet_peeq: np.ndarray, tet_yielded: np.ndarray,
@@ -288,6 +304,8 @@ def find_crack(fracture: FractureModel, points: np.ndarray, tets: np.ndarray,
         found = found.then(tearing_candidates(smoothed, tet_peeq, tet_yielded,
                                               fracture.tearing_strain,
                                               fracture.tet_unbreakable | brittle))
+    if found.element.size == 0:
+        return np.zeros(0, dtype=np.int64), found
     found = planar_crack(points, tets, found, fracture.faces, max_cracks=fracture.max_cracks)
     chosen = crack_faces(points, tets, found.element, found.normal, fracture.faces).face
     chosen = np.unique(chosen[chosen >= 0])

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from fem.assembly import ElementData, assemble
+from fem.assembly import ElementData, assemble, assemble_subset
 from fem.cache import FemCache
 from fem.dynamics import body_frame, system_factorisation
 from fem.mesh import check_tets, index_list, quadratic_tets, surface_triangles
@@ -345,7 +345,7 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
                     damping_stiffness=0.0, frame="floating", mass="lumped",
                     integrator="backward_euler", anchors=(), loads=(), dt=None, yield_stress=None,
                     plastic_update_strain=0.02, max_plastic_strain=None, linear_solver="cholmod",
-                    corotated_solver="cg"):
+                    corotated_solver="cg", elements_of=None):
     """Build a deformable body.
 
     points ``(n, 3)`` m and tets ``(t, 4)``: a linear tet mesh (``order=1``), or with ``order=2``
@@ -365,6 +365,11 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
     max_plastic_strain: cap on the equivalent plastic strain, or None.
     linear_solver: "cholmod" | "superlu", the sparse backend of its factorisations ("superlu", with
         a warning, when cholespy is not installed); corotated_solver: "cg" | "lu" (corotated frame).
+    elements_of: ``(parent, tet_index)`` when the mesh is elements ``tet_index`` of the FemModel
+        ``parent`` (same material and rest points, ``tets`` renumbered, same order; a fracture
+        piece): its matrices and element data are then taken from the parent's element blocks
+        (:func:`fem.assembly.assemble_subset`) instead of assembled again, and the parent's
+        checked orientation is kept.
     Returns a :class:`FemModel`. Note: with ``order=2`` from a linear mesh, select anchor/load
     nodes on ``fem.mesh.quadratic_tets(points, tets)[0]`` (same as ``model.rest_points``).
     """
@@ -373,8 +378,18 @@ def build_fem_model(points, tets, *, order=1, density, young, poisson, damping_m
         raise ValueError(f"frame in {FRAMES}, integrator in {INTEGRATORS}, mass in {MASSES}, "
                          f"corotated_solver in {COROTATED_SOLVERS}")
     linear_solver = available_linear_solver(linear_solver)
-    points, tets = _checked_mesh(points, tets, order)
-    K, M_scalar, elements = assemble(points, tets, young, poisson, density)
+    if elements_of is None:
+        points, tets = _checked_mesh(points, tets, order)
+        K, M_scalar, elements = assemble(points, tets, young, poisson, density)
+    else:
+        parent, tet_index = elements_of
+        points, tets = np.asarray(points, dtype=float), np.asarray(tets, dtype=np.int64)
+        if tets.shape[1] != parent.tets.shape[1] or order != parent.order or \
+                (young, poisson) != (parent.young, parent.poisson):
+            raise ValueError("elements_of: the parent's element order, Young's modulus and "
+                             "Poisson ratio must be the piece's")
+        K, M_scalar, elements = assemble_subset(parent.elements, parent.tets, tet_index, tets,
+                                                density)
     node_mass, M = _mass_matrices(M_scalar, mass)
     rest_center = node_mass @ points / node_mass.sum()
     surface = surface_triangles(tets)

@@ -2,8 +2,9 @@
 
 A piece of a split FEM body (a :class:`fem.split.Fragment` of the split mesh) becomes either
 
-- an FEM body of its own (:func:`fem_fragment`): its mesh is rebuilt and refactorised
-  (``fem.model.build_fem_model``), anchors and loads go with the nodes they hold (a load shared by
+- an FEM body of its own (:func:`fem_fragment`): its matrices are summed from the parent's
+  element blocks (``fem.model.build_fem_model`` with ``elements_of``, no new assembly) and
+  refactorised, anchors and loads go with the nodes they hold (a load shared by
   pieces is split between them in proportion to the mass of its nodes in each), the regions keep
   their scene names, and the parent's per-node and per-element state is carried over; or
 - a rigid body (:func:`rigid_fragments`, then :func:`rigid.compose.append_bodies`): its current surface
@@ -90,7 +91,8 @@ def _fragment_model(parent, frag, node_origin, load_share, dt):
                             damping_stiffness=parent.damping_stiffness, frame=parent.frame,
                             mass=parent.mass_kind, integrator=parent.integrator, anchors=anchors,
                             loads=loads, dt=dt, linear_solver=parent.linear_solver,
-                            corotated_solver=parent.corotated_solver, **_plastic_parameters(parent))
+                            corotated_solver=parent.corotated_solver,
+                            elements_of=(parent, frag.tet_index), **_plastic_parameters(parent))
     model = _carry_model_fields(parent, model, frag.tet_index)
     return replace(model, anchor_labels=anchor_labels, load_labels=load_labels)
 

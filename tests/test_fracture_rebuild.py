@@ -1,0 +1,125 @@
+"""A fracture event rebuilds only what changed, and what it reuses equals what it replaced.
+
+A piece's matrices are summed from its parent's element blocks (fem.assembly.assemble_subset)
+instead of assembled again with scikit-fem; the brittle check solves for principal stresses
+only where a Gershgorin bound says the strength may be passed. Both are compared here with the
+computation they replaced.
+"""
+import numpy as np
+import pytest
+
+from fem.assembly import assemble, assemble_subset, warped_assembly
+from fem.fracture import fracture_candidates, principal_tension, tension_bound
+from fem.mesh import box_tet_mesh, quadratic_tets
+from fem.model import build_fem_model
+from fem.split import split_bodies, split_mesh, tet_faces
+from fem.system import system_factorisation
+from rigid import quaternion as quat
+
+YOUNG, POISSON, DENSITY = 2.0e8, 0.3, 1200.0
+
+
+def _pieces(order):
+    """A distorted box mesh of ``order`` cut along the plane x = 0 (and around it): the mesh,
+    and its pieces (fem.split.Fragment, largest first)."""
+    points, tets = box_tet_mesh(np.array([0.3, 0.2, 0.1]), 6)
+    if order == 2:
+        points, tets = quadratic_tets(points, tets)
+    points = points + np.random.default_rng(1).normal(scale=0.004, size=points.shape)
+    faces = tet_faces(tets)
+    centre = points[faces.face_vertices].mean(axis=1)
+    cut = np.flatnonzero(faces.interior & (np.abs(centre[:, 0]) < 0.02))
+    split = split_mesh(points, tets, faces.face_vertices[cut], order, faces)
+    pieces = sorted(split_bodies(split.points, split.tets), key=lambda f: -len(f.tet_index))
+    return points, tets, pieces
+
+
+def _relative(a, b):
+    return abs(a - b).max() / abs(b).max()
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_piece_matrices_from_parent_blocks_equal_scikit_fem_assembly(order):
+    points, tets, pieces = _pieces(order)
+    _, _, parent = assemble(points, tets, YOUNG, POISSON, DENSITY)
+    assert len(pieces) > 2 and len(pieces[0].tet_index) > 50      # two halves and loose tets
+    rng = np.random.default_rng(2)
+    for piece in pieces[:3] + pieces[-1:]:
+        K, M, data = assemble(piece.points, piece.tets, YOUNG, POISSON, DENSITY)
+        K_sub, M_sub, sub = assemble_subset(parent, tets, piece.tet_index, piece.tets, DENSITY)
+        assert K_sub.shape == K.shape and K_sub.nnz == K.nnz
+        assert _relative(K_sub, K) < 1e-13 and _relative(M_sub, M) < 1e-13
+        assert np.allclose(sub.tet_volume, data.tet_volume, rtol=1e-13, atol=0)
+        assert np.allclose(sub.tet_rest_inverse, data.tet_rest_inverse, rtol=1e-12, atol=0)
+        # element nodes, gradients, blocks and the CSR pattern belong together: a warped stiffness
+        # and the displacement gradients of a random field are the same from either
+        R = quat.to_matrix(quat.normalize(rng.normal(size=(len(piece.tet_index), 4))))
+        n = len(piece.points)
+        assert _relative(warped_assembly(sub, R, 3 * n), warped_assembly(data, R, 3 * n)) < 1e-13
+        u = rng.normal(size=(n, 3))
+        grad = [np.swapaxes(u[d.tet_nodes], 1, 2)[:, None] @ d.tet_gradients for d in (sub, data)]
+        assert np.allclose(grad[0], grad[1], rtol=0, atol=1e-10 * abs(grad[1]).max())
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_piece_model_built_from_parent_equals_one_assembled_again(order):
+    points, tets, pieces = _pieces(order)
+    parent = build_fem_model(points, tets, order=order, density=DENSITY, young=YOUNG,
+                             poisson=POISSON)
+    for piece in pieces[:2] + pieces[-1:]:
+        kwargs = dict(order=order, density=DENSITY, young=YOUNG, poisson=POISSON, dt=1e-3)
+        fresh = build_fem_model(piece.points, piece.tets, **kwargs)
+        reused = build_fem_model(piece.points, piece.tets, elements_of=(parent, piece.tet_index),
+                                 **kwargs)
+        assert np.allclose(reused.node_mass, fresh.node_mass, rtol=1e-13, atol=0)
+        assert np.isclose(reused.node_mass.sum(), DENSITY * fresh.elements.tet_volume.sum(),
+                          rtol=1e-12)
+        assert _relative(reused.K, fresh.K) < 1e-13 and _relative(reused.M, fresh.M) < 1e-13
+        assert np.array_equal(reused.surface, fresh.surface)
+        assert np.allclose(reused.rest_center, fresh.rest_center, rtol=0, atol=1e-15)
+        # one step of the factorised system from either gives the same velocities
+        b = np.random.default_rng(3).normal(size=3 * len(piece.points))
+        free = fresh.free_dofs
+        solve = [system_factorisation(m, 1e-3).solve(b[free])
+                 for m in (reused, fresh)]
+        assert np.allclose(solve[0], solve[1], rtol=0, atol=1e-10 * abs(solve[1]).max())
+    with pytest.raises(ValueError, match="Young"):
+        build_fem_model(pieces[0].points, pieces[0].tets, order=order, density=DENSITY,
+                        young=2 * YOUNG, poisson=POISSON, elements_of=(parent, pieces[0].tet_index))
+
+
+def _brute_force_candidates(sigma, strength, max_cracks, unbreakable):
+    """fracture_candidates as it was: one eigensolve of every element."""
+    sigma_1, normal = principal_tension(sigma)
+    element = np.flatnonzero((sigma_1 > strength) & ~unbreakable)
+    order = np.argsort(-(sigma_1[element] - strength) / strength, kind="stable")[:max_cracks]
+    return element[order], normal[element[order]], sigma_1[element[order]]
+
+
+def test_brittle_check_finds_the_candidates_of_a_full_eigensolve():
+    rng = np.random.default_rng(4)
+    strength = 1.0e6
+    sigma = rng.normal(scale=0.6e6, size=(4000, 3, 3))
+    sigma = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
+    # elements exactly at the strength: diagonal stresses whose largest entry is the strength
+    sigma[:200] = 0.0
+    sigma[:200, 0, 0] = strength
+    sigma[:200, 1, 1] = rng.uniform(-1, 1, 200) * strength
+    sigma[200:300] *= 1e-3      # far below: skipped without an eigensolve
+    # turned stresses whose largest principal stress passes the strength by a hair
+    R = quat.to_matrix(quat.normalize(rng.normal(size=(100, 4))))
+    principal = np.column_stack([strength * (1 + 1e-9 * rng.random(100)),
+                                 rng.uniform(-2, 1, (100, 2)) * strength])
+    sigma[300:400] = np.einsum("kij,kj,klj->kil", R, principal, R)
+    sigma[400:500] = np.diag(principal[0]) * (1 + 1e-12)     # and axis-aligned ones
+    unbreakable = rng.random(len(sigma)) < 0.1
+    bound = tension_bound(sigma)
+    assert np.all(bound >= principal_tension(sigma)[0])
+    for max_cracks in (None, 7):
+        found = fracture_candidates(sigma, strength, max_cracks, unbreakable)
+        element, normal, sigma_1 = _brute_force_candidates(sigma, strength, max_cracks,
+                                                           unbreakable)
+        assert len(element) > 5 and (max_cracks or np.isin(np.arange(300, 500), element).sum() > 160)
+        assert np.array_equal(found.element, element)
+        assert np.array_equal(found.normal, normal)
+        assert np.array_equal(found.principal_stress, sigma_1)
