@@ -16,6 +16,7 @@ import numpy as np
 
 from .app import checkpoint, geometry, observe
 from .app.build import build
+from .app.deformable import mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hints, summary
@@ -63,7 +64,12 @@ class Simulation:
     events such as fracture replace it). state: the coupled state (everything that changes).
     events: every event so far (fracture, reference-shape updates), each with ``.message`` and
     ``.as_dict()``. warnings: what building the scene found worth saying (repaired meshes, bodies
-    overlapping at the start). timings: wall time (s) of event work by kind.
+    overlapping at the start). notes: one line per FEM body on its mesh (elements, nodes,
+    resolution, order and why). timings: wall time (s) of event work by kind. peaks: every FEM
+    body's largest stresses and plastic strain over every step
+    (:class:`hybrid.app.peaks.Peaks`); impacts: the under-resolved impacts found so far
+    (:class:`hybrid.app.resolution.ImpactWatch`, its ``warnings``). The first run logs the notes
+    and warnings.
     """
 
     def __init__(self, scene):
@@ -75,6 +81,7 @@ class Simulation:
             raise SceneError([f"{scene.source_path}: {error}"]) from None
         self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
                                           for a, b in overlapping_bodies(self.model, self.state)]
+        self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
         self.fem_time, self.stepped_time = {}, 0.0
@@ -172,9 +179,11 @@ class Simulation:
         Returns the summary (a dict). On instability the frames so far and the summary are kept
         and the InstabilityError is raised again."""
         position, snapshot = self._position(until)
+        for message in getattr(self, "notes", []):
+            log(message)
         for message in self.warnings:
             log(f"warning: {message}")
-        self.warnings = []
+        self.warnings, self.notes = [], []
         bar = Progress(position.until, enabled=progress)
         wall0 = clock.perf_counter() - position.wall
         if not hasattr(self, "peaks"):          # made by resume, without __init__

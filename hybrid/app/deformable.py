@@ -1,4 +1,7 @@
 """FEM bodies of a scene: building them from scene fields (the coupling lives in hybrid.coupling.step)."""
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
 from fem.mesh import (box_tet_mesh, check_tets, cylinder_tet_mesh, quadratic_tets,
@@ -10,10 +13,105 @@ from . import geometry
 from .scene.describe import toml_text
 
 
+# an FEM box without a `resolution` is meshed in cubic cells a third of its shortest side when it
+# is compact; when its longest side is at least SLENDER_RATIO times its shortest it bends, and
+# that mesh was both too stiff (linear tets locking) and too large (a 30 x 30 x 1 cm plate was
+# 145,800 tets, a 0.6 s run tens of minutes): see default_box_mesh
+SLENDER_RATIO = 4.0
+# the default budget of a slender box: nodes (corner and midside)
+NODE_BUDGET = 4000
+# longest side of a slender box's default cell over the thickness of its layers
+MAX_CELL_ASPECT = 4.0
+# a slender box is a plate when its shortest side is at most this fraction of the next
+PLATE_RATIO = 0.25
+
+
+@dataclass(frozen=True)
+class DefaultMesh:
+    """How a box without a ``resolution`` is meshed: ``cells`` (3,) per axis, element ``order``
+    (1 or 2), ``resolution`` m (the shortest cell side) and ``why`` (for the run log)."""
+    cells: tuple
+    order: int
+    resolution: float
+    why: str
+
+    @property
+    def tet_count(self):
+        """Tetrahedra of the mesh (six per cell)."""
+        return 6 * math.prod(self.cells)
+
+
+def _nodes(cells, order):
+    """Nodes of a box mesh of ``cells`` (3,) (floats: absurd sizes must not overflow)."""
+    return float(np.prod(order * np.asarray(cells, float) + 1.0))
+
+
+def _cell_counts(size, h):
+    """Cells (3,) floats along each side for cells of side ``h`` (at least one, capped at 1e18)."""
+    return np.maximum(1.0, np.ceil(np.minimum(size / h, 1e18) - 1e-9))
+
+
+def default_box_mesh(size, order=None):
+    """:class:`DefaultMesh` of an FEM box of ``size`` (3,) m with no ``resolution`` (``order``:
+    the scene's, None when not given).
+
+    A compact box (longest side under SLENDER_RATIO times its shortest): cubic cells a third of
+    its shortest side, linear tets unless ``order = 2`` is given, as always. A slender box bends:
+    quadratic tets unless ``order = 1`` is given (linear tets a few layers thick lock in bending,
+    far too stiff), in two layers through a plate's thin side (three across a bar's small sides,
+    and for linear tets), with cells along the long sides as fine as NODE_BUDGET nodes allow but
+    at most MAX_CELL_ASPECT times the layers' thickness (beyond that the budget gives way)."""
+    size = np.broadcast_to(np.asarray(size, float), (3,))
+    shortest, middle, longest = (float(v) for v in np.sort(size))
+    if longest < SLENDER_RATIO * shortest:
+        cubic = _cell_counts(size, shortest / 3)
+        order = 1 if order is None else order
+        return DefaultMesh(tuple(int(c) for c in cubic), order, shortest / 3,
+                           "a compact box: cubic cells a third of its shortest side")
+    order = 2 if order is None else order
+    plate = shortest <= PLATE_RATIO * middle
+    layers = 2 if plate and order == 2 else 3
+    thin = shortest / layers
+    thin_axis = int(np.argmin(size))
+
+    def cells(h):
+        # as coarse as h along the long sides; the layers across the thin side (and a bar's
+        # other small side)
+        n = np.maximum(_cell_counts(size, h), np.minimum(layers, _cell_counts(size, thin)))
+        n[thin_axis] = layers
+        return n
+
+    # the finest long cells, from the layers' thickness to the aspect cap, within the budget
+    sides = np.geomspace(thin, MAX_CELL_ASPECT * thin, 64)
+    fits = [h for h in sides if _nodes(cells(h), order) <= NODE_BUDGET]
+    side = fits[0] if fits else sides[-1]
+    kind = ("quadratic tets so it bends without locking" if order == 2 else
+            "linear tets (order = 1 given)")
+    budget = (f"within the default budget of {NODE_BUDGET} nodes" if fits else
+              f"at most {MAX_CELL_ASPECT:g}x the layers' thickness, over the default budget of "
+              f"{NODE_BUDGET} nodes")
+    why = (f"a {'plate' if plate else 'slender box'}: {layers} layers through its "
+           f"{shortest * 1e3:.3g} mm side, {kind}, cells up to {side * 1e3:.3g} mm along its "
+           f"long sides ({budget})")
+    return DefaultMesh(tuple(int(c) for c in cells(side)), order, float(min(thin, side)), why)
+
+
 def default_resolution(shape):
     """Edge length (m) an FEM body's shape is meshed at when the scene gives no ``resolution``:
-    a third of a box's shortest side, half a radius."""
-    return float(min(shape.size)) / 3 if shape.type == "box" else shape.radius / 2
+    for a box its default mesh's shortest cell side (:func:`default_box_mesh`; its cells may be
+    longer along its long sides), half a radius for spheres and cylinders."""
+    return default_box_mesh(shape.size).resolution if shape.type == "box" else shape.radius / 2
+
+
+def body_order(body):
+    """Element order (1 or 2) a body is built with: its ``order``, else its default mesh's (a
+    box without a ``resolution``), else 1."""
+    if body.order is not None:
+        return body.order
+    s = body.shape
+    if body.mesh is None and s is not None and s.type == "box" and s.resolution is None:
+        return default_box_mesh(s.size).order
+    return 1
 
 
 def _tet_mesh(body):
@@ -21,6 +119,9 @@ def _tet_mesh(body):
     if body.mesh is not None:
         return geometry.load_tet_mesh(body.mesh)
     s = body.shape
+    if s.type == "box" and s.resolution is None:
+        points, tets = box_tet_mesh(np.asarray(s.size, float), default_box_mesh(s.size, body.order).cells)
+        return points, tets, 1
     h = s.resolution or default_resolution(s)
     # the fem.mesh generators take cell counts; scene resolutions are edge lengths in metres
     if s.type == "box":
@@ -34,6 +135,33 @@ def _tet_mesh(body):
         raise ValueError(f"FEM bodies support box, sphere and cylinder shapes or a tet mesh, "
                          f"not '{s.type}'")
     return points, tets, 1
+
+
+def mesh_notes(model):
+    """One run-log line per FEM or auto body of a model just built from its scene: its element
+    count, nodes, resolution and order, and why (given, or the default's reason)."""
+    lines = []
+    fem = dict(zip(model.fem_ids, model.fem))
+    fem |= {k: p.fem for k, p in model.parked.items()}
+    for k, body in enumerate(model.scene.bodies):
+        m = fem.get(k)
+        if m is None:
+            continue
+        kind = "quadratic" if m.order == 2 else "linear"
+        head = f"mesh: '{body.name}': {m.tet_count} {kind} tets, {m.node_count} nodes"
+        s = body.shape
+        if body.mesh is not None:
+            lines.append(f"{head}, from {body.mesh.name}")
+        elif s.resolution is not None:
+            lines.append(f"{head}, resolution {s.resolution:.3g} m (given)")
+        elif s.type == "box":
+            d = default_box_mesh(s.size, body.order)
+            cells = " x ".join(f"{a * 1e3:.3g}" for a in np.asarray(s.size) / np.asarray(d.cells))
+            lines.append(f"{head}, cells {cells} mm (default: {d.why}; set `resolution` to choose)")
+        else:
+            lines.append(f"{head}, resolution {default_resolution(s):.3g} m (default: half the "
+                         f"radius; set `resolution` to choose)")
+    return lines
 
 
 def build_bodies(bodies, dt, *, linear_solver="cholmod", corotated_solver="cg", indices=None):
@@ -68,10 +196,11 @@ def _build_model(body, label, dt, linear_solver, corotated_solver):
         points, tets, file_order = _tet_mesh(body)
     except ValueError as error:
         raise ValueError(f"{label}: field '{source}' cannot be meshed: {error}") from None
-    if file_order == 2 and body.order == 1:
+    order = body_order(body)
+    if file_order == 2 and order == 1:
         tets = tets[:, :4]
         points = points[: tets.max() + 1]
-    if body.order == 2 and tets.shape[1] == 4:
+    if order == 2 and tets.shape[1] == 4:
         # the midside nodes first, so anchor and load boxes take them too (selected on the
         # corners alone, a clamped P2 beam's clamp face moved 0.18 mm and its tip sagged 10% more)
         points, tets = quadratic_tets(points, tets)
@@ -81,7 +210,7 @@ def _build_model(body, label, dt, linear_solver, corotated_solver):
     R = quat.to_matrix(np.asarray(body.orientation, float))
     placed = points @ R.T + np.asarray(body.position, float)
     try:
-        return build_fem_model(placed, tets, order=body.order, density=body.density,
+        return build_fem_model(placed, tets, order=order, density=body.density,
                                young=body.young, poisson=body.poisson,
                                damping_mass=body.damping.mass, damping_stiffness=body.damping.stiffness,
                                frame=body.frame, mass=body.mass_matrix, integrator=body.integrator,

@@ -151,96 +151,33 @@ class ImpactWatch:
         """The warnings (either kind) of FEM body ``j`` (scene ``body``) in the step from ``old``
         to ``state``, of contacts that began in that step; the names of its contact pairs are
         added to ``touching``."""
-        m, s0, s1 = model.fem[j], old.fem[j], state.fem[j]
+        m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
-        rm, rs = model.rigid, state.rigid
         spacing = self._node_spacing(m)
-        nodes = m.surface_nodes
-        x = s1.x[nodes]
-        k = len(x)
-        R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
-        c = detect_points(rm, rs.position, R, x, np.zeros(k), np.zeros(rm.body_count), CLOSE * spacing,
-                          np.zeros(k), np.zeros(k))
-        if c.count == 0:
-            return []
-        # the partner's velocity at the contact point, at the step's start
-        v_partner = np.zeros((c.count, 3))
-        if rm.body_count:
-            rigid = c.body_b >= 0
-            b = c.body_b[rigid]
-            v_rigid = reported_velocity(rm, old.rigid, model.gravity)
-            w_rigid = angular_velocity(rm, old.rigid)
-            v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
-        approach = -np.einsum("ci,ci->c", s0.v[nodes[c.body_a]] - v_partner, c.normal)
-        c_wave = np.sqrt(m.young / m.density)
+        c, approach = _contacts(model, old, state, j, CLOSE * spacing)
         out = []
         for partner in np.unique(c.body_b):
             on = c.body_b == partner
             speed = float(approach[on].max())
             partner_name = model.names[int(model.rigid_ids[partner])] if partner >= 0 else "plane"
             touching.add((name, partner_name))
-            if (name, partner_name) in self.touching or not self._relevant(m, body, speed, c_wave):
+            if (name, partner_name) in self.touching or not _relevant(m, body, speed):
                 continue
-            at = int(np.argmax(np.where(on, approach, -np.inf)))
-            normal = c.normal[at]
+            normal = c.normal[int(np.argmax(np.where(on, approach, -np.inf)))]
             extent = float(np.ptp(s1.x @ normal))
-            if partner >= 0:
-                scene_index = int(model.rigid_ids[partner])
-                origin = model.fragment_of[scene_index] if model.fragment_of is not None else scene_index
-                partner_body = model.scene.bodies[origin] if origin == scene_index else None
-                partner_mass = float(rm.body_mass[partner])
-            else:
-                partner_body, partner_mass = None, np.inf
+            partner_body, partner_mass = _partner(model, int(partner))
             curvature = 1.0 / shape_radius(body) + 1.0 / shape_radius(partner_body)
             radius = 1.0 / curvature if curvature > 0 else np.inf
             mass = float(m.node_mass.sum())
-            reduced = mass if not np.isfinite(partner_mass) else mass * partner_mass / (mass + partner_mass)
+            reduced = mass * partner_mass / (mass + partner_mass) if np.isfinite(partner_mass) else mass
             impact = impact_estimate(m.young, m.poisson, m.density, m.yield_stress, extent, radius,
                                      reduced, speed)
-            touching = int(np.unique(c.body_a[on & (c.gap < TOUCH * spacing)]).size)
+            nodes_on = int(np.unique(c.body_a[on & (c.gap < TOUCH * spacing)]).size)
             where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
-            see = "check with `hybrid converge` (docs/studies.md)"
-            if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
-                need = impact.a / PATCH_SUGGESTED
-                out.append(ImpactWarning(
-                    body.name, "space", state.time, partner_name, speed, spacing, need,
-                    f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) "
-                    f"is carried by fewer than a few nodes ({touching} touching; nodes "
-                    f"{spacing * 1e3:.3g} mm apart), so the stress under it is smeared over the "
-                    f"elements and a dent or crack there is underestimated; a resolution of about "
-                    f"{need:.2g} m would resolve it: {see}"))
-            elif impact.a is None and touching < FLAT_NODES:
-                need = spacing / 2.0
-                out.append(ImpactWarning(
-                    body.name, "space", state.time, partner_name, speed, spacing, need,
-                    f"warning: {where}: the contact is carried by {touching} node(s) (an edge or "
-                    f"corner strikes; nodes {spacing * 1e3:.3g} mm apart), so the stress under it "
-                    f"is smeared over the elements; refine (resolution {need:.2g} m or finer): "
-                    f"{see}"))
-            if model.dt > impact.tau:
-                need = impact.tau / STEPS_PER_IMPACT
-                out.append(ImpactWarning(
-                    body.name, "time", state.time, partner_name, speed, model.dt, need,
-                    f"warning: {where}: the impact lasts about {impact.tau:.2g} s ("
-                    f"{'two wave transits' if impact.a is None else 'contact time, at least two wave transits'}"
-                    f" across {extent * 1e3:.3g} mm), shorter than the step "
-                    f"dt = {model.dt:.2g} s, so its impulse is spread over the step and its peak "
-                    f"stress is lowered about {model.dt / impact.tau:.0f}x; dt = {need:.2g} s "
-                    f"would resolve it: {see}"))
+            out += _judged(impact, where, spacing, nodes_on, model.dt, extent,
+                           (body.name, state.time, partner_name, speed))
         return out
-
-    @staticmethod
-    def _relevant(m, body, speed, c_wave):
-        """Whether an approach at ``speed`` m/s matters to body ``m`` (scene ``body``): its wave
-        stress ``rho c v`` reaches a share of its yield or fracture stress, or for an elastic body
-        a strain ``v / c`` of ELASTIC_STRAIN."""
-        if speed <= 0:
-            return False
-        strengths = [v for v in (m.yield_stress, body.fracture_stress) if v is not None]
-        if strengths:
-            return m.density * c_wave * speed >= STRENGTH_SHARE * min(strengths)
-        return speed / c_wave >= ELASTIC_STRAIN
 
     def _node_spacing(self, m):
         """Median edge length (m) of a body's surface triangles (its nodes' spacing on its
@@ -267,3 +204,81 @@ class ImpactWatch:
         """Continue from a :meth:`snapshot`."""
         self.warnings = [ImpactWarning(**w) for w in snapshot["warnings"]]
         self.touching = {tuple(pair) for pair in snapshot["touching"]}
+
+
+def _contacts(model, old, state, j, margin):
+    """Contacts (rigid.contacts.Contacts) of FEM body ``j``'s surface nodes at the step's end with
+    rigid bodies and planes within ``margin`` m (body_a: the index into its surface nodes), and
+    each one's speed of approach (c,) m/s at the step's start (the node's velocity against the
+    partner's at the contact point, along the normal)."""
+    rm, rs = model.rigid, state.rigid
+    m, s0, s1 = model.fem[j], old.fem[j], state.fem[j]
+    nodes = m.surface_nodes
+    k = len(nodes)
+    R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
+    c = detect_points(rm, rs.position, R, s1.x[nodes], np.zeros(k), np.zeros(rm.body_count),
+                      margin, np.zeros(k), np.zeros(k))
+    v_partner = np.zeros((c.count, 3))
+    if rm.body_count and c.count:
+        rigid = c.body_b >= 0
+        b = c.body_b[rigid]
+        v_rigid = reported_velocity(rm, old.rigid, model.gravity)
+        w_rigid = angular_velocity(rm, old.rigid)
+        v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
+    return c, -np.einsum("ci,ci->c", s0.v[nodes[c.body_a]] - v_partner, c.normal)
+
+
+def _partner(model, partner):
+    """``(scene body or None, mass kg)`` of a contact partner: rigid body ``partner`` (its scene
+    body; None for a fracture fragment, whose shape is not the scene's) or a plane (-1)."""
+    if partner < 0:
+        return None, np.inf
+    k = int(model.rigid_ids[partner])
+    origin = model.fragment_of[k] if model.fragment_of is not None else k
+    return (model.scene.bodies[origin] if origin == k else None), float(model.rigid.body_mass[partner])
+
+
+def _relevant(m, body, speed):
+    """Whether an approach at ``speed`` m/s matters to FEM body ``m`` (scene ``body``): its wave
+    stress ``rho c v`` reaches STRENGTH_SHARE of its yield or fracture stress, or for an elastic
+    body a strain ``v / c`` of ELASTIC_STRAIN (``c = sqrt(E / rho)``)."""
+    if speed <= 0:
+        return False
+    c_wave = np.sqrt(m.young / m.density)
+    strengths = [v for v in (m.yield_stress, body.fracture_stress) if v is not None]
+    if strengths:
+        return m.density * c_wave * speed >= STRENGTH_SHARE * min(strengths)
+    return speed / c_wave >= ELASTIC_STRAIN
+
+
+def _judged(impact, where, spacing, nodes_on, dt, extent, about):
+    """The warnings an :class:`Impact` deserves: ``where`` opens their messages, ``spacing`` m
+    of the body's surface nodes, ``nodes_on`` of them touch, the step ``dt`` s, the body
+    ``extent`` m along the impact; ``about``: (body, time, partner, speed) of the warnings."""
+    see = "check with `hybrid converge` (docs/studies.md)"
+    out = []
+    if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
+        need = impact.a / PATCH_SUGGESTED
+        out.append(ImpactWarning(
+            about[0], "space", *about[1:], spacing, need,
+            f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) is "
+            f"carried by fewer than a few nodes ({nodes_on} touching; nodes {spacing * 1e3:.3g} "
+            f"mm apart), so the stress under it is smeared over the elements and a dent or crack "
+            f"there is underestimated; a resolution of about {need:.2g} m would resolve it: {see}"))
+    elif impact.a is None and nodes_on < FLAT_NODES:
+        need = spacing / 2.0
+        out.append(ImpactWarning(
+            about[0], "space", *about[1:], spacing, need,
+            f"warning: {where}: the contact is carried by {nodes_on} node(s) (an edge or corner "
+            f"strikes; nodes {spacing * 1e3:.3g} mm apart), so the stress under it is smeared over "
+            f"the elements; refine (resolution {need:.2g} m or finer): {see}"))
+    if dt > impact.tau:
+        need = impact.tau / STEPS_PER_IMPACT
+        lasts = "two wave transits" if impact.a is None else "contact time, at least two wave transits"
+        out.append(ImpactWarning(
+            about[0], "time", *about[1:], dt, need,
+            f"warning: {where}: the impact lasts about {impact.tau:.2g} s ({lasts} across "
+            f"{extent * 1e3:.3g} mm), shorter than the step dt = {dt:.2g} s, so its impulse is "
+            f"spread over the step and its peak stress is lowered about {dt / impact.tau:.0f}x; "
+            f"dt = {need:.2g} s would resolve it: {see}"))
+    return out

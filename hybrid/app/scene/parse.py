@@ -135,7 +135,8 @@ def _parse_body(table, source, index, base_dir, problems):
     if has_shape and values["shape"] is not None:
         values["shape"] = _parse_shape(values["shape"], where, problems)
         if valid(model) and isinstance(values["shape"], Shape):
-            _check_element_count(values["shape"], fem_model, where, problems)
+            _check_element_count(values["shape"], fem_model, where, problems,
+                                 values["order"] if valid(values["order"]) else None)
     if has_mesh and valid(values["mesh"]) and valid(model):
         _check_mesh(table["mesh"], values["mesh"], model, where, problems)
 
@@ -204,10 +205,10 @@ def _parse_shape(table, where, problems):
     return Shape(**values)
 
 
-def _check_element_count(shape, fem_model, where, problems):
-    """Record a problem if meshing the shape at its ``resolution`` (or the builder's default) would
-    make more elements than MAX_ELEMENTS (tetrahedra for a deformable body, surface triangles for a
-    rigid one)."""
+def _check_element_count(shape, fem_model, where, problems, order=None):
+    """Record a problem if meshing the shape at its ``resolution`` (or the builder's default, for
+    the body's ``order``, None when not given) would make more elements than MAX_ELEMENTS
+    (tetrahedra for a deformable body, surface triangles for a rigid one)."""
     r = shape.radius
     sizes = {"box": (shape.size,), "sphere": (r,)}.get(shape.type, (r, shape.height))
     if not valid(*sizes) or shape.resolution is INVALID:     # reported already
@@ -216,7 +217,10 @@ def _check_element_count(shape, fem_model, where, problems):
     if h is None:
         return
     # in floats, capped, so no size or resolution overflows an integer (inf counts are rejected)
-    if shape.type == "box":
+    if shape.type == "box" and fem_model and shape.resolution is None:
+        default = deformable.default_box_mesh(shape.size, order)
+        h, count = default.resolution, float(default.tet_count)
+    elif shape.type == "box":
         cells = [max(1.0, math.ceil(min(a / h, 1e18) - 1e-9)) for a in shape.size]
         count = 6 * cells[0] * cells[1] * cells[2] if fem_model else \
             4 * (cells[0] * cells[1] + cells[1] * cells[2] + cells[2] * cells[0])

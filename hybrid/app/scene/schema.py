@@ -137,7 +137,13 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
     _positive("radius", REQUIRED, "m", "Radius.", shapes=("sphere", "cylinder", "capsule")),
     _positive("height", REQUIRED, "m", "Length along the body's z axis (capsule: total, caps included).",
               shapes=("cylinder", "capsule")),
-    _positive("resolution", None, "m", "Target edge length when meshing the shape; optional.",
+    _positive("resolution", None, "m", "Target edge length when meshing the shape; optional. "
+              "Without it a deformable box is meshed in cubic cells a third of its shortest side "
+              "while that makes at most 4,000 nodes; a larger (thin) box in two layers through a "
+              "plate's thin side (three across a bar's), cells along its long sides up to 4 times "
+              "longer to stay within 4,000 nodes, and quadratic tets unless `order = 1` is given "
+              "(docs/fem.md, default meshes); a sphere or cylinder at half its radius. The run log "
+              "states each body's mesh and why.",
               shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
           "`capsule`; `height` with `cylinder`, `capsule`.",
@@ -145,9 +151,9 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
           "`size`, `radius` and `height` must be at most 1e12 m.",
           "A shape that would be meshed into more than 2e6 elements (tetrahedra for a deformable "
           "body, surface triangles for a rigid one) is rejected: at its `resolution` or, when none "
-          "is given, at the builder's default (for a deformable box a third of its shortest side, "
-          "for a deformable sphere or cylinder half its radius, for a rigid cylinder or capsule "
-          "1/32 of its circumference)."))
+          "is given, at the builder's default (for a deformable box see `resolution`, for a "
+          "deformable sphere or cylinder half its radius, for a rigid cylinder or capsule 1/32 of "
+          "its circumference)."))
 
 DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = mass M + stiffness K` "
                   "(FEM only).", (
@@ -223,8 +229,10 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           fem=True, default_text="no damping"),
     Field("frame", "choice", "floating", "", "`floating`: linear FEM in the shape-matched frame (fast); "
           "`corotated`: per-element rotations (large bending).", choices=("floating", "corotated"), fem=True),
-    Field("order", "choice", 1, "", "Element order: 1 (linear tets) or 2 (quadratic tets).", choices=(1, 2),
-          fem=True),
+    Field("order", "choice", None, "", "Element order: 1 (linear tets) or 2 (quadratic tets).",
+          choices=(1, 2), fem=True, default_text="1; 2 for a thin box meshed by default (no "
+          "`resolution`) that the former cubic cells would mesh into more than 4,000 nodes "
+          "(docs/fem.md, default meshes)"),
     Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
     Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
           "`newmark` (no numerical damping; a body's energy never exceeds its start energy plus the "
