@@ -27,7 +27,13 @@ from scipy.spatial import cKDTree
 
 from rigid.contacts import combine_friction, combine_restitution
 from rigid.model import POINT_RING
-from rigid.sdf import SignedDistanceGrid, closest_point_weights
+from rigid.sdf import SignedDistanceGrid
+
+from . import kernels
+
+# queries of the nearest current surface node up to this many are answered by brute force
+# (hybrid.coupling.kernels.nearest_rows) instead of a k-d tree built anew for the moved surface
+BRUTE_NEAREST = 64
 
 
 def _grid(m):
@@ -59,45 +65,6 @@ def _nearest_nodes(m, Y):
     ``(p, 3)`` indices into ``surface_nodes``."""
     _, close = _surface_index(m)[0].query(Y, k=min(3, len(m.surface_nodes)))
     return np.asarray(close).reshape(len(Y), -1)
-
-
-def _rest_triangles(m, Y, close):
-    """The rest surface triangle of body m holding each rest surface point Y (p, 3) (the closest one
-    among the triangles around ``close``, its nearest surface nodes, :func:`_nearest_nodes`):
-    ``(corners (p, 3), weights (p, 3), ties)``, corners indices into ``surface_nodes`` with Y's
-    barycentric weights. A point on an edge or a vertex lies in every triangle around it:
-    ``ties = (row, corners)`` lists the other triangles (q,) and (q, 3) that hold point ``row`` as
-    closely (to 1e-6 of its triangle's size)."""
-    _, tri, around = _surface_index(m)
-    if len(Y) == 0:
-        none = np.zeros((0, 3), np.int64)
-        return none, np.zeros((0, 3)), (np.zeros(0, np.int64), none)
-    candidates = around[close].reshape(len(Y), -1)
-    row, slot = np.nonzero(candidates >= 0)
-    face = candidates[row, slot]
-    P = m.rest_points[m.surface_nodes]
-    a, b, c = P[tri[face, 0]], P[tri[face, 1]], P[tri[face, 2]]
-    v, w = closest_point_weights(Y[row], a, b, c)
-    off = Y[row] - a - v[:, None] * (b - a) - w[:, None] * (c - a)
-    distance = np.einsum("ij,ij->i", off, off)
-    order = np.lexsort((distance, row))
-    best = order[np.searchsorted(row[order], np.arange(len(Y)))]        # each point's closest
-    weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
-    edge = b[best] - a[best]
-    size = np.einsum("ij,ij->i", edge, edge)                           # squared, as distance
-    tied = (distance <= (distance[best] + 1e-12 * size)[row]) & (face != face[best][row])
-    if tied.any():
-        tied[np.nonzero(tied)[0][_repeats(row[tied], face[tied])]] = False   # a face around two nodes
-    return tri[face[best]], weights, (row[tied], tri[face[tied]])
-
-
-def _repeats(row, face):
-    """Which (row, face) pairs repeat an earlier one ``(q,)`` bool."""
-    pairs = np.column_stack([row, face])
-    first = np.unique(pairs, axis=0, return_index=True)[1]
-    out = np.ones(len(row), dtype=bool)
-    out[first] = False
-    return out
 
 
 # a node touching a rigid body whose surface there turns more than this from the node's own face
@@ -145,24 +112,17 @@ def _node_normals(m, s, local):
     """Current outward unit normals ``(k, 3)`` of body m's surface nodes ``local`` (indices into
     ``surface_nodes``): the area-weighted normals of the triangles around each."""
     _, tri, around = _surface_index(m)
-    faces = around[local]
-    corners = s.x[m.surface_nodes[tri[np.maximum(faces, 0)]]]            # (k, d, 3, 3)
-    n = np.cross(corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0])
-    n = (n * (faces >= 0)[:, :, None]).sum(axis=1)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return kernels.node_normals(s.x, m.surface_nodes, tri, around, np.asarray(local, np.int64))
 
 
-def _reach(m, s):
-    """Centre (3,) and radius (m) of a sphere holding the body's surface nodes."""
-    x = s.x[m.surface_nodes]
-    centre = x.mean(axis=0)
-    return centre, float(np.sqrt(((x - centre) ** 2).sum(axis=1).max()))
-
-
-def _moved(m, s):
-    """How far the body's deformation moved its surface nodes from their rest places ``(s, 3)`` m,
-    in its rest frame: X = R^T (x - c) + X_c (floating); anchored bodies: R = I, c = X_c."""
-    return (s.x[m.surface_nodes] - s.c) @ s.R + m.rest_center - m.rest_points[m.surface_nodes]
+def _motion(m, s):
+    """The body's surface this step (:func:`hybrid.coupling.kernels.surface_motion`): centre (3,)
+    and radius (m) of a sphere holding its surface nodes; how far its deformation moved them from
+    their rest places ``(s, 3)`` m, in its rest frame (X = R^T (x - c) + X_c; anchored bodies:
+    R = I, c = X_c), and the longest of those moves (m)."""
+    centre, radius, moved, largest = kernels.surface_motion(
+        s.x, m.surface_nodes, np.asarray(s.c, float), np.asarray(s.R, float), m.rest_center, m.rest_points)
+    return centre, float(radius), moved, float(largest)
 
 
 def _current_nearest(m, s, x):
@@ -171,30 +131,33 @@ def _current_nearest(m, s, x):
     ``m.cache.current_tree`` for the positions it was built from (its ``data``; a step's detection
     asks about the same positions more than once)."""
     surface = s.x[m.surface_nodes]
+    if len(x) <= BRUTE_NEAREST:
+        return kernels.nearest_rows(surface, np.asarray(x, float))
     tree = m.cache.current_tree
     if tree is None or not np.array_equal(tree.data, surface):
         tree = m.cache.current_tree = cKDTree(surface, balanced_tree=False, compact_nodes=False)
     return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
-def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
+def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
-    those closer than ``reach`` (p,) m, ``moved`` being b's :func:`_moved`: ``(rows, corners,
+    those closer than ``reach`` (p,) m, ``motion`` being b's :func:`_motion`: ``(rows, corners,
     weights, nearest, point, normal, gap)``. b's side is a place in its surface triangle ``corners``
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
     node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
     With ``off_nodes`` (m), points within that distance of their nearest node across the normal
     are left out (that node's own contact covers them)."""
     radius = np.zeros(len(x)) if radius is None else radius
+    moved, largest = motion[2], motion[3]
     # into b's rest frame, less the deformation there: the displacement of b's surface node now
     # nearest each point (bent by more than its half thickness, b's rest surface would put a
     # point pressing on its top face nearer the bottom face, or off b's grid)
     local = moved[_current_nearest(mb, sb, x)]
     X = (x - sb.c) @ sb.R + mb.rest_center - local
-    phi, n_rest = _grid(mb).query(X)
+    grid = _grid(mb)
+    phi, n_rest = kernels.grid_query(grid.origin, grid.cell_size, grid.shape, grid.values, X)
     phi = phi - radius
-    near = np.nonzero((phi < reach + np.sqrt((moved ** 2).sum(axis=1).max(initial=0.0)))
-                      & np.any(n_rest != 0, axis=1))[0]
+    near = np.nonzero((phi < reach + largest) & np.any(n_rest != 0, axis=1))[0]
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
     close = _nearest_nodes(mb, Y) if len(near) else np.zeros((0, 1), np.int64)
     if off_nodes is not None and len(near):
@@ -206,48 +169,19 @@ def _against(mb, sb, moved, x, reach, radius=None, off_nodes=None):
     # its triangle; the normal turns with that triangle (a bent body's face is sloped where its
     # rest face was level: on the rest normal a frictionless ball stayed put on an 11 degree slope
     # of a sagging bridge), and the gap is measured along it to the place as it is now (a dent
-    # in b moves its surface away)
-    corners, weights, (tie_row, tie_corners) = _rest_triangles(mb, Y, close)
-    nearest = close[:, 0]
-    rest = mb.rest_points[mb.surface_nodes[corners]]                     # (p, 3, 3) b's frame
-    now = rest + moved[corners]
-    n_near = n_rest[near]
-    n = _turn(n_near, _unit_normals(rest), _unit_normals(now))
-    if len(tie_row):
-        # on an edge or a vertex: turned with each triangle around it, averaged (with the first
-        # triangle found alone, mirror-image corners turned differently, and a soft cube hit face
-        # on by a rigid one left spinning about the impact axis)
-        tie_rest = mb.rest_points[mb.surface_nodes[tie_corners]]
-        tie_now = tie_rest + moved[tie_corners]
-        np.add.at(n, tie_row, _turn(n_near[tie_row], _unit_normals(tie_rest), _unit_normals(tie_now)))
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-    place = np.einsum("pi,pij->pj", weights, now)
-    gap = np.einsum("ij,ij->i", X[near] + local[near] - place, n) - radius[near]
+    # in b moves its surface away). On an edge or a vertex the normal is turned with each
+    # triangle around it, averaged (with the first triangle found alone, mirror-image corners
+    # turned differently, and a soft cube hit face on by a rigid one left spinning about the
+    # impact axis)
+    _, tri, around = _surface_index(mb)
+    corners, weights, n, gap = kernels.places(
+        Y, close, around, tri, mb.rest_points[mb.surface_nodes], moved, n_rest[near],
+        X[near] + local[near], radius[near])
     hit = gap < reach[near]
-    rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], nearest[hit], gap[hit]
+    rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], close[hit, 0], gap[hit]
     normal = n[hit] @ sb.R.T
     point = x[rows] - (radius[rows] + 0.5 * gap)[:, None] * normal
     return rows, corners, weights, nearest, point, normal, gap
-
-
-def _unit_normals(tri):
-    """Unit normals ``(p, 3)`` of triangles ``(p, 3, 3)`` (corners counter-clockwise seen from
-    outside)."""
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-
-
-def _turn(v, a, b):
-    """Vectors ``v`` (p, 3) turned by the smallest rotation taking unit ``a`` to unit ``b``
-    (Rodrigues); left as they are where ``b`` has turned more than 90 degrees from ``a`` (a
-    triangle crushed flat or flipped has no trustworthy normal)."""
-    axis = np.cross(a, b)
-    cos = np.einsum("ij,ij->i", a, b)
-    ok = cos > 0.0
-    k = 1.0 / (1.0 + np.where(ok, cos, 1.0))
-    turned = (v * cos[:, None] + np.cross(axis, v)
-              + axis * (k * np.einsum("ij,ij->i", axis, v))[:, None])
-    return np.where(ok[:, None], turned, v)
 
 
 @dataclass
@@ -301,14 +235,15 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
     e = np.array([body.restitution for body in bodies])
     for b, (mb, sb) in enumerate(zip(models, states)):
         ib = np.arange(node_offset[b], node_offset[b + 1])
-        centre, radius = _reach(mb, sb)
+        motion = _motion(mb, sb)
+        centre, radius = motion[0], motion[1]
         slack = margin + node_sweep[ib].max(initial=0.0)
         # other bodies' nodes within reach of b's bounding sphere
         near = np.nonzero((node_body != b) & (np.linalg.norm(node_x - centre, axis=1)
                                               <= radius + slack + node_sweep))[0]
         if not len(near):
             continue
-        found = _against(mb, sb, _moved(mb, sb), node_x[near], slack + node_sweep[near])
+        found = _against(mb, sb, motion, node_x[near], slack + node_sweep[near])
         rows, corners, weights, nearest, point, normal, gap = found
         a = near[rows]
         _append(parts, a, ib[corners], weights, ib[nearest], point, normal, gap,
@@ -334,7 +269,8 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
     for j, (mb, sb) in enumerate(zip(models, states)):
         ib = node_offset[j] + np.arange(len(mb.surface_nodes))
         slack = margin + node_sweep[ib].max(initial=0.0)
-        centre, radius = _reach(mb, sb)
+        motion = _motion(mb, sb)
+        centre, radius = motion[0], motion[1]
         # every sample point of the rigid bodies whose bounding spheres reach this body, at once
         near = np.nonzero(np.linalg.norm(position - centre, axis=1)
                           <= rigid.body_radius + rigid_sweep + radius + slack)[0]
@@ -351,7 +287,7 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         # node's own contact with the rigid body; a second one there only slows the solver
         # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)
         rows, corners, weights, nearest, point, normal, gap = _against(
-            mb, sb, _moved(mb, sb), x, slack + rigid_sweep[owner], rigid.point_radius[at], 0.1 * margin)
+            mb, sb, motion, x, slack + rigid_sweep[owner], rigid.point_radius[at], 0.1 * margin)
         r = owner[rows]
         _append(parts, r, ib[corners], weights, ib[nearest], point, normal, gap,
                 combine_friction(rigid.body_friction[r], bodies[j].friction),

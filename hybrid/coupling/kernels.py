@@ -1,0 +1,297 @@
+"""Compiled kernels of the coupled step's contact stages (numba, cached on disk).
+
+Each replaces a chain of small numpy calls whose fixed cost, not their arithmetic, made up the
+step's time (a 10k-tet slab meets a box with a few dozen points; the numpy chain cost 5-120 us a
+call). They compute what the numpy code they replace computed, in the same order where it
+matters (tests/test_step_kernels.py compares them on random inputs).
+"""
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def surface_motion(x, surface_nodes, c, R, rest_center, rest_points):
+    """One pass over a deformable body's surface nodes: ``(centre (3,), radius, moved (s, 3),
+    largest)``. ``centre`` and ``radius`` (m) bound the current surface nodes ``x[surface_nodes]``
+    in a sphere (their mean, and the farthest from it); ``moved`` is how far the deformation moved
+    each from its rest place, in the body's rest frame: ``(x - c) R + X_c - X`` (floating frame:
+    best-fit rotation R and centre c; anchored bodies: R = I, c = X_c); ``largest`` the longest
+    of those (m)."""
+    s = len(surface_nodes)
+    centre = np.zeros(3)
+    for i in range(s):
+        for a in range(3):
+            centre[a] += x[surface_nodes[i], a]
+    for a in range(3):
+        centre[a] = centre[a] / s
+    far = 0.0
+    largest = 0.0
+    moved = np.empty((s, 3))
+    for i in range(s):
+        node = surface_nodes[i]
+        d0 = x[node, 0] - centre[0]
+        d1 = x[node, 1] - centre[1]
+        d2 = x[node, 2] - centre[2]
+        r2 = d0 * d0 + d1 * d1 + d2 * d2
+        if r2 > far:
+            far = r2
+        y0 = x[node, 0] - c[0]
+        y1 = x[node, 1] - c[1]
+        y2 = x[node, 2] - c[2]
+        m2 = 0.0
+        for a in range(3):
+            v = (y0 * R[0, a] + y1 * R[1, a] + y2 * R[2, a]) + rest_center[a] - rest_points[node, a]
+            moved[i, a] = v
+            m2 += v * v
+        if m2 > largest:
+            largest = m2
+    return centre, np.sqrt(far), moved, np.sqrt(largest)
+
+
+@nb.njit(cache=True)
+def nearest_rows(points, queries):
+    """Index ``(q,)`` of the row of ``points`` (s, 3) nearest each of ``queries`` (q, 3), by
+    brute force (the lowest index among equally near rows): for a few queries, cheaper than
+    building a k-d tree of points that move every step."""
+    out = np.zeros(len(queries), dtype=np.int64)
+    for k in range(len(queries)):
+        q0, q1, q2 = queries[k, 0], queries[k, 1], queries[k, 2]
+        best = np.inf
+        for i in range(len(points)):
+            d0 = points[i, 0] - q0
+            d1 = points[i, 1] - q1
+            d2 = points[i, 2] - q2
+            d = d0 * d0 + d1 * d1 + d2 * d2
+            if d < best:
+                best = d
+                out[k] = i
+    return out
+
+
+@nb.njit(cache=True)
+def node_normals(x, surface_nodes, triangles, around, local):
+    """Outward unit normals ``(k, 3)`` of surface nodes ``local`` (indices into ``surface_nodes``):
+    the sum of the cross products of the surface ``triangles`` (f, 3, indices into
+    ``surface_nodes``) around each (``around`` (s, d), padded with -1) at positions ``x``, i.e.
+    the area-weighted normal, normalised (a zero sum stays zero)."""
+    out = np.zeros((len(local), 3))
+    for k in range(len(local)):
+        n0 = 0.0
+        n1 = 0.0
+        n2 = 0.0
+        for slot in range(around.shape[1]):
+            f = around[local[k], slot]
+            if f < 0:
+                continue
+            p = surface_nodes[triangles[f, 0]]
+            q = surface_nodes[triangles[f, 1]]
+            r = surface_nodes[triangles[f, 2]]
+            a0, a1, a2 = x[q, 0] - x[p, 0], x[q, 1] - x[p, 1], x[q, 2] - x[p, 2]
+            b0, b1, b2 = x[r, 0] - x[p, 0], x[r, 1] - x[p, 1], x[r, 2] - x[p, 2]
+            n0 += a1 * b2 - a2 * b1
+            n1 += a2 * b0 - a0 * b2
+            n2 += a0 * b1 - a1 * b0
+        length = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-300)
+        out[k, 0] = n0 / length
+        out[k, 1] = n1 / length
+        out[k, 2] = n2 / length
+    return out
+
+
+@nb.njit(cache=True)
+def grid_query(origin, h, shape, values, X):
+    """Signed distance ``(p,)`` m and unit outward normal ``(p, 3)`` of a signed-distance grid
+    (rigid.sdf.SignedDistanceGrid: ``origin``, cell size ``h``, node counts ``shape``, node
+    ``values``) at body-frame points ``X`` (p, 3): the trilinear interpolant and its normalised
+    gradient, outside the grid the value at its nearest point plus the distance to it and a zero
+    normal (the arithmetic of ``SignedDistanceGrid.query``, point by point)."""
+    p = len(X)
+    phi = np.empty(p)
+    normal = np.zeros((p, 3))
+    f = np.empty(3)
+    cell = np.empty(3, dtype=np.int64)
+    for k in range(p):
+        out2 = 0.0
+        for a in range(3):
+            u = (X[k, a] - origin[a]) / h
+            upper = float(shape[a] - 1)
+            clamped = min(max(u, 0.0), upper)
+            out2 += (u - clamped) ** 2
+            c = min(np.int64(np.floor(clamped)), shape[a] - 2)
+            cell[a] = c
+            f[a] = clamped - c
+        outside = np.sqrt(out2) * h
+        i, j, l = cell[0], cell[1], cell[2]
+        fx, fy, fz = f[0], f[1], f[2]
+        gx, gy, gz = 1.0 - fx, 1.0 - fy, 1.0 - fz
+        c000, c001 = values[i, j, l], values[i, j, l + 1]
+        c010, c011 = values[i, j + 1, l], values[i, j + 1, l + 1]
+        c100, c101 = values[i + 1, j, l], values[i + 1, j, l + 1]
+        c110, c111 = values[i + 1, j + 1, l], values[i + 1, j + 1, l + 1]
+        cx0 = gy * (gz * c000 + fz * c001) + fy * (gz * c010 + fz * c011)
+        cx1 = gy * (gz * c100 + fz * c101) + fy * (gz * c110 + fz * c111)
+        cy0 = gx * (gz * c000 + fz * c001) + fx * (gz * c100 + fz * c101)
+        cy1 = gx * (gz * c010 + fz * c011) + fx * (gz * c110 + fz * c111)
+        cz0 = gx * (gy * c000 + fy * c010) + fx * (gy * c100 + fy * c110)
+        cz1 = gx * (gy * c001 + fy * c011) + fx * (gy * c101 + fy * c111)
+        phi[k] = gx * cx0 + fx * cx1 + outside
+        if outside > 0:
+            continue
+        d0, d1, d2 = (cx1 - cx0) / h, (cy1 - cy0) / h, (cz1 - cz0) / h
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if not length > 0:
+            length = 1.0
+        normal[k, 0], normal[k, 1], normal[k, 2] = d0 / length, d1 / length, d2 / length
+    return phi, normal
+
+
+@nb.njit(cache=True, inline="always")
+def _ratio(num, den):
+    return num / (den if den != 0 else 1.0)
+
+
+@nb.njit(cache=True)
+def closest_weights(p0, p1, p2, a, b, c):
+    """Barycentric weights ``(v, w)`` of the point of triangle ``a, b, c`` (3,) closest to
+    ``(p0, p1, p2)``: ``a + v (b - a) + w (c - a)`` (Ericson, Real-Time Collision Detection,
+    5.1.5; the regions of rigid.sdf.closest_point_weights in its order of priority)."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p0 - a[0], p1 - a[1], p2 - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    bp0, bp1, bp2 = p0 - b[0], p1 - b[1], p2 - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    cp0, cp1, cp2 = p0 - c[0], p1 - c[1], p2 - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    if d1 <= 0 and d2 <= 0:                                     # corner a
+        return 0.0, 0.0
+    if d3 >= 0 and d4 <= d3:                                    # corner b
+        return 1.0, 0.0
+    if d6 >= 0 and d5 <= d6:                                    # corner c
+        return 0.0, 1.0
+    if vc <= 0 and d1 >= 0 and d3 <= 0:                         # edge ab
+        return _ratio(d1, d1 - d3), 0.0
+    if vb <= 0 and d2 >= 0 and d6 <= 0:                         # edge ac
+        return 0.0, _ratio(d2, d2 - d6)
+    if va <= 0 and d4 >= d3 and d5 >= d6:                       # edge bc
+        edge_bc = _ratio(d4 - d3, (d4 - d3) + (d5 - d6))
+        return 1.0 - edge_bc, edge_bc
+    total = va + vb + vc
+    return _ratio(vb, total), _ratio(vc, total)
+
+
+@nb.njit(cache=True, inline="always")
+def _unit_normal(t0, t1, t2):
+    a0, a1, a2 = t1[0] - t0[0], t1[1] - t0[1], t1[2] - t0[2]
+    b0, b1, b2 = t2[0] - t0[0], t2[1] - t0[1], t2[2] - t0[2]
+    n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    length = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-300)
+    return n0 / length, n1 / length, n2 / length
+
+
+@nb.njit(cache=True)
+def turned(v, rest, now):
+    """``v`` (3,) turned by the smallest rotation taking the unit normal of triangle ``rest``
+    (3, 3) to that of ``now`` (3, 3) (Rodrigues); ``v`` itself where the triangle turned by more
+    than 90 degrees (hybrid.coupling.fem_contact._turn)."""
+    a0, a1, a2 = _unit_normal(rest[0], rest[1], rest[2])
+    b0, b1, b2 = _unit_normal(now[0], now[1], now[2])
+    x0, x1, x2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    cos = a0 * b0 + a1 * b1 + a2 * b2
+    out = np.empty(3)
+    if not cos > 0.0:
+        out[:] = v
+        return out
+    k = 1.0 / (1.0 + cos)
+    along = k * (x0 * v[0] + x1 * v[1] + x2 * v[2])
+    out[0] = v[0] * cos + (x1 * v[2] - x2 * v[1]) + x0 * along
+    out[1] = v[1] * cos + (x2 * v[0] - x0 * v[2]) + x1 * along
+    out[2] = v[2] * cos + (x0 * v[1] - x1 * v[0]) + x2 * along
+    return out
+
+
+@nb.njit(cache=True)
+def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
+    """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
+
+    ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
+    rest positions are ``P`` (s, 3) and moves ``moved`` (s, 3)); the point's triangle is the
+    closest among the ``triangles`` (f, 3) ``around`` (s, d) them (the first found among equally
+    close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (and, for a
+    point on an edge or vertex, with every triangle holding it as closely, to 1e-6 of the
+    triangle's size, averaged); ``X_now`` (p, 3) the points moved as the surface moved, ``radius``
+    (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
+    the barycentric weights, the turned normal and the gap along it to the place as it is now."""
+    p = len(Y)
+    corners = np.zeros((p, 3), dtype=np.int64)
+    weights = np.zeros((p, 3))
+    normal = np.zeros((p, 3))
+    gap = np.zeros(p)
+    kc, d = close.shape[1], around.shape[1]
+    faces = np.empty(kc * d, dtype=np.int64)
+    dist = np.empty(kc * d)
+    rest = np.empty((3, 3))
+    now = np.empty((3, 3))
+    for k in range(p):
+        count = 0
+        best = -1
+        best_v = 0.0
+        best_w = 0.0
+        for j in range(kc):
+            for slot in range(d):
+                f = around[close[k, j], slot]
+                if f < 0:
+                    continue
+                a, b, c = P[triangles[f, 0]], P[triangles[f, 1]], P[triangles[f, 2]]
+                v, w = closest_weights(Y[k, 0], Y[k, 1], Y[k, 2], a, b, c)
+                o0 = Y[k, 0] - a[0] - v * (b[0] - a[0]) - w * (c[0] - a[0])
+                o1 = Y[k, 1] - a[1] - v * (b[1] - a[1]) - w * (c[1] - a[1])
+                o2 = Y[k, 2] - a[2] - v * (b[2] - a[2]) - w * (c[2] - a[2])
+                faces[count] = f
+                dist[count] = o0 * o0 + o1 * o1 + o2 * o2
+                if best < 0 or dist[count] < dist[best]:
+                    best, best_v, best_w = count, v, w
+                count += 1
+        f = faces[best]
+        for i in range(3):
+            corners[k, i] = triangles[f, i]
+            for a in range(3):
+                rest[i, a] = P[triangles[f, i], a]
+                now[i, a] = rest[i, a] + moved[triangles[f, i], a]
+        weights[k, 0], weights[k, 1], weights[k, 2] = 1.0 - best_v - best_w, best_v, best_w
+        n = turned(n_rest[k], rest, now)
+        e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
+        size = e0 * e0 + e1 * e1 + e2 * e2
+        tied = False
+        for t in range(count):
+            g = faces[t]
+            if g == f or not dist[t] <= dist[best] + 1e-12 * size:
+                continue
+            seen = False
+            for u in range(t):
+                if faces[u] == g:
+                    seen = True
+                    break
+            if seen:
+                continue
+            tied = True
+            for i in range(3):
+                for a in range(3):
+                    rest[i, a] = P[triangles[g, i], a]
+                    now[i, a] = rest[i, a] + moved[triangles[g, i], a]
+            n += turned(n_rest[k], rest, now)
+        if tied:
+            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        normal[k] = n
+        s = 0.0
+        for a in range(3):
+            place = 0.0
+            for i in range(3):
+                place += weights[k, i] * (P[corners[k, i], a] + moved[corners[k, i], a])
+            s += (X_now[k, a] - place) * n[a]
+        gap[k] = s - radius[k]
+    return corners, weights, normal, gap
