@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from .model import POINT_ON_RING, POINT_RING, SHAPE_CAPSULE, SHAPE_SPHERE
-from .sdf_kernels import shape_sdf
+from .model import POINT_ON_RING, POINT_RING, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_SPHERE
+from .sdf_kernels import box_sdf, shape_sdf
 
 
 @dataclass
@@ -68,9 +68,11 @@ def _broad_phase(position, radius, sweep, fixed):
                 break
             if fixed[a] and fixed[b]:
                 continue
-            d = position[a] - position[b]
+            d0 = position[a, 0] - position[b, 0]
+            d1 = position[a, 1] - position[b, 1]
+            d2 = position[a, 2] - position[b, 2]
             reach = radius[a] + radius[b] + sweep[a] + sweep[b]
-            if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= reach * reach:
+            if d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach:
                 pairs.append((min(a, b), max(a, b)))
     out = np.empty((len(pairs), 2), dtype=np.int64)
     for k in range(len(pairs)):
@@ -80,10 +82,13 @@ def _broad_phase(position, radius, sweep, fixed):
 
 
 @nb.njit(cache=True)
-def _point_world(R, x, local):
-    return (x[0] + R[0, 0] * local[0] + R[0, 1] * local[1] + R[0, 2] * local[2],
-            x[1] + R[1, 0] * local[0] + R[1, 1] * local[1] + R[1, 2] * local[2],
-            x[2] + R[2, 0] * local[0] + R[2, 1] * local[1] + R[2, 2] * local[2])
+def _point_world(R, x, local, k):
+    """World point x + R local[k] (indexed element by element: a row view costs a reference
+    count per point)."""
+    l0, l1, l2 = local[k, 0], local[k, 1], local[k, 2]
+    return (x[0] + R[0, 0] * l0 + R[0, 1] * l1 + R[0, 2] * l2,
+            x[1] + R[1, 0] * l0 + R[1, 1] * l1 + R[1, 2] * l2,
+            x[2] + R[2, 0] * l0 + R[2, 1] * l1 + R[2, 2] * l2)
 
 
 @nb.njit(cache=True)
@@ -153,12 +158,13 @@ def _plane_contacts(position, rotation, sweep, fixed, point_start, point_local, 
     for a in range(len(fixed)):
         if fixed[a]:
             continue
+        Ra, xa = rotation[a], position[a]
         for k in range(point_start[a], point_start[a + 1]):
             if point_kind[k] == POINT_ON_RING:
                 continue
-            px, py, pz = _point_world(rotation[a], position[a], point_local[k])
+            px, py, pz = _point_world(Ra, xa, point_local, k)
             ring = point_kind[k] == POINT_RING
-            ax, ay, az = _point_world(rotation[a], zero, point_axis[k])
+            ax, ay, az = _point_world(Ra, zero, point_axis, k)
             for j in range(len(plane_point)):
                 nx, ny, nz = plane_normal[j, 0], plane_normal[j, 1], plane_normal[j, 2]
                 frame = _ring_frame(ax, ay, az, nx, ny, nz) if ring else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -180,10 +186,10 @@ def _plane_contacts(position, rotation, sweep, fixed, point_start, point_local, 
 
 
 @nb.njit(cache=True)
-def _pair_contacts(pairs, position, rotation, sweep, fixed, point_start, point_local, point_radius,
-                   point_kind, point_ring, point_axis, shape_kind, shape_params, shape_rotation,
-                   shape_offset, grid_index, grid_values, grid_start, grid_shape, grid_origin,
-                   grid_cell, margin, out_a, out_b, out_p, out_n, out_gap, c):
+def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_start, point_local,
+                   point_radius, point_kind, point_ring, point_axis, shape_kind, shape_params,
+                   shape_rotation, shape_offset, grid_index, grid_values, grid_start, grid_shape,
+                   grid_origin, grid_cell, margin, out_a, out_b, out_p, out_n, out_gap, c):
     """Every broad-phase pair both ways: body a's contact points against body b's signed distance
     (a ring: its nearest points to b's surface), written from out_*[c]; returns the new count."""
     zero = np.zeros(3)
@@ -199,34 +205,46 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, point_start, point_l
             # left sideways at 3.2 m/s), so they are left out; two round bodies meet once
             if _round(shape_kind[b]) and (not _round(shape_kind[a]) or side == 1):
                 continue
-            Rb = rotation[b]
-            Sb = shape_rotation[b]
+            Ra, xa = rotation[a], position[a]
+            Rb, Sb, xb, ob = rotation[b], shape_rotation[b], position[b], shape_offset[b]
+            kind, params, grid = shape_kind[b], shape_params[b], grid_index[b]
             reach = margin + sweep[a] + sweep[b]
             # centre of a in the shape frame of b (tie-break at edges)
-            cx, cy, cz = _to_shape(Rb, Sb, position[b], shape_offset[b],
-                                   position[a, 0], position[a, 1], position[a, 2])
+            cx, cy, cz = _to_shape(Rb, Sb, xb, ob, xa[0], xa[1], xa[2])
             for k in range(point_start[a], point_start[a + 1]):
                 if point_kind[k] == POINT_ON_RING:
                     continue
-                px, py, pz = _point_world(rotation[a], position[a], point_local[k])
+                px, py, pz = _point_world(Ra, xa, point_local, k)
+                if kind == SHAPE_BOX:
+                    # a box lies inside its bounding sphere, so its distance from a point is at
+                    # least the distance beyond that sphere: points farther than the reach from
+                    # it (with their radii, and a micrometre for round-off) touch nothing
+                    dx, dy, dz = px - xb[0], py - xb[1], pz - xb[2]
+                    far = body_radius[b] + reach + point_radius[k] + point_ring[k] + 1e-6
+                    if dx * dx + dy * dy + dz * dz > far * far:
+                        continue
                 ring = point_kind[k] == POINT_RING
                 frame = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 if ring:    # towards b's surface as seen from the ring's centre
-                    sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
-                    phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
-                                                grid_values, grid_start, grid_shape, grid_origin,
-                                                grid_cell, sx, sy, sz, cx, cy, cz)
+                    sx, sy, sz = _to_shape(Rb, Sb, xb, ob, px, py, pz)
+                    phi, gx, gy, gz = shape_sdf(kind, params, grid, grid_values, grid_start,
+                                                grid_shape, grid_origin, grid_cell, sx, sy, sz,
+                                                cx, cy, cz)
                     if phi - point_ring[k] >= reach:
                         continue
                     nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
-                    ax, ay, az = _point_world(rotation[a], zero, point_axis[k])
+                    ax, ay, az = _point_world(Ra, zero, point_axis, k)
                     frame = _ring_frame(ax, ay, az, nx, ny, nz)
                 for i in range(4 if ring else 1):
                     qx, qy, qz = _ring_point(px, py, pz, point_ring[k], frame, i) if ring else (px, py, pz)
-                    sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], qx, qy, qz)
-                    phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
-                                                grid_values, grid_start, grid_shape, grid_origin,
-                                                grid_cell, sx, sy, sz, cx, cy, cz)
+                    sx, sy, sz = _to_shape(Rb, Sb, xb, ob, qx, qy, qz)
+                    if kind == SHAPE_BOX:   # (shape_sdf's box, without passing it the arrays)
+                        phi, gx, gy, gz = box_sdf(sx, sy, sz, params[0], params[1], params[2],
+                                                  cx, cy, cz)
+                    else:
+                        phi, gx, gy, gz = shape_sdf(kind, params, grid, grid_values, grid_start,
+                                                    grid_shape, grid_origin, grid_cell, sx, sy,
+                                                    sz, cx, cy, cz)
                     gap = phi - point_radius[k]
                     if gap >= reach:
                         continue
@@ -258,11 +276,11 @@ def detect(model, position, rotation, sweep, margin):
         out = (out_a, out_b, out_p, out_n, out_gap)
         count = _plane_contacts(position, rotation, sweep, fixed, *points, model.plane_point,
                                 model.plane_normal, margin, *out)
-        count = _pair_contacts(pairs, position, rotation, sweep, fixed, *points, model.shape_kind,
-                               model.shape_params, model.shape_rotation, model.shape_offset,
-                               model.grid_index, model.grid_values, model.grid_start,
-                               model.grid_shape, model.grid_origin, model.grid_cell, margin, *out,
-                               count)
+        count = _pair_contacts(pairs, position, rotation, sweep, fixed, model.body_radius, *points,
+                               model.shape_kind, model.shape_params, model.shape_rotation,
+                               model.shape_offset, model.grid_index, model.grid_values,
+                               model.grid_start, model.grid_shape, model.grid_origin,
+                               model.grid_cell, margin, *out, count)
         if count <= capacity:
             break
         capacity = count
@@ -300,9 +318,13 @@ def _points_narrow_phase(points, sweep, body_sweep, position, rotation, body_rad
             Rb, Sb = rotation[b], shape_rotation[b]
             sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
             # a lone point has no centre of its own: break edge ties towards the point itself
-            phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b], grid_values,
-                                        grid_start, grid_shape, grid_origin, grid_cell, sx, sy, sz,
-                                        sx, sy, sz)
+            if shape_kind[b] == SHAPE_BOX:  # (shape_sdf's box, without passing it the arrays)
+                phi, gx, gy, gz = box_sdf(sx, sy, sz, shape_params[b, 0], shape_params[b, 1],
+                                          shape_params[b, 2], sx, sy, sz)
+            else:
+                phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
+                                            grid_values, grid_start, grid_shape, grid_origin,
+                                            grid_cell, sx, sy, sz, sx, sy, sz)
             if phi >= ahead:
                 continue
             nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)

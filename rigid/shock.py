@@ -40,7 +40,7 @@ def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
                 level[i] = lowest[group_of[i]]
                 changed = True
         for k in range(len(ia)):
-            s = np.dot(normal[k], up)
+            s = normal[k, 0] * up[0] + normal[k, 1] * up[1] + normal[k, 2] * up[2]
             if s > STACK_COS:
                 upper, lower = ia[k], ib[k]
             elif s < -STACK_COS:

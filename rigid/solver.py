@@ -32,9 +32,11 @@ def arms(ia, ib, point, x):
     ra = np.zeros((c, 3))
     rb = np.zeros((c, 3))
     for k in range(c):
-        ra[k] = point[k] - x[ia[k]]
-        if ib[k] >= 0:
-            rb[k] = point[k] - x[ib[k]]
+        a, b = ia[k], ib[k]
+        for d in range(3):
+            ra[k, d] = point[k, d] - x[a, d]
+            if b >= 0:
+                rb[k, d] = point[k, d] - x[b, d]
     return ra, rb
 
 
