@@ -1,0 +1,198 @@
+"""The coupled step's compiled kernels against the numpy code they replaced, on random inputs.
+
+Each reference below is the numpy implementation the step used before the kernel (kept here only
+as the oracle); the kernels must give the same answers to round-off, and the same discrete
+choices (nearest node, closest triangle, its ties).
+"""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from hybrid.coupling import fem_contact, kernels
+from rigid import shapes
+from rigid.sdf import SignedDistanceGrid, closest_point_weights
+
+RNG_SEEDS = range(5)
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.standard_normal((3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+# --- numpy references (the step's code before the kernels) -------------------------------------
+
+def reach_reference(x):
+    centre = x.mean(axis=0)
+    return centre, float(np.sqrt(((x - centre) ** 2).sum(axis=1).max()))
+
+
+def node_normals_reference(x, surface_nodes, tri, around, local):
+    faces = around[local]
+    corners = x[surface_nodes[tri[np.maximum(faces, 0)]]]
+    n = np.cross(corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0])
+    n = (n * (faces >= 0)[:, :, None]).sum(axis=1)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def unit_normals_reference(tri):
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def turn_reference(v, a, b):
+    axis = np.cross(a, b)
+    cos = np.einsum("ij,ij->i", a, b)
+    ok = cos > 0.0
+    k = 1.0 / (1.0 + np.where(ok, cos, 1.0))
+    turned = (v * cos[:, None] + np.cross(axis, v)
+              + axis * (k * np.einsum("ij,ij->i", axis, v))[:, None])
+    return np.where(ok[:, None], turned, v)
+
+
+def rest_triangles_reference(P, tri, around, Y, close):
+    candidates = around[close].reshape(len(Y), -1)
+    row, slot = np.nonzero(candidates >= 0)
+    face = candidates[row, slot]
+    a, b, c = P[tri[face, 0]], P[tri[face, 1]], P[tri[face, 2]]
+    v, w = closest_point_weights(Y[row], a, b, c)
+    off = Y[row] - a - v[:, None] * (b - a) - w[:, None] * (c - a)
+    distance = np.einsum("ij,ij->i", off, off)
+    order = np.lexsort((distance, row))
+    best = order[np.searchsorted(row[order], np.arange(len(Y)))]
+    weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
+    edge = b[best] - a[best]
+    size = np.einsum("ij,ij->i", edge, edge)
+    tied = (distance <= (distance[best] + 1e-12 * size)[row]) & (face != face[best][row])
+    if tied.any():
+        pairs = np.column_stack([row[tied], face[tied]])
+        repeat = np.ones(len(pairs), dtype=bool)
+        repeat[np.unique(pairs, axis=0, return_index=True)[1]] = False
+        tied[np.nonzero(tied)[0][repeat]] = False
+    return tri[face[best]], weights, (row[tied], tri[face[tied]])
+
+
+def places_reference(P, tri, around, moved, Y, close, n_near, X_now, radius):
+    corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close)
+    rest = P[corners]
+    now = rest + moved[corners]
+    n = turn_reference(n_near, unit_normals_reference(rest), unit_normals_reference(now))
+    if len(tie_row):
+        tie_rest = P[tie_corners]
+        tie_now = tie_rest + moved[tie_corners]
+        np.add.at(n, tie_row, turn_reference(n_near[tie_row], unit_normals_reference(tie_rest),
+                                             unit_normals_reference(tie_now)))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+    place = np.einsum("pi,pij->pj", weights, now)
+    gap = np.einsum("ij,ij->i", X_now - place, n) - radius
+    return corners, weights, n, gap, len(tie_row)
+
+
+# --- the kernels against them ------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_surface_motion_matches_the_numpy_bounding_sphere_and_moves(seed):
+    rng = np.random.default_rng(seed)
+    rest_points = rng.standard_normal((300, 3))
+    surface_nodes = np.sort(rng.choice(300, 120, replace=False))
+    R, c = random_rotation(rng), rng.standard_normal(3)
+    rest_center = rest_points.mean(axis=0)
+    x = (rest_points - rest_center) @ R.T + c + 0.01 * rng.standard_normal((300, 3))
+    centre, radius, moved, largest = kernels.surface_motion(x, surface_nodes, c, R, rest_center, rest_points)
+    want_centre, want_radius = reach_reference(x[surface_nodes])
+    want_moved = (x[surface_nodes] - c) @ R + rest_center - rest_points[surface_nodes]
+    np.testing.assert_allclose(centre, want_centre, rtol=1e-14, atol=1e-14)
+    assert radius == pytest.approx(want_radius, rel=1e-13)
+    np.testing.assert_allclose(moved, want_moved, rtol=1e-12, atol=1e-14)
+    assert largest == pytest.approx(np.sqrt((want_moved ** 2).sum(axis=1).max()), rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_nearest_rows_finds_what_a_kd_tree_finds(seed):
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, (500, 3))
+    queries = rng.uniform(-1.2, 1.2, (40, 3))
+    np.testing.assert_array_equal(kernels.nearest_rows(points, queries), cKDTree(points).query(queries)[1])
+
+
+def box_index(rng, cells=4):
+    """A box surface meshed with ``cells`` per side, randomly scaled, as the rest surface of a
+    body whose surface nodes are every vertex: (model-like object, tri, around)."""
+    vertices, triangles = shapes.box_surface(rng.uniform(0.5, 2.0, 3), resolution=1.0 / cells)
+    m = SimpleNamespace(rest_points=vertices, surface_nodes=np.arange(len(vertices)), surface=triangles,
+                        cache=SimpleNamespace(surface_index=None))
+    _, tri, around = fem_contact._surface_index(m)
+    return m, tri, around
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_node_normals_match_the_numpy_area_weighted_normals(seed):
+    rng = np.random.default_rng(seed)
+    m, tri, around = box_index(rng)
+    x = m.rest_points @ random_rotation(rng).T + 0.02 * rng.standard_normal(m.rest_points.shape)
+    local = rng.choice(len(m.surface_nodes), 50)
+    np.testing.assert_allclose(kernels.node_normals(x, m.surface_nodes, tri, around, local),
+                               node_normals_reference(x, m.surface_nodes, tri, around, local),
+                               rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_grid_query_matches_the_grid_s_own_query(seed):
+    rng = np.random.default_rng(seed)
+    vertices, triangles = shapes.box_surface(rng.uniform(0.5, 2.0, 3))
+    grid = SignedDistanceGrid.build(vertices, triangles)
+    # inside, near the faces, and outside the grid
+    X = rng.uniform(-1.0, 1.0, (300, 3)) * (np.abs(vertices).max(axis=0) + 2 * grid.padding)
+    phi, normal = kernels.grid_query(grid.origin, grid.cell_size, grid.shape, grid.values, X)
+    want_phi, want_normal = grid.query(X)
+    assert (want_normal == 0).all(axis=1).any() and not (want_normal == 0).all()   # both kinds met
+    np.testing.assert_allclose(phi, want_phi, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(normal, want_normal, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_closest_weights_match_the_numpy_regions(seed):
+    rng = np.random.default_rng(seed)
+    a, b, c = rng.standard_normal((3, 400, 3))
+    c[:40] = a[:40] + 2.0 * (b[:40] - a[:40])     # degenerate: collinear corners
+    b[40:60] = a[40:60]                            # and coincident ones
+    p = rng.standard_normal((400, 3)) * 2.0
+    want_v, want_w = closest_point_weights(p, a, b, c)
+    got = np.array([kernels.closest_weights(p[k, 0], p[k, 1], p[k, 2], a[k], b[k], c[k])
+                    for k in range(400)])
+    np.testing.assert_allclose(got[60:, 0], want_v[60:], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got[60:, 1], want_w[60:], rtol=1e-12, atol=1e-12)
+    # a degenerate triangle's point has several weights (round-off picks the edge): the same point
+    point = a + got[:, :1] * (b - a) + got[:, 1:] * (c - a)
+    want = a + want_v[:, None] * (b - a) + want_w[:, None] * (c - a)
+    np.testing.assert_allclose(point, want, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
+    rng = np.random.default_rng(seed)
+    m, tri, around = box_index(rng)
+    P = m.rest_points
+    moved = 0.01 * rng.standard_normal(P.shape)
+    # points on the rest surface: random places in random triangles, a third of them on edges
+    # and vertices, where several triangles hold them as closely (ties)
+    face = rng.choice(len(tri), 60)
+    w = rng.dirichlet(np.ones(3), 60)
+    w[:10] = [1.0, 0.0, 0.0]
+    w[10:20, 0] = 0.0
+    w[10:20] /= w[10:20].sum(axis=1, keepdims=True)
+    Y = np.einsum("pi,pij->pj", w, P[tri[face]])
+    close = cKDTree(P).query(Y, k=3)[1]
+    n_rest = unit_normals_reference(P[tri[face]])
+    X_now = Y + 0.003 * rng.standard_normal(Y.shape)
+    radius = rng.uniform(0.0, 0.01, 60)
+    corners, weights, normal, gap = kernels.places(Y, close, around, tri, P, moved, n_rest, X_now, radius)
+    want = places_reference(P, tri, around, moved, Y, close, n_rest, X_now, radius)
+    assert want[4] > 0                                   # ties were met
+    np.testing.assert_array_equal(corners, want[0])
+    np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(normal, want[2], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(gap, want[3], rtol=1e-12, atol=1e-13)
