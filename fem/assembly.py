@@ -83,15 +83,34 @@ def _element_stiffness(grads, weights, mu, lam):
 
 
 def _csr_pattern(tet_nodes, dof_count):
-    """CSR pattern of element blocks and the map from block entries to CSR data positions."""
+    """CSR pattern of element blocks and the map from block entries to CSR data positions.
+
+    Found on node pairs (b^2 per element, sorted once) and spread to their 3 x 3 DOF blocks: a
+    node pair (r, c) at place m of node row r's k_r columns holds DOF (3r+i, 3c+j) at CSR place
+    ``9 start_r + 3 k_r i + 3 m + j``, start_r the node pairs in the rows before r (the same
+    pattern as sorting every DOF pair, nine times fewer keys to sort)."""
     t, b = tet_nodes.shape
-    dofs = (3 * tet_nodes[:, :, None] + np.arange(3)).reshape(t, 3 * b)
-    rows = np.repeat(dofs, 3 * b, axis=1).ravel()
-    cols = np.tile(dofs, (1, 3 * b)).ravel()
-    keys, block_to_csr = np.unique(rows * dof_count + cols, return_inverse=True)
-    pattern_rows, pattern_cols = keys // dof_count, keys % dof_count
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(pattern_rows, minlength=dof_count))])
-    return pattern_rows, pattern_cols, indptr, block_to_csr.ravel()
+    n = dof_count // 3
+    rows = np.repeat(tet_nodes, b, axis=1).ravel()
+    cols = np.tile(tet_nodes, (1, b)).ravel()
+    keys, pair_of_entry = np.unique(rows * n + cols, return_inverse=True)
+    pair_row, pair_col = keys // n, keys % n
+    count = np.bincount(pair_row, minlength=n)
+    start = np.concatenate([[0], np.cumsum(count)])
+    place = np.arange(len(keys)) - start[pair_row]                       # m of each pair
+    i, j = np.arange(3)[:, None], np.arange(3)[None, :]
+    # (pairs, 3, 3) CSR place of DOF (3r+i, 3c+j)
+    csr = (9 * start[pair_row] + 3 * place)[:, None, None] + 3 * count[pair_row][:, None, None] * i + j
+    pattern_rows = np.empty(9 * len(keys), dtype=np.int64)
+    pattern_cols = np.empty(9 * len(keys), dtype=np.int64)
+    pattern_rows[csr] = (3 * pair_row[:, None, None] + i).repeat(3, axis=2)
+    pattern_cols[csr] = (3 * pair_col[:, None, None] + j).repeat(3, axis=1)
+    indptr = np.empty(dof_count + 1, dtype=np.int64)
+    indptr[:-1] = (9 * start[:-1, None] + 3 * count[:, None] * np.arange(3)).ravel()
+    indptr[-1] = 9 * start[-1]
+    # block entry (e, 3a+i, 3c+j) of node pair (e, a, c)
+    block = csr[pair_of_entry.reshape(t, b, b)]                          # (t, b, b, 3, 3)
+    return pattern_rows, pattern_cols, indptr, block.transpose(0, 1, 3, 2, 4).ravel()
 
 
 def assemble_from_blocks(data, blocks, dof_count):
@@ -303,3 +322,5 @@ def assemble_subset(data, parent_tets, tet_index, tets, density):
     M_scalar = sp.csr_matrix((mass.ravel(), (np.repeat(tet_nodes, b, axis=1).ravel(),
                                              np.tile(tet_nodes, (1, b)).ravel())), shape=(n, n))
     return K, M_scalar, elements
+
+

@@ -103,14 +103,17 @@ def principal_tension(sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def tension_bound(sigma: np.ndarray) -> np.ndarray:
     """(k,) Pa, an upper bound of the largest principal stress of stresses (k, 3, 3) (their
-    symmetric part): the largest Gershgorin row bound ``s_ii + sum_{j != i} |s_ij|``, raised by
-    1e-10 of the entries' magnitude to cover the eigensolver's rounding. Cheap (no eigensolve),
-    so the checks solve for the principal stress only where it may matter.
+    symmetric part): ``tr/3 + sqrt(2/3) |dev|_F`` (the deviatoric eigenvalues sum to zero, so
+    the largest is at most sqrt(2/3) of their norm; equal for uniaxial stress), raised by 1e-10
+    of ``|sigma|_F`` to cover the eigensolver's rounding. Cheap (no eigensolve), so the checks
+    solve for the principal stress only where it may matter.
     """
-    sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
-    diagonal = np.diagonal(sym, axis1=1, axis2=2)
-    size = np.abs(sym).sum(axis=2)
-    return (diagonal + size - np.abs(diagonal)).max(axis=1) + 1e-10 * size.sum(axis=1)
+    flat = np.asarray(sigma, dtype=float).reshape(-1, 9)
+    mean = (flat[:, 0] + flat[:, 4] + flat[:, 8]) / 3.0
+    dev = 0.5 * (flat + flat[:, [0, 3, 6, 1, 4, 7, 2, 5, 8]])
+    dev[:, [0, 4, 8]] -= mean[:, None]
+    return mean + np.sqrt(2.0 / 3.0 * np.einsum("ki,ki->k", dev, dev)) + \
+        1e-10 * np.sqrt(np.einsum("ki,ki->k", flat, flat))
 
 
 def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | None = None,

@@ -195,7 +195,13 @@ def surface_triangles(tets):
         local = local[:, :3]
     faces = tets[:, local].reshape(len(tets) * 4, -1)
     key = np.sort(faces[:, :3], axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    base = int(tets.max(initial=0)) + 1
+    if float(base) ** 3 < 2.0 ** 62:
+        # one int64 per sorted corner triple: a 1-D unique, several times faster than rows
+        key = (key[:, 0] * base + key[:, 1]) * base + key[:, 2]
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    else:
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     f = faces[counts[inverse.ravel()] == 1]
     if tets.shape[1] == 4:
         return f
