@@ -8,7 +8,7 @@ plastic strain grows without bound and the iteration does not converge.
 """
 import numpy as np
 
-from fem.plastic_flow import plastic_update, rest_frame_plastic_force
+from fem.plastic_flow import plastic_update, state_plastic_force
 from fem.solver import Factorisation
 
 
@@ -34,7 +34,7 @@ def static_plastic_solve(model, state, node_force, solver=None, max_iterations=4
     f = np.asarray(node_force, dtype=float).ravel()
     K_fc = model.K[free][:, fixed]
     for iteration in range(1, max_iterations + 1):
-        f_p = rest_frame_plastic_force(model, state.tet_plastic_strain).ravel()
+        f_p = state_plastic_force(model, state).ravel()
         u_new = u.copy()
         u_new[free] = solver.solve(f[free] + f_p[free] - K_fc @ u[fixed])
         change = np.max(np.abs(u_new - u))
@@ -43,3 +43,4 @@ def static_plastic_solve(model, state, node_force, solver=None, max_iterations=4
         if change <= rtol * np.max(np.abs(u)):
             return state, iteration, True
     return state, max_iterations, False
+

@@ -8,6 +8,9 @@ the unloaded body, the static solution of
 
     K u_p = f_p = sum_e int B^T C eps_p      (anchored nodes held at u = 0)
 
+(plus the force of the plastic zone's patch-averaged pressure, ``fem.plastic_flow.committed_force``,
+which depends on the elastic volumetric strain alone and so is unchanged by the update).
+
 For a free body K is singular; f_p is self-equilibrated, so ``(K + s M) u = f_p`` with a tiny
 shift ``s`` plus a few steps of iterative refinement converges to it, and the rigid part is
 removed after every refinement by the mass-weighted projection on the rigid modes (translations
@@ -28,7 +31,7 @@ import numpy as np
 
 from fem.dynamics import body_frame
 from fem.model import with_rest_points
-from fem.plastic_flow import rest_frame_plastic_force
+from fem.plastic_flow import rest_frame_plastic_force, state_plastic_force
 from fem.solver import Factorisation
 
 # shift of the singular free-body stiffness, relative to the mean of diag(K)/diag(M)
@@ -43,10 +46,12 @@ def reference_update_due(model, state):
     return float(np.max(state.tet_peeq - model.reference_peeq)) > model.plastic_update_strain
 
 
-def plastic_displacement(model, eps_p):
-    """Displacement ``u_p`` ``(n, 3)`` (m, rest frame) of plastic strain ``eps_p`` ``(t, q, 3, 3)``
-    in the unloaded body: ``K u_p = f_p`` with anchors held, rigid motion removed (free bodies)."""
-    f = rest_frame_plastic_force(model, eps_p).ravel()
+def plastic_displacement(model, state):
+    """Displacement ``u_p`` ``(n, 3)`` (m, rest frame) of the plastic strain of ``state`` in the
+    unloaded body: ``K u_p = f_p`` with anchors held, rigid motion removed (free bodies). ``f_p``
+    includes the plastic zone's averaged pressure (``fem.plastic_flow.state_plastic_force``), so
+    the rest shape takes all of the set."""
+    f = state_plastic_force(model, state).ravel()
     u = np.zeros_like(f)
     if model.anchored:
         free = model.free_dofs
@@ -82,7 +87,7 @@ def update_reference(model, state, dt=None):
     velocities are unchanged, the plastic strain is reset to ``eps_p - eps(u_p)``.
     """
     eps_p = state.tet_plastic_strain
-    u_p = plastic_displacement(model, eps_p)
+    u_p = plastic_displacement(model, state)
     e = model.elements
     grad_u = np.einsum("tai,tqaj->tqij", u_p[e.tet_nodes], e.tet_gradients)
     eps_p_new = eps_p - 0.5 * (grad_u + np.swapaxes(grad_u, -1, -2))

