@@ -2,15 +2,15 @@
 
 A piece's matrices are summed from its parent's element blocks (fem.assembly.assemble_subset)
 instead of assembled again with scikit-fem; the brittle check solves for principal stresses
-only where a Gershgorin bound says the strength may be passed. Both are compared here with the
-computation they replaced.
+only where a bound says the strength may be passed; the CSR pattern is found on node pairs and
+boundary faces by one integer key per face. Each is compared here with what it replaced.
 """
 import numpy as np
 import pytest
 
-from fem.assembly import assemble, assemble_subset, warped_assembly
+from fem.assembly import _csr_pattern, assemble, assemble_subset, warped_assembly
 from fem.fracture import fracture_candidates, principal_tension, tension_bound
-from fem.mesh import box_tet_mesh, quadratic_tets
+from fem.mesh import box_tet_mesh, quadratic_tets, surface_triangles
 from fem.model import build_fem_model
 from fem.split import split_bodies, split_mesh, tet_faces
 from fem.system import system_factorisation
@@ -123,3 +123,38 @@ def test_brittle_check_finds_the_candidates_of_a_full_eigensolve():
         assert np.array_equal(found.element, element)
         assert np.array_equal(found.normal, normal)
         assert np.array_equal(found.principal_stress, sigma_1)
+
+
+def _pattern_of_every_dof_pair(tet_nodes, dof_count):
+    """The CSR pattern as fem.assembly built it before: every DOF pair of every element sorted."""
+    t, b = tet_nodes.shape
+    dofs = (3 * tet_nodes[:, :, None] + np.arange(3)).reshape(t, 3 * b)
+    keys, block_to_csr = np.unique(np.repeat(dofs, 3 * b, axis=1).ravel() * dof_count
+                                   + np.tile(dofs, (1, 3 * b)).ravel(), return_inverse=True)
+    rows = keys // dof_count
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=dof_count))])
+    return rows, keys % dof_count, indptr, block_to_csr.ravel()
+
+
+def _surface_by_rows(tets):
+    """Boundary faces as fem.mesh.surface_triangles found them before (a unique over rows)."""
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+    faces = tets[:, local].reshape(-1, 3)
+    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True,
+                                   return_counts=True)
+    return faces[counts[inverse.ravel()] == 1]
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_csr_pattern_from_node_pairs_is_the_pattern_of_every_dof_pair(order):
+    _, tets, pieces = _pieces(order)
+    rng = np.random.default_rng(5)
+    shuffled = tets[rng.permutation(len(tets))][:, np.r_[rng.permutation(4), 4:tets.shape[1]]]
+    for mesh, spare in ((tets, 0), (shuffled, 2), (pieces[-1].tets, 1)):
+        dof_count = 3 * (int(mesh.max()) + 1 + spare)         # nodes no element uses, too
+        new, old = _csr_pattern(mesh, dof_count), _pattern_of_every_dof_pair(mesh, dof_count)
+        for a, b in zip(new, old):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+    if order == 1:
+        for mesh in (tets, shuffled, pieces[0].tets, pieces[-1].tets):
+            assert np.array_equal(surface_triangles(mesh), _surface_by_rows(mesh))
