@@ -32,10 +32,11 @@ from fem.plastic_flow import elastic_energy as plastic_elastic_energy
 from fem.plastic_flow import plastic_update
 from fem.rotations import element_rotations
 from fem.spin_frame import predict_spin_frame
+from fem.step_kernels import fit_moment, rotate_back
 from fem.system import (LazyMatrix, StepData, elastic_force, gravity_force, implicitness,
                         internal_forces_and_solver, right_hand_side, system_coefficients, system_factorisation,
                         system_matrix, warped_stiffness)
-from rigid.shape_matching import best_fit_frame
+from rigid.shape_matching import best_fit_frame, rotation_of
 
 __all__ = ["StepData", "predict", "apply_impulse", "finish", "step", "body_frame", "energy",
            "kinetic_energy", "elastic_energy", "effective_node_mass", "best_fit_rotation", "volume",
@@ -52,7 +53,9 @@ def body_frame(model, x):
     """
     if model.has_anchors:
         return np.eye(3), model.rest_center.copy()
-    return best_fit_frame(model.rest_offsets, x, model.node_mass)
+    # rigid.shape_matching.best_fit_frame in one pass over the nodes (fem.step_kernels.fit_moment)
+    c, A_pq = fit_moment(model.node_mass, x, model.rest_offsets)
+    return rotation_of(A_pq), c
 
 
 def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
@@ -61,6 +64,9 @@ def _solve_in_frame(model, step_solve, A, rhs_b, v_fixed_b):
         return step_solve(rhs_b)
     v = np.zeros_like(rhs_b)
     v[model.fixed_dofs] = v_fixed_b
+    if not v_fixed_b.any():                 # held still (anchors at rest, resting nodes): no pull
+        v[model.free_dofs] = step_solve(rhs_b[model.free_dofs])
+        return v
     if A is model.cache.factor.matrix:      # the rest system: its free-fixed block is kept
         pull = model.cache.factor.derived("free_fixed", lambda: sp.csr_matrix(A)[model.free_dofs][
             :, model.fixed_dofs].tocsr()) @ v_fixed_b
@@ -97,7 +103,7 @@ def predict(model, state, dt, gravity=(0.0, 0.0, 0.0), held_velocity=None):
     v_new = _solve_in_frame(model, solve, A, rhs, (v_fixed @ R).ravel())
     if A is None:
         A = LazyMatrix(model, dt)
-    v_new = v_new.reshape(-1, 3) @ R.T
+    v_new = rotate_back(v_new, np.asarray(R, float))
     if model.integrator == "newmark":
         x_base, x_rate = state.x + 0.5 * dt * state.v, 0.5 * dt
     else:
@@ -139,13 +145,18 @@ def impulse_velocity(model, solve, j_b):
     return dv
 
 
-def finish(model, state, step, dt):
+def finish(model, state, step, dt, shift=None):
     """Advance positions with the step's velocities, update the best-fit frame and anchor reactions,
     under Newmark keep the body's energy within its allowance (``_cap_energy``), and (plastic
     bodies only) return-map the new strain onto the yield surface
     (``fem.plastic_flow.plastic_update``). Returns the new :class:`fem.model.FemState`.
+    ``shift``: ``(nodes (k,), dx (k, 3) m)``, moves of some nodes' end positions made after all
+    that (a contact's penetration recovery, positions only), the frame fitted to the moved nodes.
     """
     x = step.x_base + step.x_rate * step.v
+    late = shift is not None and (step.allowance is not None or model.plastic)
+    if shift is not None and not late:      # nothing below reads the positions: move them now
+        x[shift[0]] += shift[1]
     reaction = np.zeros_like(x)
     if model.anchored:
         # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied
@@ -161,6 +172,11 @@ def finish(model, state, step, dt):
         new = _cap_energy(model, state, step, new, dt)
     if model.plastic:
         new = plastic_update(model, new)
+    if late:
+        x = new.x.copy()
+        x[shift[0]] += shift[1]
+        R, c = body_frame(model, x)
+        new = new.replace(x=x, R=R, c=c)
     return new
 
 

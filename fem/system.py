@@ -15,6 +15,7 @@ from fem.assembly import warped_assembly, warped_forces
 from fem.plastic_flow import plastic_force
 from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
+from fem.step_kernels import frame_offsets, lumped_rhs, rotate_back
 
 
 @dataclass(frozen=True)
@@ -93,8 +94,8 @@ def elastic_force(model, state, tet_R=None):
     if model.frame == "corotated":
         tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
         return warped_forces(model.elements, tet_R, state.x, model.rest_points, model.node_count)
-    u = (state.x - state.c) @ state.R - model.rest_offsets
-    return -(model.K @ u.ravel()).reshape(-1, 3) @ state.R.T
+    u = frame_offsets(state.x, np.asarray(state.c, float), np.asarray(state.R, float), model.rest_offsets)
+    return rotate_back(-(model.K @ u.ravel()), np.asarray(state.R, float))
 
 
 def gravity_force(model, gravity):
@@ -111,6 +112,9 @@ def right_hand_side(model, dt, v, force, K, R):
     """``(3n,)`` right-hand side (N s) of the step's system for start velocities ``v`` and forces
     ``force`` ``(n, 3)`` (world), in the solve frame: node vectors rotated by ``R^T`` (M is
     isotropic per node, so it commutes). See the equations of ``fem.dynamics``."""
+    if model.mass_kind == "lumped" and model.integrator != "newmark":
+        # M is the diagonal of the node masses: one pass (fem.step_kernels.lumped_rhs)
+        return lumped_rhs(model.node_mass, v, np.asarray(R, float), force, dt)
     v_b = (v @ R).ravel()
     Mv = model.M @ v_b
     rhs = Mv + dt * (force @ R).ravel()

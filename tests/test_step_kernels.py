@@ -196,3 +196,38 @@ def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
     np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(normal, want[2], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(gap, want[3], rtol=1e-12, atol=1e-13)
+
+
+# --- the deformable body's step (fem.step_kernels) ---------------------------------------------
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_frame_kernels_match_numpy_products(seed):
+    from fem import step_kernels
+    rng = np.random.default_rng(seed)
+    n = 200
+    x, v, force, rest = rng.standard_normal((4, n, 3))
+    mass, c, R, dt = rng.uniform(0.1, 2.0, n), rng.standard_normal(3), random_rotation(rng), 1e-3
+    np.testing.assert_allclose(step_kernels.frame_offsets(x, c, R, rest), (x - c) @ R - rest,
+                               rtol=1e-12, atol=1e-14)
+    M = np.diag(np.repeat(mass, 3))
+    np.testing.assert_allclose(step_kernels.lumped_rhs(mass, v, R, force, dt),
+                               M @ (v @ R).ravel() + dt * (force @ R).ravel(), rtol=1e-12, atol=1e-14)
+    v_b = rng.standard_normal(3 * n)
+    np.testing.assert_allclose(step_kernels.rotate_back(v_b, R), v_b.reshape(-1, 3) @ R.T,
+                               rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_fit_moment_gives_the_best_fit_frame_of_shape_matching(seed):
+    from fem import step_kernels
+    from rigid.shape_matching import best_fit_frame, rotation_of
+    rng = np.random.default_rng(seed)
+    rest = rng.standard_normal((300, 3))
+    w = rng.uniform(0.1, 2.0, 300)
+    offsets = rest - w @ rest / w.sum()
+    x = offsets @ random_rotation(rng).T + rng.standard_normal(3) + 0.05 * rng.standard_normal((300, 3))
+    c, A = step_kernels.fit_moment(w, x, offsets)
+    want_R, want_c = best_fit_frame(offsets, x, w)
+    np.testing.assert_allclose(c, want_c, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(A, np.einsum("i,ij,ik->jk", w, x - want_c, offsets), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(rotation_of(A), want_R, rtol=1e-12, atol=1e-13)

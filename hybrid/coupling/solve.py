@@ -81,12 +81,7 @@ def integrate(model, state, fems, predicted, nodes, parts, res, v, h):
     new_fem = []
     pseudo = res.pseudo_velocity[nb:nb + len(parts.nodes)]
     for j, (m, s, pr) in enumerate(zip(fems, state.fem, predicted)):
-        s_new = fem_dyn.finish(m, s, pr, h)
         sel = parts.body == j
-        if sel.any() and np.any(pseudo[sel]):
-            x = s_new.x.copy()
-            x[nodes.local[parts.nodes[sel]]] += h * pseudo[sel]
-            R_fit, c_fit = fem_dyn.body_frame(m, x)
-            s_new = s_new.replace(x=x, R=R_fit, c=c_fit)
-        new_fem.append(s_new)
+        shift = (nodes.local[parts.nodes[sel]], h * pseudo[sel]) if sel.any() and np.any(pseudo[sel]) else None
+        new_fem.append(fem_dyn.finish(m, s, pr, h, shift))
     return new_rigid, new_fem

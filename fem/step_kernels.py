@@ -1,0 +1,69 @@
+"""Compiled kernels of a deformable body's step (numba, cached on disk): one pass over the nodes
+where numpy made several (each pass over 2,000-10,000 nodes cost 10-80 us, and a step made a few
+dozen). They compute what the numpy code they replace computed, to round-off
+(tests/test_step_kernels.py compares them on random inputs)."""
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def frame_offsets(x, c, R, rest_offsets):
+    """``(x - c) R - rest_offsets`` ``(n, 3)`` m: each node's displacement in the body frame of
+    rotation ``R`` (3, 3) and centre ``c`` (3,), from positions ``x`` (n, 3)."""
+    n = len(x)
+    u = np.empty((n, 3))
+    for i in range(n):
+        y0, y1, y2 = x[i, 0] - c[0], x[i, 1] - c[1], x[i, 2] - c[2]
+        for a in range(3):
+            u[i, a] = (y0 * R[0, a] + y1 * R[1, a] + y2 * R[2, a]) - rest_offsets[i, a]
+    return u
+
+
+@nb.njit(cache=True)
+def fit_moment(weights, x, rest_offsets):
+    """The weighted centre ``c`` (3,) m of positions ``x`` (n, 3) and the moment matrix
+    ``A_pq = sum_i w_i (x_i - c) (X_i - X_c)^T`` (3, 3) of shape matching (Mueller 2005, eq. 7),
+    ``rest_offsets`` being ``X - X_c``; its rotation is the best-fit frame's."""
+    total = 0.0
+    c = np.zeros(3)
+    for i in range(len(x)):
+        total += weights[i]
+        for a in range(3):
+            c[a] += weights[i] * x[i, a]
+    for a in range(3):
+        c[a] = c[a] / total
+    A = np.zeros((3, 3))
+    for i in range(len(x)):
+        w = weights[i]
+        for a in range(3):
+            p = w * (x[i, a] - c[a])
+            for b in range(3):
+                A[a, b] += p * rest_offsets[i, b]
+    return c, A
+
+
+@nb.njit(cache=True)
+def lumped_rhs(mass, v, R, force, dt):
+    """The right-hand side ``M (v R) + dt (force R)`` ``(3n,)`` (N s) of a lumped-mass body's
+    system in the frame turned by ``R`` (3, 3): node masses ``mass`` (n,) kg, start velocities
+    ``v`` and forces ``force`` (n, 3), world."""
+    n = len(v)
+    out = np.empty(3 * n)
+    for i in range(n):
+        for a in range(3):
+            vb = v[i, 0] * R[0, a] + v[i, 1] * R[1, a] + v[i, 2] * R[2, a]
+            fb = force[i, 0] * R[0, a] + force[i, 1] * R[1, a] + force[i, 2] * R[2, a]
+            out[3 * i + a] = mass[i] * vb + dt * fb
+    return out
+
+
+@nb.njit(cache=True)
+def rotate_back(v_b, R):
+    """Node vectors ``(n, 3)`` from the frame turned by ``R``: ``v_b.reshape(-1, 3) @ R.T``."""
+    n = len(v_b) // 3
+    out = np.empty((n, 3))
+    for i in range(n):
+        b0, b1, b2 = v_b[3 * i], v_b[3 * i + 1], v_b[3 * i + 2]
+        for a in range(3):
+            out[i, a] = R[a, 0] * b0 + R[a, 1] * b1 + R[a, 2] * b2
+    return out
