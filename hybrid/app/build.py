@@ -1,4 +1,14 @@
-"""Build the coupled model and its initial state from a validated scene (done once per run)."""
+"""Build the coupled model and its initial state from a validated scene (done once per run).
+
+:func:`build` also warms up the compiled (numba) kernels the scene's step will call (:func:`warm_up`):
+a tiny scene with the same kinds of bodies and contacts is built and stepped a few times, so the
+kernels are compiled, or loaded from numba's on-disk cache, before the step loop instead of at
+the first contact inside it.
+"""
+import logging
+import os
+import time
+
 import numpy as np
 
 from rigid.build import PlaneDesc, RigidBodyDesc, build_rigid
@@ -48,8 +58,16 @@ def _build_rigid(bodies, planes, index):
         raise
 
 
-def build(scene):
-    """HybridModel and initial HybridState of ``scene``."""
+def build(scene, warm=True):
+    """HybridModel and initial HybridState of ``scene``; with ``warm``, after :func:`warm_up`."""
+    model, state = _build(scene)
+    if warm:
+        warm_up(scene)
+    return model, state
+
+
+def _build(scene):
+    """HybridModel and initial HybridState of ``scene`` (no warm-up)."""
     sim = scene.simulation
     rigid_bodies = [b for b in scene.bodies if b.model == "rigid"]
     fem_bodies = [b for b in scene.bodies if b.model != "rigid"]
@@ -69,3 +87,112 @@ def build(scene):
                         dt=sim.dt, settings=settings, scene=scene,
                         fragment_of=list(range(len(scene.bodies))))
     return model, HybridState(rigid=rigid_state, fem=fem_states)
+
+
+# -- warm-up of the compiled kernels -----------------------------------------------------------
+log = logging.getLogger(__name__)
+
+# The warm-up kinds already stepped in this process (numba keeps what it compiled or loaded).
+_WARMED = set()
+WARM_STEPS = 3
+_WARM_SIZE = 0.1        # m, edge of a warm-up FEM box (2 x 2 x 2 cells)
+_GEOMETRY_KEYS = ("name", "shape", "mesh", "position", "orientation", "velocity", "angular_velocity",
+                  "anchors", "loads", "unbreakable", "fixed")
+
+
+def _fem_kind(raw):
+    """What decides which kernels an FEM or auto body's step calls: the choices of its scene table
+    (model, frame, order, integrator, ...) and which optional fields it gives (yield_stress,
+    fracture_stress, damping, ...), not their values; and whether it is held or loaded."""
+    kept = {k: (v if isinstance(v, str) else True) for k, v in raw.items() if k not in _GEOMETRY_KEYS}
+    return repr(sorted(kept.items())), bool(raw.get("anchors")), bool(raw.get("loads"))
+
+
+def _warm_kinds(scene):
+    """The warm-up kinds of ``scene``: ``("plane",)``, ``("rigid", shape type)`` and
+    ``("fem", kind)`` entries, each with the raw table it stands for."""
+    kinds = {}
+    if scene.planes:
+        kinds[("plane",)] = None
+    raws = scene.raw.get("bodies", [])
+    for body, raw in zip(scene.bodies, raws):
+        if body.model == "rigid":
+            shape = body.shape.type if body.shape is not None else "box"    # a mesh body: a box
+            kinds.setdefault(("rigid", shape), raw)
+        else:
+            kinds.setdefault(("fem",) + _fem_kind(raw), raw)
+    return kinds
+
+
+def _warm_scene(scene, kinds):
+    """The scene data of the warm-up: per FEM kind a 0.1 m box resting on the ground (a rigid box
+    resting on it when the scene has rigid bodies), per rigid shape a small body resting on the
+    ground (a box on a box), all touching from the start."""
+    h = _WARM_SIZE
+    rigid_shapes = [k[1] for k in kinds if k[0] == "rigid"]
+    bodies, x = [], 0.0
+    for key, raw in kinds.items():
+        if key[0] != "fem":
+            continue
+        table = {k: v for k, v in raw.items() if k not in _GEOMETRY_KEYS}
+        table |= {"name": f"fem{len(bodies)}", "position": [x, 0.0, 0.5 * h],
+                  "shape": {"type": "box", "size": [h, h, h], "resolution": 0.5 * h}}
+        if key[2]:
+            table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
+        if key[3]:
+            table["loads"] = [{"box": [[-1.0, -1.0, 0.5 * h - 1e-6], [1.0, 1.0, 0.5 * h + 1e-6]],
+                               "force": [0.0, 0.0, -1e-3]}]
+        bodies.append(table)
+        if rigid_shapes:
+            bodies.append({"name": f"on_fem{len(bodies)}", "density": 100.0,
+                           "shape": {"type": "box", "size": [0.5 * h] * 3},
+                           "position": [x, 0.0, 1.25 * h]})
+        x += 2 * h
+    for shape in rigid_shapes:
+        size = {"box": {"size": [0.5 * h] * 3}, "sphere": {"radius": 0.25 * h},
+                "capsule": {"radius": 0.1 * h, "height": 0.5 * h},
+                "cylinder": {"radius": 0.25 * h, "height": 0.5 * h}}[shape]
+        low = 0.25 * h if shape != "capsule" else 0.1 * h
+        bodies.append({"name": f"rigid_{shape}", "density": 100.0, "shape": {"type": shape} | size,
+                       "position": [x, 0.0, low]})
+        if shape == "box":
+            bodies.append({"name": "rigid_box_on_box", "density": 100.0, "shape": {"type": "box"} | size,
+                           "position": [x, 0.0, 0.75 * h]})
+        x += 2 * h
+    sim = scene.raw.get("simulation", {})
+    data = {"simulation": {k: v for k, v in sim.items() if k in ("dt", "solver")} | {"name": "warm_up"},
+            "bodies": bodies}
+    if scene.planes:
+        data["planes"] = [{"point": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, 1.0]}]
+    if data["simulation"].get("dt", 0.0) > 0.01:
+        data["simulation"]["dt"] = 0.01
+    data["simulation"]["duration"] = 1.0
+    return data
+
+
+def warm_up(scene):
+    """Compile, or load from numba's on-disk cache, the kernels stepping ``scene`` calls: build
+    and step (:data:`WARM_STEPS` steps) a tiny scene with one small body of each of its kinds of
+    FEM body and rigid shape, resting on the ground and on each other. Kinds warmed once in a
+    process are not warmed again, and none is with the environment variable
+    ``HYBRID_NO_WARM_UP=1``. Never raises: a warm-up that fails leaves the compilation to the step
+    loop (logged at debug level). Returns the seconds it took."""
+    from hybrid.app.scene import parse_scene
+    from hybrid.coupling.step import advance
+
+    if os.environ.get("HYBRID_NO_WARM_UP", "") not in ("", "0"):
+        return 0.0
+    kinds = {k: v for k, v in _warm_kinds(scene).items() if k not in _WARMED}
+    if not any(k[0] in ("fem", "rigid") for k in kinds):
+        return 0.0
+    start = time.perf_counter()
+    try:
+        data = _warm_scene(scene, kinds)
+        model, state = _build(parse_scene(data, "<warm-up>", "."))
+        with np.errstate(all="ignore"):
+            for _ in range(WARM_STEPS):
+                model, state, _ = advance(model, state)
+    except Exception as error:      # noqa: BLE001 (an optimisation: never stops a run)
+        log.debug("kernel warm-up skipped: %s", error)
+    _WARMED.update(kinds)
+    return time.perf_counter() - start
