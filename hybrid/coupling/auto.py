@@ -63,7 +63,10 @@ class Touches:
         """The rows of contacts between scene bodies ``a`` and ``b`` (c,) (-1: a plane or static
         ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a, that touch a body of
         ``auto`` (scene indices), from that body's side."""
-        on_a, on_b = np.isin(a, auto), np.isin(b, auto)
+        is_auto = np.zeros(max(int(auto.max(initial=-1)), int(a.max(initial=-1)),
+                               int(b.max(initial=-1))) + 2, dtype=bool)
+        is_auto[auto] = True                        # is_auto[-1] (planes, ground) stays False
+        on_a, on_b = is_auto[a], is_auto[b]
         return cls(np.concatenate([a[on_a], b[on_b]]), np.concatenate([b[on_a], a[on_b]]),
                    np.concatenate([point[on_a], point[on_b]]),
                    np.concatenate([impulse[on_a], -impulse[on_b]]))
@@ -164,21 +167,29 @@ def _may_turn(model, state, j):
     return state.fracture_pending is None or not len(state.fracture_pending[j])
 
 
-def _calm(model, state, j):
-    """Whether FEM body ``j`` is calm enough this step to count towards becoming rigid."""
+def _calm_count(model, state, j, window):
+    """FEM body ``j``'s count of calm steps in a row after this step (``HybridState.calm``): one
+    more than before if it is calm enough to count towards becoming rigid; 0 if it may not turn
+    rigid now; and if it is deforming, minus the steps to wait before looking again (half its
+    ``window``: it must then stay calm a whole window anyway, so looking less often delays its
+    turn by at most that, and spares a body that never calms down the strain-rate checks)."""
+    prior = state.calm.get(model.fem_ids[j], 0)
+    if prior < 0:
+        return prior + 1
     m, s = model.fem[j], state.fem[j]
     if not _may_turn(model, state, j):
-        return False
+        return 0
     rigidify = thresholds(model, model.fem_ids[j])[0]
-    if _restless(m, s, rigidify, model.dt) or _approaching(model, state, j, rigidify):
-        return False
-    if body_strain_measure(m, s.x, s.v, model.dt) >= rigidify:
-        return False
+    if _approaching(model, state, j, rigidify):
+        return 0
+    if _restless(m, s, rigidify, model.dt) or body_strain_measure(m, s.x, s.v, model.dt) >= rigidify:
+        return -(window // 2)
     strength = model.scene.bodies[model.fem_ids[j]].fracture_stress
-    if strength is None:
-        return True
-    sigma = element_stress(m, s, s.tet_plastic_strain)
-    return float(principal_stress_max(sigma).max()) < settings(model, model.fem_ids[j]).fracture_margin * strength
+    if strength is not None:
+        sigma = element_stress(m, s, s.tet_plastic_strain)
+        if float(principal_stress_max(sigma).max()) >= settings(model, model.fem_ids[j]).fracture_margin * strength:
+            return 0
+    return prior + 1
 
 
 # a body whose velocities depart from a rigid motion by more than this many times the rigidify
@@ -219,7 +230,7 @@ def rigid_due(model, state):
         auto = settings(model, k)
         if auto is None:
             continue
-        calm[k] = state.calm.get(k, 0) + 1 if _calm(model, state, j) else 0
+        calm[k] = _calm_count(model, state, j, auto.window)
         small = model.fragment_of is not None and model.fragment_of[k] != k \
             and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets
         if calm[k] >= auto.window * state.backoff.get(k, 1) or (small and _may_turn(model, state, j)):
