@@ -135,3 +135,45 @@ def test_peaks_cover_every_step_not_only_written_frames(sim):
     assert 0 < peak["principal_stress"]["value"] <= peak["von_mises"]["value"]
     # the plate at the end is below the peak (it rings down after the blow)
     assert s.body("plate").von_mises.max() < peak["von_mises"]["value"]
+
+
+# default meshes fit the body (issue 23): a thin body bends without locking, within a budget
+
+def test_default_plate_mesh_is_quadratic_layered_and_within_budget():
+    from hybrid.app.deformable import NODE_BUDGET, default_box_mesh
+    plate = default_box_mesh((0.2, 0.2, 0.012))         # the former default: 76,800 linear tets
+    assert plate.order == 2 and plate.cells[2] == 2
+    assert np.prod(2 * np.array(plate.cells) + 1) <= NODE_BUDGET
+    wide = default_box_mesh((0.3, 0.3, 0.01))           # 145,800 linear tets before
+    cells = np.array([0.3, 0.3, 0.01]) / wide.cells
+    assert wide.tet_count < 3000 and cells.max() <= 4 * cells.min() + 1e-12
+    cube = default_box_mesh((0.1, 0.1, 0.1))            # compact bodies keep their mesh
+    assert (cube.cells, cube.order) == ((3, 3, 3), 1)
+    assert default_box_mesh((0.3, 0.3, 0.01), order=1).order == 1
+
+
+def test_default_mesh_of_a_clamped_strip_bends_as_beam_theory_says(sim):
+    # linear tets in cubic cells a third of its thickness (the former default, 24,300 tets) give
+    # 0.75 of beam theory's deflection here; the default (1,800 quadratic tets) is within 0.1%
+    from fem.static import static_displacement
+    s = sim("""
+[[bodies]]
+name = "strip"
+model = "fem"
+shape = { type = "box", size = [0.3, 0.05, 0.01] }
+young = 2e11
+poisson = 0.0
+density = 7800.0
+[[bodies.anchors]]
+box = [[-0.2, -1, -1], [-0.1499, 1, 1]]
+""")
+    m = s.model.fem[0]
+    assert m.order == 2
+    assert s.notes == [f"mesh: 'strip': {m.tet_count} quadratic tets, {m.node_count} nodes, cells "
+                       f"10 x 10 x 5 mm (default: " + s.notes[0].split("(default: ", 1)[1]]
+    assert "a plate: 2 layers through its 10 mm side" in s.notes[0]
+    u = static_displacement(m, gravity=(0.0, 0.0, -9.81))
+    tip = u[m.rest_points[:, 0] > 0.1499, 2].mean()
+    # Euler-Bernoulli: w L^4 / (8 E I) under its own weight
+    exact = -7800.0 * 9.81 * 0.05 * 0.01 * 0.3 ** 4 / (8 * 2e11 * 0.05 * 0.01 ** 3 / 12)
+    assert tip / exact == pytest.approx(1.0, abs=0.02)
