@@ -161,7 +161,8 @@ class ImpactWatch:
             speed = float(approach[on].max())
             partner_name = model.names[int(model.rigid_ids[partner])] if partner >= 0 else "plane"
             touching.add((name, partner_name))
-            if (name, partner_name) in self.touching or not _relevant(m, body, speed):
+            if (name, partner_name) in self.touching or not _relevant(m, body, speed) \
+                    or _same_body(model, j, int(partner)):
                 continue
             normal = c.normal[int(np.argmax(np.where(on, approach, -np.inf)))]
             extent = float(np.ptp(s1.x @ normal))
@@ -226,6 +227,14 @@ def _contacts(model, old, state, j, margin):
         w_rigid = angular_velocity(rm, old.rigid)
         v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
     return c, -np.einsum("ci,ci->c", s0.v[nodes[c.body_a]] - v_partner, c.normal)
+
+
+def _same_body(model, j, partner):
+    """Whether rigid body ``partner`` broke from the same scene body as FEM body ``j`` (its own
+    debris: the fracture, not an impact the scene set up)."""
+    if partner < 0 or model.fragment_of is None:
+        return False
+    return model.fragment_of[int(model.rigid_ids[partner])] == model.fragment_of[int(model.fem_ids[j])]
 
 
 def _partner(model, partner):

@@ -142,7 +142,7 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
               "while that makes at most 4,000 nodes; a larger (thin) box in two layers through a "
               "plate's thin side (three across a bar's), cells along its long sides up to 4 times "
               "longer to stay within 4,000 nodes, and quadratic tets unless `order = 1` is given "
-              "(docs/fem.md, default meshes); a sphere or cylinder at half its radius. The run log "
+              "(docs/scenes.md, default meshes); a sphere or cylinder at half its radius. The run log "
               "states each body's mesh and why.",
               shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
@@ -232,7 +232,7 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("order", "choice", None, "", "Element order: 1 (linear tets) or 2 (quadratic tets).",
           choices=(1, 2), fem=True, default_text="1; 2 for a thin box meshed by default (no "
           "`resolution`) that the former cubic cells would mesh into more than 4,000 nodes "
-          "(docs/fem.md, default meshes)"),
+          "(docs/scenes.md, default meshes)"),
     Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
     Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
           "`newmark` (no numerical damping; a body's energy never exceeds its start energy plus the "
