@@ -191,3 +191,22 @@ def test_non_convex_star_shape_sign_and_distance_at_nodes():
     stored = grid.values.ravel()[pick]
     assert np.all(np.sign(stored[np.abs(exact) > 1e-9]) == np.sign(exact[np.abs(exact) > 1e-9]))
     assert np.abs(stored - exact).max() < 0.2 * grid.cell_size
+
+
+def test_compiled_point_triangle_distance_matches_the_numpy_one_in_every_region():
+    """The grid build's compiled loops (rigid.sdf._band_kernel, _pair_kernel) use a scalar copy of
+    the closest-point classification; on random points around random, thin and degenerate
+    triangles it gives the numpy version's squared distances to round-off."""
+    from rigid.sdf import _pair_kernel
+    rng = np.random.default_rng(7)
+    k = 4000
+    corners = rng.standard_normal((k, 3, 3))
+    corners[: k // 8, 2] = corners[: k // 8, 1]                       # a segment
+    corners[k // 8: k // 4, 1:] = corners[k // 8: k // 4, :1]          # a point
+    corners[k // 4: k // 2, 2] = corners[k // 4: k // 2, 0] + 1e-9 * rng.standard_normal((k // 4, 3))
+    origin, h, shape = np.zeros(3), 1.0, np.array([1, 1, 1])
+    # one grid node (the origin) against every triangle moved by a random offset
+    corners -= 2.0 * rng.standard_normal((k, 1, 3))
+    want = point_triangle_distance_squared(np.zeros((k, 3)), corners[:, 0], corners[:, 1], corners[:, 2])
+    got = _pair_kernel(np.zeros(k, dtype=np.int64), np.arange(k), corners, origin, h, shape)
+    assert np.allclose(got, want, rtol=1e-12, atol=1e-15)
