@@ -17,7 +17,9 @@ support and frame (floating, corotated), measured in the same run, side by side:
            box, coupling rounds, events), after ``--warmup`` steps so the box has settled into
            contact and the slab's resting nodes on the ground are held (hybrid.coupling.resting;
            floating frame only, ``held_nodes`` in the CSV counts them); median of ``--steps``
-           steps, each timed right after a ``cold`` back-substitution (below), side by side
+           steps, each timed right after a ``cold`` back-substitution (below), side by side, in
+           CPU time of the process (``time.process_time``: on a machine running more processes
+           than cores, wall time counts the waits for a core; both are in the CSV)
   step     the same through ``hybrid.Simulation.step``, which adds its per-step watch (stress
            peaks, impact resolution); median of ``--steps`` steps
   elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
@@ -205,7 +207,7 @@ def measure(cells, frame, support, backend, steps, warmup):
     for _ in range(warmup - 1):
         sim.step()
     floor = floor_ms(fem_model)
-    coupled, cold = coupled_and_cold_ms(sim, fem_model, steps)
+    coupled, cold, coupled_wall, cold_wall = coupled_and_cold_ms(sim, fem_model, steps)
     times = []
     for _ in range(steps):
         t0 = time.perf_counter()
@@ -225,30 +227,37 @@ def measure(cells, frame, support, backend, steps, warmup):
     sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
     return model, state, dict(first_s=first, response_mb=response, coupled_ms=float(np.median(coupled)),
                               coupled_q1=q1, coupled_q3=q3, step_ms=step_ms, elastic_ms=elastic,
+                              coupled_wall_ms=float(np.median(coupled_wall)),
+                              cold_wall_ms=float(np.median(cold_wall)),
                               floor_ms=floor, cold_floor_ms=float(np.median(cold)),
                               solve_in_step_ms=in_step, held_nodes=held, **sanity)
 
 
 def coupled_and_cold_ms(sim, fem_model, steps):
     """``steps`` coupled steps (``hybrid.coupling.step.advance``), each timed right after one cold
-    back-substitution of the rest system (timed too): (step times, cold times) in ms, side by side
-    so that the load of a shared machine falls on both alike."""
+    back-substitution of the rest system (timed too), side by side so that the load of a shared
+    machine falls on both alike: (step times, cold times, step wall times, cold wall times) in ms.
+    The first two are the process's CPU time (``time.process_time``; BLAS runs on one thread):
+    on an idle machine the same as wall time, on one running more processes than it has cores
+    it leaves out the time the process waited for a core (in scheduler slices of a few ms)."""
     factorisation = fem_dyn.system_factorisation(fem_model, DT)
     rhs = np.random.default_rng(0).standard_normal(factorisation.matrix.shape[0])
     other = np.ones(COLD_BYTES // 8)
     model, state = sim.model, sim.state
-    coupled, cold = [], []
+    coupled, cold, coupled_wall, cold_wall = [], [], [], []
     for _ in range(steps):
         other.sum()
-        t0 = time.perf_counter()
+        w0, c0 = time.perf_counter(), time.process_time()
         factorisation.solve(rhs)
-        t1 = time.perf_counter()
+        w1, c1 = time.perf_counter(), time.process_time()
         model, state, _ = advance(model, state)
-        t2 = time.perf_counter()
-        cold.append(1e3 * (t1 - t0))
-        coupled.append(1e3 * (t2 - t1))
+        w2, c2 = time.perf_counter(), time.process_time()
+        cold.append(1e3 * (c1 - c0))
+        coupled.append(1e3 * (c2 - c1))
+        cold_wall.append(1e3 * (w1 - w0))
+        coupled_wall.append(1e3 * (w2 - w1))
     sim.model, sim.state = model, state
-    return coupled, cold
+    return coupled, cold, coupled_wall, cold_wall
 
 
 def response_mb(fem_model):
@@ -331,6 +340,7 @@ def measure_row(cells, frame, support, backend, naive_by_size, args):
     row = dict(tets=m.tet_count, nodes=m.node_count, dofs=3 * m.node_count, support=support,
                backend=backend, frame=frame, **r, naive_ms=naive)
     row["coupled_over_cold_floor"] = row["coupled_ms"] / row["cold_floor_ms"]
+    row["wall_coupled_over_cold_floor"] = row["coupled_wall_ms"] / row["cold_wall_ms"]
     row["coupled_over_floor"] = row["coupled_ms"] / row["floor_ms"]
     row["step_over_floor"] = row["step_ms"] / row["floor_ms"]
     row["step_over_cold_floor"] = row["step_ms"] / row["cold_floor_ms"]
@@ -379,8 +389,8 @@ def goals(rows):
 def report(rows, args):
     header = (f"{'tets':>6} {'dofs':>6} {'support':>8} {'backend':>8} {'frame':>9} {'first s':>7} {'resp MB':>7} "
               f"{'coupled':>8} {'step ms':>8} {'elastic':>8} {'floor ms':>8} {'cold':>6} {'in-step':>7} "
-              f"{'naive ms':>9} {'coupled/cold':>12} {'coupled/floor':>13} {'naive/coupled':>13}")
-    print(f"\nmedians; coupled step (advance) and cold floor side by side over {args.steps} steps after "
+              f"{'naive ms':>9} {'coupled/cold':>12} {'(wall)':>6} {'coupled/floor':>13} {'naive/coupled':>13}")
+    print(f"\nmedians; coupled step (advance) and cold floor side by side (CPU time) over {args.steps} steps after "
           f"{args.warmup} warm-up, Simulation.step over {args.steps} more, floor over 20 solves, naive "
           f"over {args.naive_steps} steps; dt = {DT} s; times in ms unless marked")
     print(header)
@@ -389,6 +399,7 @@ def report(rows, args):
               f"{r['first_s']:>7.2f} {r['response_mb']:>7.1f} {r['coupled_ms']:>8.2f} {r['step_ms']:>8.2f} "
               f"{r['elastic_ms']:>8.2f} {r['floor_ms']:>8.2f} {r['cold_floor_ms']:>6.2f} "
               f"{r['solve_in_step_ms']:>7.2f} {r['naive_ms']:>9.1f} {r['coupled_over_cold_floor']:>12.2f} "
+              f"{r['wall_coupled_over_cold_floor']:>6.2f} "
               f"{r['coupled_over_floor']:>13.2f} {r['naive_over_coupled']:>13.1f}")
 
     print("\nother goals")

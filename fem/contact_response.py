@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from .dynamics import apply_impulse, system_factorisation
+from .step_kernels import rotate_back
 
 # memory the response columns of one model may keep for applying impulses as a product (each node
 # keeps 3 x 3n floats); nodes beyond it apply their impulses by back-substitution instead
@@ -142,6 +143,10 @@ def contact_set(model, dt, nodes, previous=None):
     """
     nodes = np.unique(np.asarray(nodes, dtype=np.int64))
     if previous is not None:
+        previous = np.asarray(previous, dtype=np.int64)
+        at = np.minimum(np.searchsorted(previous, nodes), len(previous) - 1)
+        if len(previous) and (previous[at] == nodes).all():     # resting contact: a subset
+            return previous if len(previous) <= 1.5 * len(nodes) + 8 else nodes
         union = np.union1d(previous, nodes)
         if len(union) <= 1.5 * len(nodes) + 8:
             return union if len(union) > len(previous) else np.asarray(previous, dtype=np.int64)
@@ -229,11 +234,12 @@ def apply_contact_impulses(model, state, step, dt, nodes, impulse):
     dv = None if model.frame == "corotated" else impulse_response(model, dt, nodes, impulse @ step.R)
     if dv is None:
         return apply_impulse(model, state, step, node_impulse)
-    return replace(step, v=step.v + dv @ step.R.T, impulse=step.impulse + node_impulse)
+    return replace(step, v=step.v + rotate_back(dv, np.asarray(step.R, float)),
+                   impulse=step.impulse + node_impulse)
 
 
 def impulse_response(model, dt, nodes, impulse):
-    """Velocity change ``(n, 3)`` (body frame) for impulses ``(k, 3)`` N s (body frame) on
+    """Velocity change ``(3n,)`` (body frame) for impulses ``(k, 3)`` N s (body frame) on
     ``nodes``, as one product with their response columns (kept since their
     :func:`delassus_block`); None when that would read more numbers than one back-substitution or
     some node's columns are not kept (then solve instead). Exact for the same system the blocks
@@ -246,4 +252,4 @@ def impulse_response(model, dt, nodes, impulse):
         if any(int(i) not in cache.columns for i in nodes):
             return None
         cache.block_columns = (nodes.copy(), np.concatenate([cache.columns[int(i)] for i in nodes], axis=1))
-    return (cache.block_columns[1] @ np.asarray(impulse, dtype=float).ravel()).reshape(-1, 3)
+    return cache.block_columns[1] @ np.asarray(impulse, dtype=float).ravel()

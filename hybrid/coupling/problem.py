@@ -53,7 +53,7 @@ def build_problem(model, state, fems, predicted, nodes, found, held_rows, rigid_
     pairs, on_faces, corners = found.pairs, found.on_faces, found.corners
     touched, sets = _solver_nodes(fems, state, nodes, np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()]), h)
     parts = Particles(touched, corners, found.weights, nodes.body)
-    touched_bodies = np.unique(parts.body)
+    touched_bodies = _distinct(parts.body)
     blocks = [delassus_block(fems[j], h, nodes.local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
                              report=_reporter(model.names[model.fem_ids[j]])) for j in touched_bodies]
     bodies = parts.solver_bodies(rigid_bodies, _stacked_rows(model.cache, blocks, nb),
@@ -80,10 +80,17 @@ def _solver_nodes(fems, state, nodes, in_contact, h):
     touched = np.unique(in_contact)
     if not len(touched):
         return touched, tuple(sets)
-    bodies = np.unique(nodes.body[touched])
+    bodies = _distinct(nodes.body[touched])       # stacked nodes are grouped by body
     for j in bodies:
         sets[j] = contact_set(fems[j], h, nodes.local[touched[nodes.body[touched] == j]], sets[j])
     return np.concatenate([nodes.stacked(j, sets[j]) for j in bodies]).astype(np.int64), tuple(sets)
+
+
+def _distinct(sorted_values):
+    """The distinct values of a sorted array, in order (np.unique without its sort)."""
+    if len(sorted_values) == 0:
+        return sorted_values
+    return sorted_values[np.concatenate([[True], sorted_values[1:] != sorted_values[:-1]])]
 
 
 def _reporter(name):
@@ -123,7 +130,9 @@ class Particles:
         w_ptr, w_col, W, held = rows
         corner = -np.ones((nb + k + q, 3), dtype=np.int64)
         corner[nb + k:] = nb + self.node_particle[self.corners]
-        group = np.unique(self.body, return_inverse=True)[1].ravel()
+        # each particle's group, the touched bodies numbered in order (particles are grouped by body)
+        group = np.concatenate([[0], np.cumsum(self.body[1:] != self.body[:-1])]).astype(np.int64) \
+            if len(self.body) else np.zeros(0, np.int64)
         weights, place_held = self._held_places(held)
         return rigid_step.SolverBodies(
             inv_mass=np.concatenate([rigid.inv_mass, np.zeros(k + q)]),
