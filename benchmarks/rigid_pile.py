@@ -1,15 +1,19 @@
 """Rigid pile: N boxes of 0.1 m dropped in a loose grid into a walled bin, ours against pybullet.
 
 The bin is a ground plane and four wall planes. Every box is 1 kg (density 1000), friction 0.5,
-restitution 0; dt = 1/240 s. Both engines step the identical scene in this process; pybullet keeps
-its default solver settings (its friction combines by product, so each of its objects gets
-sqrt(0.5) to make every contact 0.5 as in ours, where it combines by geometric mean). Then a few
-hundred more of our steps run under cProfile to show where the time goes.
+restitution 0; dt = 1/240 s. Both engines step the identical scene in this process, one after the
+other, ``--repeats`` times (ours built afresh each time); pybullet keeps its default solver settings
+(its friction combines by product, so each of its objects gets sqrt(0.5) to make every contact 0.5
+as in ours, where it combines by geometric mean). Then a few hundred more of our steps run under
+cProfile to show where the time goes.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/rigid_pile.py [--n 100 1000] [--seconds 2]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/rigid_pile.py [--n 100 1000] [--seconds 2] [--repeats 3]
 
-Prints steps/s per engine, the ratio ours/pybullet and the profile; writes
-outputs/bench/rigid_pile.csv.
+Prints steps/s per engine (medians over the repeats; wall clock, and process CPU time, which a
+loaded machine disturbs less), the median of the repeats' ratios ours/pybullet, the pile's mean
+height and escaped boxes for both, the profile, and per N one line
+``GOAL rigid_pile_<N>_vs_pybullet: measured=<ratio> target=1.0 met|not met`` (the wall-clock
+ratio); writes outputs/bench/rigid_pile.csv.
 """
 import argparse
 import cProfile
@@ -86,10 +90,10 @@ def run_ours(n, seconds, profile_steps):
     build_time = time.perf_counter() - t0
     steps = int(round(seconds / DT))
     sim.step()                                 # first step outside the timing (JIT cache load)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps - 1):
         sim.step()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rs = sim.state.rigid
     stats = pile_stats(rs.position[:, 2], rs.position[:, :2], pile_layout(n)[2])
     profile_text = ""
@@ -103,7 +107,7 @@ def run_ours(n, seconds, profile_steps):
         pstats.Stats(profiler, stream=buffer).sort_stats("tottime").print_stats(8)
         profile_text = buffer.getvalue()
     return {"engine": "ours", "build_seconds": build_time, "steps": steps - 1, "wall_seconds": wall,
-            "stats": stats, "profile": profile_text}
+            "cpu_seconds": cpu, "stats": stats, "profile": profile_text}
 
 
 def run_pybullet(n, seconds):
@@ -128,56 +132,86 @@ def run_pybullet(n, seconds):
             bodies.append(body)
         steps = int(round(seconds / DT))
         p.stepSimulation(physicsClientId=client)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(steps - 1):
             p.stepSimulation(physicsClientId=client)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         pos = np.array([p.getBasePositionAndOrientation(b, physicsClientId=client)[0] for b in bodies])
     finally:
         p.disconnect(client)
-    return {"engine": "pybullet", "steps": steps - 1, "wall_seconds": wall,
+    return {"engine": "pybullet", "steps": steps - 1, "wall_seconds": wall, "cpu_seconds": cpu,
             "stats": pile_stats(pos[:, 2], pos[:, :2], half)}
+
+
+def median_runs(runs):
+    """One engine's repeats as one result: median wall and CPU time, the last run's pile."""
+    out = dict(runs[-1])
+    for key in ("wall_seconds", "cpu_seconds"):
+        out[key] = float(np.median([r[key] for r in runs]))
+    return out
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, nargs="+", default=[100, 1000], help="box counts")
     parser.add_argument("--seconds", type=float, default=2.0, help="simulated time per run (s)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="runs of each engine per box count (medians are reported)")
     parser.add_argument("--profile-steps", type=int, default=200,
-                        help="extra steps of ours run under cProfile (0: none)")
+                        help="extra steps of ours run under cProfile after the last repeat (0: none)")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error("--repeats must be at least 1")
     try:
         import pybullet  # noqa: F401
         have_pybullet = True
     except ImportError:
         have_pybullet = False
-        print("pybullet not importable: timing ours only")
-    rows = []
+        print("pybullet not importable (pip install pybullet, or the project's bench extra): "
+              "timing ours only")
+    rows, goals = [], []
     for n in args.n:
-        results = [run_ours(n, args.seconds, args.profile_steps)]
-        if have_pybullet:
-            results.append(run_pybullet(n, args.seconds))
+        runs = {"ours": [], "pybullet": []}
+        for r in range(args.repeats):      # the engines alternate, so both see the same load
+            last = r == args.repeats - 1
+            runs["ours"].append(run_ours(n, args.seconds, args.profile_steps if last else 0))
+            if have_pybullet:
+                runs["pybullet"].append(run_pybullet(n, args.seconds))
+        results = [median_runs(v) for v in runs.values() if v]
         rates = {r["engine"]: r["steps"] / r["wall_seconds"] for r in results}
-        ratio = rates["ours"] / rates["pybullet"] if "pybullet" in rates else float("nan")
-        print(f"\n== {n} boxes, {args.seconds:g} s at dt = 1/240 s "
+        cpu_rates = {r["engine"]: r["steps"] / r["cpu_seconds"] for r in results}
+        ratio = cpu_ratio = float("nan")
+        if have_pybullet:   # median over the repeats of each repeat's ratio
+            ratio = float(np.median([p["wall_seconds"] / o["wall_seconds"]
+                                     for o, p in zip(runs["ours"], runs["pybullet"])]))
+            cpu_ratio = float(np.median([p["cpu_seconds"] / o["cpu_seconds"]
+                                         for o, p in zip(runs["ours"], runs["pybullet"])]))
+        print(f"\n== {n} boxes, {args.seconds:g} s at dt = 1/240 s, medians of {args.repeats} runs "
               f"(ours built in {results[0]['build_seconds']:.2f} s)")
         for r in results:
             mean_z, escaped, sunk = r["stats"]
-            print(f"{r['engine']:>9}: {rates[r['engine']]:9.1f} steps/s  ({r['steps']} steps in "
-                  f"{r['wall_seconds']:.2f} s)  mean z {mean_z:.4f} m, escaped {escaped}, "
-                  f"deepest sink {sunk * 1e3:.2f} mm")
-            rows.append({"n": n, "engine": r["engine"], "seconds": args.seconds, "dt": DT,
-                         "steps": r["steps"], "wall_seconds": r["wall_seconds"],
-                         "steps_per_second": rates[r["engine"]],
-                         "ratio_ours_over_pybullet": ratio if r["engine"] == "ours" else "",
+            e = r["engine"]
+            print(f"{e:>9}: {rates[e]:9.1f} steps/s wall, {cpu_rates[e]:9.1f} per CPU second  "
+                  f"({r['steps']} steps in {r['wall_seconds']:.2f} s)  mean z {mean_z:.4f} m, "
+                  f"escaped {escaped}, deepest sink {sunk * 1e3:.2f} mm")
+            rows.append({"n": n, "engine": e, "seconds": args.seconds, "dt": DT,
+                         "repeats": args.repeats, "steps": r["steps"],
+                         "wall_seconds": r["wall_seconds"], "cpu_seconds": r["cpu_seconds"],
+                         "steps_per_second": rates[e], "steps_per_cpu_second": cpu_rates[e],
+                         "ratio_ours_over_pybullet": ratio if e == "ours" else "",
+                         "cpu_ratio_ours_over_pybullet": cpu_ratio if e == "ours" else "",
                          "mean_height": mean_z, "escaped": escaped, "deepest_sink": sunk})
         if have_pybullet:
-            print(f"ratio ours / pybullet: {ratio:.3f}")
+            print(f"ratio ours / pybullet: {ratio:.3f} wall, {cpu_ratio:.3f} CPU time")
+            goals.append(f"GOAL rigid_pile_{n}_vs_pybullet: measured={ratio:.3g} target=1.0 "
+                         f"{'met' if ratio >= 1.0 else 'not met'}")
         if results[0]["profile"]:
             print(f"where our time goes ({args.profile_steps} more steps, top 8 by tottime):")
             print(results[0]["profile"])
     write_csv(CSV_PATH, rows)
     print(f"wrote {CSV_PATH}")
+    for line in goals:
+        print(line)
 
 
 if __name__ == "__main__":

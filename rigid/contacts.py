@@ -9,6 +9,8 @@ Broad phase: bounding spheres, sorted along x (sweep and prune).
 """
 from dataclasses import dataclass
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -369,15 +371,27 @@ def detect_points(model, position, rotation, points, sweep, body_sweep, margin, 
 
 def _combine(model, b, mu_a, e_a):
     """Combined friction and restitution of side a with side b (body index, or -1 - plane)."""
-    is_plane = b < 0
-    plane = np.maximum(-1 - b, 0)
-    other = np.maximum(b, 0)
-    mu_b = model.body_friction[other] if model.body_count else np.zeros(len(b))
-    e_b = model.body_restitution[other] if model.body_count else np.zeros(len(b))
-    if model.plane_point.shape[0]:
-        mu_b = np.where(is_plane, model.plane_friction[plane], mu_b)
-        e_b = np.where(is_plane, model.plane_restitution[plane], e_b)
-    return combine_friction(mu_a, mu_b), combine_restitution(e_a, e_b)
+    return _combined(b, np.ascontiguousarray(mu_a, dtype=float), np.ascontiguousarray(e_a, dtype=float),
+                     model.body_friction, model.body_restitution, model.plane_friction,
+                     model.plane_restitution)
+
+
+@nb.njit(cache=True)
+def _combined(b, mu_a, e_a, body_friction, body_restitution, plane_friction, plane_restitution):
+    """(c,) each: :func:`combine_friction` and :func:`combine_restitution` of side a's
+    coefficients with side b's, b a body index or -1 - plane index."""
+    c = len(b)
+    mu = np.empty(c)
+    e = np.empty(c)
+    for k in range(c):
+        mu_b = e_b = 0.0
+        if b[k] < 0 and len(plane_friction):
+            mu_b, e_b = plane_friction[-1 - b[k]], plane_restitution[-1 - b[k]]
+        elif len(body_friction):
+            mu_b, e_b = body_friction[max(b[k], 0)], body_restitution[max(b[k], 0)]
+        mu[k] = math.sqrt(mu_a[k] * mu_b)      # geometric mean
+        e[k] = max(e_a[k], e_b)                # the larger
+    return mu, e
 
 
 def concatenate(first, second, offset_a, offset_b):

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .shock import STACK_COS, shock_scales, stack_levels
+from .shock import STACK_COS, sweep_levels
 from .solver import arms, contact_basis, normal_velocity, pgs
+from .step_kernels import contact_targets, impact_kinematics
 
 
 @dataclass
@@ -105,17 +106,10 @@ class Resolution:
     contact_lambda: np.ndarray = None
 
 
-def time_of_impact(gap, vn, an, h):
-    """First time in [0, inf) at which gap + vn t + an t^2 / 2 reaches 0 (inf if never).
-
-    Uses the conjugate form 2 gap / (sqrt(vn^2 - 2 an gap) - vn), stable for an -> 0.
-    """
-    g = np.maximum(gap, 0.0)
-    disc = vn * vn - 2.0 * an * g
-    den = np.sqrt(np.maximum(disc, 0.0)) - vn
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = np.where((disc >= 0) & (den > 0), 2.0 * g / den, np.inf)
-    return np.where(gap <= 0, 0.0, tau)
+def _finite(impulse):
+    """The impulses with the NaN rows of contacts a pass left out as zeros (np.nan_to_num, called
+    only when the sum shows a value that is not finite: it costs more than the sum)."""
+    return impulse if np.isfinite(impulse.sum()) else np.nan_to_num(impulse)
 
 
 def _scatter(target, index, values):
@@ -146,16 +140,10 @@ class _Problem:
         level up the stack (``up``, unit), each level with the lower side of its contacts frozen;
         their impulses replace theirs in ``impulse``. Returns the per-contact inverse-mass scales
         (scale_a, scale_b) that freeze the lower sides."""
-        c = self.contacts
-        level = stack_levels(c.body_a, c.body_b, c.normal, up, len(self.bodies.inv_mass),
-                             self.bodies.static, self.groups[0])
-        c_level, scale_a, scale_b = shock_scales(c.body_a, c.body_b, level)
-        for lv in np.unique(c_level[selected]):
-            at_level = (c_level == lv) & selected
-            level_imp = self.solve(target, c.friction, scale_a, scale_b, at_level, lam, v, w,
-                                   iterations)
-            impulse[at_level] = level_imp[at_level]
-        return scale_a, scale_b
+        c, b = self.contacts, self.bodies
+        return sweep_levels(c.body_a, c.body_b, self.ra, self.rb, c.normal, up, b.static, selected,
+                            target, c.friction, lam, b.inv_mass, b.inv_inertia, v, w, iterations,
+                            *self.groups, impulse)
 
 
 def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm=None):
@@ -212,7 +200,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
         rigid_side = ~particle[ia] & ((ib < 0) | ~particle[np.maximum(ib, 0)])
         scale_a, scale_b = problem.sweep_stack(-np.asarray(gravity) / gnorm, rigid_side, target,
                                                lam, v, w, settings.shock_iterations, contact_imp)
-    out.contact_impulse = np.nan_to_num(contact_imp)
+    out.contact_impulse = _finite(contact_imp)
     out.contact_lambda = lam
 
     # 4. penetration recovery: move positions only (split impulse), never add velocity
@@ -231,13 +219,12 @@ def _impacts(problem, on_particle, h, gravity, settings):
     a rigid body's impacts after its first hit on a deformable body this step wait for the
     contact pass."""
     contacts, bodies = problem.contacts, problem.bodies
-    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
+    ia, ib = contacts.body_a, contacts.body_b
     ib0 = np.maximum(ib, 0)
-    vn_t = normal_velocity(ia, ib, problem.ra, problem.rb, nrm, bodies.velocity_at_t, bodies.angular)
-    accel_b = np.where((ib >= 0)[:, None], bodies.accel[ib0], 0.0)
-    an = np.einsum("ck,ck->c", bodies.accel[ia] - accel_b, nrm)
-    tau = time_of_impact(contacts.gap, vn_t, an, h)
-    approach = -(vn_t + an * np.minimum(tau, h))
+    # (time_of_impact of the relative normal velocity and acceleration, compiled)
+    tau, approach = impact_kinematics(ia, ib, problem.ra, problem.rb, contacts.normal,
+                                      contacts.gap, bodies.velocity_at_t, bodies.angular,
+                                      bodies.accel, float(h))
     # slower approaches are resting contact, left to the contact pass (no bounce, no jitter)
     threshold = max(settings.restitution_threshold, 2.0 * np.linalg.norm(gravity) * h)
     hits = (tau <= h) & (approach > threshold)
@@ -256,13 +243,9 @@ def _impacts(problem, on_particle, h, gravity, settings):
 def _contact_target(problem, out, h):
     """Normal velocity (c,) m/s each contact may reach at most: closing its gap exactly by the end
     of the step, counting the shifts the collision pass gave the bodies."""
-    contacts, ra, rb = problem.contacts, problem.ra, problem.rb
-    ia, ib = contacts.body_a, contacts.body_b
-    ib0 = np.maximum(ib, 0)
-    moved = out.shift[ia] + np.cross(out.shift_rotation[ia], ra)
-    moved_b = np.where((ib >= 0)[:, None], out.shift[ib0] + np.cross(out.shift_rotation[ib0], rb), 0.0)
-    shift_n = np.einsum("ck,ck->c", moved - moved_b, contacts.normal)
-    return -(np.maximum(contacts.gap, 0.0) + shift_n) / h
+    c = problem.contacts
+    return contact_targets(c.body_a, c.body_b, problem.ra, problem.rb, c.normal, c.gap,
+                           out.shift, out.shift_rotation, float(h))
 
 
 def _contact_start(contacts, previous, warm):
@@ -303,7 +286,7 @@ def _collide(out, problem, impact, support, tau, approach, h, gravity, settings)
         # the box it hits would act as a wall)
         stacked = active & (np.abs(nrm @ up) > STACK_COS)
         problem.sweep_stack(up, stacked, target, lam, v, w, settings.shock_iterations, imp)
-    out.collision_impulse = np.nan_to_num(imp)
+    out.collision_impulse = _finite(imp)
     out.impact_dv = v - v0
     t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, len(v))
     _move_back(out, problem, t_contact, active, swept, v0, w0)

@@ -4,6 +4,8 @@ be swept bottom-up (rigid.resolve)."""
 import numba as nb
 import numpy as np
 
+from .solver import pgs
+
 # a contact stacks one body on another when its normal is within ~70 degrees of up
 STACK_COS = 0.34
 
@@ -61,11 +63,52 @@ def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
     return level
 
 
+@nb.njit(cache=True)
 def shock_scales(body_a, body_b, level):
-    """Per contact: which level it belongs to and the inverse-mass scales that freeze its lower side."""
-    la = np.where(body_a >= 0, level[np.maximum(body_a, 0)], 0)
-    lb = np.where(body_b >= 0, level[np.maximum(body_b, 0)], 0)
-    contact_level = np.maximum(la, lb)
-    scale_a = np.where(la < lb, 0.0, 1.0)
-    scale_b = np.where(lb < la, 0.0, 1.0)
+    """Per contact: which level it belongs to (the higher of its two sides' levels, the static
+    world at 0) and the inverse-mass scales that freeze its lower side (0 on the lower side, 1
+    on the other; both 1 at equal levels)."""
+    c = len(body_a)
+    contact_level = np.empty(c, dtype=np.int64)
+    scale_a = np.empty(c)
+    scale_b = np.empty(c)
+    for k in range(c):
+        la = level[body_a[k]] if body_a[k] >= 0 else 0
+        lb = level[body_b[k]] if body_b[k] >= 0 else 0
+        contact_level[k] = max(la, lb)
+        scale_a[k] = 0.0 if la < lb else 1.0
+        scale_b[k] = 0.0 if lb < la else 1.0
     return contact_level, scale_a, scale_b
+
+
+@nb.njit(cache=True)
+def sweep_levels(ia, ib, ra, rb, normal, up, static, selected, target, friction, lam, inv_m,
+                 invI, v, w, iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w,
+                 impulse):
+    """Shock propagation (Guendelman 2003): the contacts ``selected`` solved again (rigid.solver
+    .pgs, ``iterations`` sweeps) level by level up the stack (``up``, unit), lowest first, each
+    level with the lower side of its contacts frozen; their impulses replace theirs in
+    ``impulse`` (c, 3); v, w and lam are updated in place. Returns the per-contact inverse-mass
+    scales (scale_a, scale_b) that freeze the lower sides."""
+    level = stack_levels(ia, ib, normal, up, len(inv_m), static, group_of)
+    contact_level, scale_a, scale_b = shock_scales(ia, ib, level)
+    top = -1
+    for k in range(len(ia)):
+        if selected[k]:
+            top = max(top, contact_level[k])
+    at_level = np.empty(len(ia), dtype=np.bool_)
+    for lv in range(top + 1):
+        count = 0
+        for k in range(len(ia)):
+            at_level[k] = selected[k] and contact_level[k] == lv
+            count += at_level[k]
+        if count == 0:
+            continue
+        level_impulse = pgs(ia, ib, ra, rb, normal, target, friction, scale_a, scale_b, at_level,
+                            lam, inv_m, invI, v, w, iterations, group_of, group_R, w_ptr, w_col,
+                            W, corner, corner_w, False)
+        for k in range(len(ia)):
+            if at_level[k]:
+                for d in range(3):
+                    impulse[k, d] = level_impulse[k, d]
+    return scale_a, scale_b

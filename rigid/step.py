@@ -6,18 +6,18 @@ resolved by :func:`rigid.resolve.resolve_contacts` (collisions at their time of 
 contact, shock propagation, penetration recovery); its names are re-exported here for callers
 that step through this module.
 """
+import math
 from typing import NamedTuple
 
 import numpy as np
 
-from . import quaternion as quat
 from .contacts import Contacts, concatenate, detect
-from .integrate import rotate_by, rotate_free
-from .model import world_inverse_inertia
+from .model import RigidState
 from .resolve import ContactSettings, Resolution, SolverBodies, resolve_contacts
+from .step_kernels import body_frames, body_speeds, drift_bodies
 
-__all__ = ["ContactSettings", "Resolution", "SolverBodies", "Touches", "drift", "kick", "reach",
-           "resolve_contacts", "solver_bodies", "step", "substep_count"]
+__all__ = ["ContactSettings", "Resolution", "SolverBodies", "Touches", "drift", "frames", "kick",
+           "reach", "resolve_contacts", "solver_bodies", "step", "substep_count"]
 
 
 class Touches(NamedTuple):
@@ -34,44 +34,46 @@ def kick(model, state, h, gravity):
     return v, v - 0.5 * h * gvec, gvec
 
 
-def solver_bodies(model, state, v, v_at_t, gvec):
+def frames(model, state):
+    """Rotation matrices (b, 3, 3), world inverse inertia (b, 3, 3) 1/(kg m^2) and angular
+    velocity (b, 3) rad/s of the state's bodies (one compiled pass: rigid.step_kernels)."""
+    return body_frames(*(np.ascontiguousarray(a, dtype=float) for a in (
+        state.orientation, model.body_inv_inertia, state.angular_momentum)))
+
+
+def solver_bodies(model, state, v, v_at_t, gvec, known_frames=None):
     """The rigid bodies as the contact solver sees them (SolverBodies): velocity ``v`` to drift
     with, ``v_at_t`` at the start of the step, free acceleration ``gvec`` (b, 3) m/s^2, world
-    inverse inertia and angular velocity from the state, fixed bodies static."""
-    invI = world_inverse_inertia(model, state.orientation)
-    w = np.einsum("bij,bj->bi", invI, state.angular_momentum)
+    inverse inertia and angular velocity from the state (``known_frames``: :func:`frames` of it,
+    if already at hand), fixed bodies static."""
+    _, invI, w = frames(model, state) if known_frames is None else known_frames
     return SolverBodies(model.body_inv_mass, invI, state.position, v, v_at_t, w, gvec,
                         model.body_fixed.copy())
 
 
 def drift(model, state, res, h, v_kick):
-    """Positions and orientations after the step; returns the new state."""
-    free = ~model.body_fixed
-    R = quat.to_matrix(state.orientation)
-    I_world = np.einsum("bij,bj,bkj->bik", R, model.body_inertia, R)
-    w0 = np.einsum("bij,bj->bi", world_inverse_inertia(model, state.orientation), state.angular_momentum)
-    L = state.angular_momentum + np.where(
-        free[:, None], np.einsum("bij,bj->bi", I_world, res.angular - w0) + res.momentum_fix, 0.0)
-    new = state.copy()
-    new.position = state.position + h * res.velocity + res.shift + h * res.pseudo_velocity
-    q = rotate_free(state.orientation, L, model.body_inv_inertia, h)
-    new.orientation = rotate_by(q, res.shift_rotation + h * res.pseudo_angular)
-    new.velocity = res.velocity
-    new.angular_momentum = L
-    new.contact_dv = res.velocity - v_kick - res.impact_dv
-    new.time = state.time + h
-    new.last_dt = h
-    return new
+    """Positions and orientations after the step; returns the new state. Angular momentum takes
+    what the contacts did to the angular velocity; orientations follow the torque-free flow of
+    the new momentum, then the small rotations of impacts and penetration recovery
+    (rigid.step_kernels.drift_bodies)."""
+    position, L, q = drift_bodies(state.position, state.orientation, state.angular_momentum,
+                                  model.body_fixed, model.body_inertia, model.body_inv_inertia,
+                                  float(h), res.velocity, res.angular, res.shift,
+                                  res.shift_rotation, res.pseudo_velocity, res.pseudo_angular,
+                                  res.momentum_fix)
+    return RigidState(position, q, res.velocity.copy(), L, res.velocity - v_kick - res.impact_dv,
+                      state.time + h, h)
 
 
-def substep_count(model, state, dt, settings):
-    """Adaptive substeps so no body moves more than half the thinnest body's thickness."""
+def substep_count(model, state, dt, settings, angular=None):
+    """Adaptive substeps so no body moves more than half the thinnest body's thickness.
+    ``angular``: the bodies' angular velocities (b, 3) rad/s, if already at hand."""
     if model.body_count == 0:
         return 1
-    w = np.einsum("bij,bj->bi", world_inverse_inertia(model, state.orientation), state.angular_momentum)
-    motion = (np.linalg.norm(state.velocity, axis=1) + np.linalg.norm(w, axis=1) * model.body_radius) * dt
-    allowed = 0.5 * np.min(model.body_min_extent)
-    return int(np.clip(np.ceil(np.max(motion) / allowed), 1, settings.max_substeps))
+    w = frames(model, state)[2] if angular is None else angular
+    motion = np.max(body_speeds(state.velocity, w, model.body_radius)) * dt
+    ratio = motion / (0.5 * np.min(model.body_min_extent))
+    return settings.max_substeps if ratio > settings.max_substeps else max(1, math.ceil(ratio))
 
 
 def step(model, state, dt, gravity, settings=None):
@@ -79,24 +81,26 @@ def step(model, state, dt, gravity, settings=None):
     ``settings``: ContactSettings (default: its defaults)."""
     settings = ContactSettings() if settings is None else settings
     gravity = np.asarray(gravity, float)
-    n = substep_count(model, state, dt, settings)
-    touched = Touches(Contacts(*(np.zeros(0, np.int64),) * 2, *(np.zeros((0, 3)),) * 2,
-                               *(np.zeros(0),) * 3), np.zeros((0, 3)))
-    for _ in range(n):
+    known_frames = frames(model, state)
+    n = substep_count(model, state, dt, settings, known_frames[2])
+    touched = None
+    for i in range(n):
         h = dt / n
+        if i > 0:
+            known_frames = frames(model, state)
         v, v_at_t, gvec = kick(model, state, h, gravity)
-        bodies = solver_bodies(model, state, v, v_at_t, gvec)
-        contacts = detect(model, state.position, quat.to_matrix(state.orientation),
-                          reach(model, bodies, h), settings.margin)
+        bodies = solver_bodies(model, state, v, v_at_t, gvec, known_frames)
+        contacts = detect(model, state.position, known_frames[0], reach(model, bodies, h),
+                          settings.margin)
         res = resolve_contacts(bodies, contacts, h, gravity, settings)
         state = drift(model, state, res, h, v)
-        touched = Touches(concatenate(touched.contacts, contacts, 0, 0), np.concatenate(
-            [touched.impulse, res.collision_impulse + res.contact_impulse]))
+        impulse = res.collision_impulse + res.contact_impulse
+        touched = Touches(contacts, impulse) if touched is None else Touches(
+            concatenate(touched.contacts, contacts, 0, 0), np.concatenate([touched.impulse, impulse]))
     return state, touched
 
 
 def reach(model, bodies, h):
     """How far each rigid body's surface can move in a step (m): speculative contact margin."""
     nb = model.body_count
-    return (np.linalg.norm(bodies.velocity[:nb], axis=1)
-            + np.linalg.norm(bodies.angular[:nb], axis=1) * model.body_radius) * h
+    return body_speeds(bodies.velocity[:nb], bodies.angular[:nb], model.body_radius) * h

@@ -1,0 +1,175 @@
+"""The compiled kernels of the rigid step against the numpy code they replaced, on random inputs:
+the same numbers up to round-off (numpy's einsum sums in an order of its own)."""
+import numpy as np
+import pytest
+
+from rigid import quaternion as quat
+from rigid.integrate import rotate_by, rotate_free
+from rigid.solver import arms, normal_velocity
+from rigid.step_kernels import body_frames, contact_targets, drift_bodies, impact_kinematics
+
+
+def _bodies(rng, n):
+    q = quat.normalize(rng.normal(size=(n, 4)))
+    inertia = rng.uniform(0.1, 2.0, (n, 3))
+    return q, inertia, 1.0 / inertia, rng.normal(size=(n, 3))
+
+
+def _world(R, diagonal):
+    """R diag(d) R^T, as rigid.model.world_inverse_inertia computes it."""
+    return np.einsum("bij,bj,bkj->bik", R, diagonal, R)
+
+
+def _contacts(rng, n, c):
+    ia = rng.integers(0, n, c)
+    ib = rng.integers(-1, n, c)                         # -1: a plane or the static world
+    normal = rng.normal(size=(c, 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    return ia, ib, rng.normal(size=(c, 3)), rng.normal(size=(c, 3)), normal
+
+
+def test_body_frames_match_the_world_inertia_of_numpy():
+    rng = np.random.default_rng(0)
+    q, _, inv_inertia, L = _bodies(rng, 200)
+    R, invI, w = body_frames(q, inv_inertia, L)
+    R_ref = quat.to_matrix(q)
+    invI_ref = _world(R_ref, inv_inertia)
+    np.testing.assert_array_equal(R, R_ref)
+    np.testing.assert_allclose(invI, invI_ref, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(w, np.einsum("bij,bj->bi", invI_ref, L), rtol=1e-13, atol=1e-14)
+
+
+def test_drift_matches_the_numpy_drift():
+    """Positions, angular momenta and orientations after a step, as rigid.step.drift computed
+    them with numpy (fixed bodies keep their momentum; the impact and recovery rotations are
+    small, and some zero)."""
+    rng = np.random.default_rng(1)
+    n, h = 300, 1.0 / 240.0
+    q, inertia, inv_inertia, L = _bodies(rng, n)
+    position = rng.normal(size=(n, 3))
+    fixed = rng.random(n) < 0.2
+    v, w, shift, pseudo_v, fix = (rng.normal(size=(n, 3)) for _ in range(5))
+    shift_rotation = 1e-3 * rng.normal(size=(n, 3))
+    pseudo_w = 1e-2 * rng.normal(size=(n, 3))
+    shift_rotation[::3] = 0.0
+    pseudo_w[::3] = 0.0
+    new_p, new_L, new_q = drift_bodies(position, q, L, fixed, inertia, inv_inertia, h, v, w, shift,
+                                       shift_rotation, pseudo_v, pseudo_w, fix)
+
+    R = quat.to_matrix(q)
+    w0 = np.einsum("bij,bj->bi", _world(R, inv_inertia), L)
+    L_ref = L + np.where(~fixed[:, None],
+                         np.einsum("bij,bj->bi", _world(R, inertia), w - w0) + fix, 0.0)
+    p_ref = position + h * v + shift + h * pseudo_v
+    q_ref = rotate_by(rotate_free(q, L_ref, inv_inertia, h), shift_rotation + h * pseudo_w)
+    np.testing.assert_allclose(new_L, L_ref, rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(new_p, p_ref)
+    np.testing.assert_allclose(new_q, q_ref, rtol=0, atol=1e-15)
+
+
+def test_contact_targets_match_numpy():
+    rng = np.random.default_rng(2)
+    n, c, h = 50, 400, 1.0 / 240.0
+    ia, ib, ra, rb, normal = _contacts(rng, n, c)
+    gap = rng.normal(scale=1e-3, size=c)
+    shift, shift_rotation = 1e-3 * rng.normal(size=(n, 3)), 1e-2 * rng.normal(size=(n, 3))
+    target = contact_targets(ia, ib, ra, rb, normal, gap, shift, shift_rotation, h)
+
+    ib0 = np.maximum(ib, 0)
+    moved = shift[ia] + np.cross(shift_rotation[ia], ra)
+    moved_b = np.where((ib >= 0)[:, None], shift[ib0] + np.cross(shift_rotation[ib0], rb), 0.0)
+    shift_n = np.einsum("ck,ck->c", moved - moved_b, normal)
+    np.testing.assert_allclose(target, -(np.maximum(gap, 0.0) + shift_n) / h, rtol=1e-13, atol=1e-13)
+
+
+def _time_of_impact(gap, vn, an, h):
+    """The numpy form: first time in [0, inf) at which gap + vn t + an t^2 / 2 reaches 0."""
+    g = np.maximum(gap, 0.0)
+    disc = vn * vn - 2.0 * an * g
+    den = np.sqrt(np.maximum(disc, 0.0)) - vn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where((disc >= 0) & (den > 0), 2.0 * g / den, np.inf)
+    return np.where(gap <= 0, 0.0, tau)
+
+
+def test_impact_kinematics_match_numpy():
+    """Times of impact of closing, opening, touching and accelerating contacts, and the approach
+    speed at that time, as rigid.resolve computed them with numpy."""
+    rng = np.random.default_rng(3)
+    n, c, h = 40, 500, 1.0 / 240.0
+    ia, ib, ra, rb, normal = _contacts(rng, n, c)
+    gap = rng.normal(scale=1e-2, size=c)
+    gap[::7] = 0.0
+    v, w, accel = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(scale=10, size=(n, 3))
+    tau, approach = impact_kinematics(ia, ib, ra, rb, normal, gap, v, w, accel, h)
+
+    ib0 = np.maximum(ib, 0)
+    vn = normal_velocity(ia, ib, ra, rb, normal, v, w)
+    accel_b = np.where((ib >= 0)[:, None], accel[ib0], 0.0)
+    an = np.einsum("ck,ck->c", accel[ia] - accel_b, normal)
+    tau_ref = _time_of_impact(gap, vn, an, h)
+    assert np.isinf(tau_ref).any() and (tau_ref == 0).any() and ((tau_ref > 0) & (tau_ref < h)).any()
+    np.testing.assert_array_equal(np.isinf(tau), np.isinf(tau_ref))
+    np.testing.assert_array_equal(tau == 0, tau_ref == 0)
+    np.testing.assert_allclose(tau, tau_ref, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(approach, -(vn + an * np.minimum(tau_ref, h)), rtol=1e-13,
+                               atol=1e-13)
+
+
+def test_arms_and_normal_velocity_match_numpy():
+    rng = np.random.default_rng(4)
+    n, c = 30, 200
+    ia, ib, _, _, normal = _contacts(rng, n, c)
+    point, x, v, w = (rng.normal(size=(m, 3)) for m in (c, n, n, n))
+    ra, rb = arms(ia, ib, point, x)
+    np.testing.assert_array_equal(ra, point - x[ia])
+    np.testing.assert_array_equal(rb, np.where((ib >= 0)[:, None], point - x[np.maximum(ib, 0)], 0.0))
+    vel = lambda i, r: np.where((i >= 0)[:, None], v[np.maximum(i, 0)] + np.cross(w[np.maximum(i, 0)], r), 0.0)
+    vn = normal_velocity(ia, ib, ra, rb, normal, v, w)
+    np.testing.assert_allclose(vn, np.einsum("ck,ck->c", vel(ia, ra) - vel(ib, rb), normal),
+                               rtol=1e-14, atol=1e-14)
+
+
+def test_rigid_only_solve_matches_the_solve_with_particle_branches():
+    """pgs compiles its sweeps twice, with the particle branches pruned when no solver body is a
+    particle: both give the same impulses and velocities, bit for bit, on a rigid problem."""
+    from rigid.solver import _pgs
+    rng = np.random.default_rng(5)
+    n, c = 20, 120
+    ia, ib, _, _, normal = _contacts(rng, n, c)
+    ib = np.where(ib == ia, -1, ib)
+    ra, rb = 0.1 * rng.normal(size=(c, 3)), 0.1 * rng.normal(size=(c, 3))
+    inv_mass = rng.uniform(0.5, 2.0, n)
+    q, _, inv_inertia, _ = _bodies(rng, n)
+    invI = _world(quat.to_matrix(q), inv_inertia)
+    target, mu = rng.normal(size=c), rng.uniform(0.0, 1.0, c)
+    scale_a, scale_b = (rng.random(c) < 0.8).astype(float), np.ones(c)
+    active = rng.random(c) < 0.9
+    v0, w0, lam0 = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), np.abs(rng.normal(size=(c, 3)))
+    groups = (np.full(n, -1), np.eye(3)[None], np.zeros(n + 1, np.int64), np.zeros(1, np.int64),
+              np.zeros((1, 3, 3)), np.full((n, 3), -1), np.zeros((n, 3)))
+    results = []
+    for g in (None, groups):
+        v, w, lam = v0.copy(), w0.copy(), lam0.copy()
+        out = _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_mass,
+                   invI, v, w, 15, g, True)
+        results.append((out, v, w, lam))
+    assert np.isfinite(results[0][0][active]).all() and np.abs(results[0][1] - v0).max() > 1e-3
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_combined_coefficients_match_numpy():
+    """Friction and restitution of contacts with bodies and planes, combined in one pass as
+    combine_friction / combine_restitution do."""
+    from rigid.contacts import _combined, combine_friction, combine_restitution
+    rng = np.random.default_rng(6)
+    body_mu, body_e, plane_mu, plane_e = (rng.random(m) for m in (8, 8, 3, 3))
+    b = rng.integers(-3, 8, 300)
+    mu_a, e_a = rng.random(300), rng.random(300)
+    mu, e = _combined(b, mu_a, e_a, body_mu, body_e, plane_mu, plane_e)
+    plane = np.maximum(-1 - b, 0)
+    mu_b = np.where(b < 0, plane_mu[plane], body_mu[np.maximum(b, 0)])
+    e_b = np.where(b < 0, plane_e[plane], body_e[np.maximum(b, 0)])
+    np.testing.assert_array_equal(mu, combine_friction(mu_a, mu_b))
+    np.testing.assert_array_equal(e, combine_restitution(e_a, e_b))
