@@ -154,15 +154,21 @@ class ImpactWatch:
         m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
         spacing = self._node_spacing(m)
-        c, approach = _contacts(model, old, state, j, CLOSE * spacing)
+        c = _near(model, state, j, CLOSE * spacing)
+        partners = {int(p): model.names[int(model.rigid_ids[p])] if p >= 0 else "plane"
+                    for p in np.unique(c.body_b)}
+        touching.update((name, p) for p in partners.values())
+        # resting contact (the common case) is not new: nothing more to do
+        began = [p for p, p_name in partners.items() if (name, p_name) not in self.touching
+                 and not _same_body(model, j, p)]
+        if not began:
+            return []
+        approach = _approach(model, old, state, j, c)
         out = []
-        for partner in np.unique(c.body_b):
-            on = c.body_b == partner
+        for partner in began:
+            partner_name, on = partners[partner], c.body_b == partner
             speed = float(approach[on].max())
-            partner_name = model.names[int(model.rigid_ids[partner])] if partner >= 0 else "plane"
-            touching.add((name, partner_name))
-            if (name, partner_name) in self.touching or not _relevant(m, body, speed) \
-                    or _same_body(model, j, int(partner)):
+            if not _relevant(m, body, speed):
                 continue
             normal = c.normal[int(np.argmax(np.where(on, approach, -np.inf)))]
             extent = float(np.ptp(s1.x @ normal))
@@ -207,18 +213,20 @@ class ImpactWatch:
         self.touching = {tuple(pair) for pair in snapshot["touching"]}
 
 
-def _contacts(model, old, state, j, margin):
+def _near(model, state, j, margin):
     """Contacts (rigid.contacts.Contacts) of FEM body ``j``'s surface nodes at the step's end with
-    rigid bodies and planes within ``margin`` m (body_a: the index into its surface nodes), and
-    each one's speed of approach (c,) m/s at the step's start (the node's velocity against the
-    partner's at the contact point, along the normal)."""
+    rigid bodies and planes within ``margin`` m (body_a: the index into its surface nodes)."""
     rm, rs = model.rigid, state.rigid
-    m, s0, s1 = model.fem[j], old.fem[j], state.fem[j]
-    nodes = m.surface_nodes
-    k = len(nodes)
+    k = len(model.fem[j].surface_nodes)
     R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
-    c = detect_points(rm, rs.position, R, s1.x[nodes], np.zeros(k), np.zeros(rm.body_count),
-                      margin, np.zeros(k), np.zeros(k))
+    return detect_points(rm, rs.position, R, state.fem[j].x[model.fem[j].surface_nodes],
+                         np.zeros(k), np.zeros(rm.body_count), margin, np.zeros(k), np.zeros(k))
+
+
+def _approach(model, old, state, j, c):
+    """Speed of approach (c,) m/s of contacts ``c`` (:func:`_near`) at the step's start: the
+    node's velocity against the partner's at the contact point, along the normal."""
+    rm, rs = model.rigid, state.rigid
     v_partner = np.zeros((c.count, 3))
     if rm.body_count and c.count:
         rigid = c.body_b >= 0
@@ -226,7 +234,8 @@ def _contacts(model, old, state, j, margin):
         v_rigid = reported_velocity(rm, old.rigid, model.gravity)
         w_rigid = angular_velocity(rm, old.rigid)
         v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
-    return c, -np.einsum("ci,ci->c", s0.v[nodes[c.body_a]] - v_partner, c.normal)
+    v_node = old.fem[j].v[model.fem[j].surface_nodes[c.body_a]]
+    return -np.einsum("ci,ci->c", v_node - v_partner, c.normal)
 
 
 def _same_body(model, j, partner):
