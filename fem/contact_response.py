@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from .dynamics import apply_impulse, system_factorisation
-from .step_kernels import rotate_back
+from .step_kernels import block_rows, rotate_back
 
 # memory the response columns of one model may keep for applying impulses as a product (each node
 # keeps 3 x 3n floats); nodes beyond it apply their impulses by back-substitution instead
@@ -115,9 +115,9 @@ def _solve_columns(model, dt, nodes):
     """A^-1 columns (3n, 3 len(nodes)) for unit impulses at ``nodes`` (body frame)."""
     n3 = 3 * model.node_count
     dofs = (3 * np.asarray(nodes)[:, None] + np.arange(3)).ravel()
-    out = np.zeros((n3, len(dofs)))
     fact = system_factorisation(model, dt)
     if model.anchored:
+        out = np.zeros((n3, len(dofs)))
         free_index = -np.ones(n3, dtype=np.int64)
         free_index[model.free_dofs] = np.arange(len(model.free_dofs))
         cols = np.nonzero(free_index[dofs] >= 0)[0]       # held DOFs do not respond
@@ -127,7 +127,7 @@ def _solve_columns(model, dt, nodes):
     else:
         rhs = np.zeros((n3, len(dofs)))
         rhs[dofs, np.arange(len(dofs))] = 1.0
-        out[:] = fact.solve(rhs).reshape(n3, -1)
+        out = fact.solve(rhs).reshape(n3, -1)
     return out
 
 
@@ -192,17 +192,15 @@ def delassus_block(model, dt, nodes, report=None, scale=1.0):
     nodes = np.asarray(nodes, dtype=np.int64)
     if cache.block is not None and np.array_equal(cache.block[0], nodes) and cache.block[1] == scale:
         return cache.block[2]
-    k = len(nodes)
     new = nodes[cache.slot[nodes] < 0]
     if len(new):
         if 72.0 * (len(cache.known) + len(new)) ** 2 > MAX_BLOCK_BYTES:
             cache.keep_only(nodes)
         cache.reserve(len(cache.known) + len(new))
         _learn(model, dt, cache, new, nodes, report)
-    dofs = (3 * cache.slot[nodes][:, None] + np.arange(3)).ravel()
-    # (k, 3, k, 3) -> (k, k, 3, 3): block [l, i] = velocity of node l per impulse on node i
-    W = cache.W[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
-    W = sparse_rows(scale * np.ascontiguousarray(W))
+    # block [l, i] = velocity of node l per impulse on node i, as the rows of :func:`sparse_rows`
+    # read straight from the dense block (a first contact of 1,346 nodes: 130 MB copied 3 times)
+    W = block_rows(cache._W, cache.slot[nodes], float(scale), DROP_TOL)
     cache.block, cache.block_columns = (nodes.copy(), scale, W), None
     return W
 

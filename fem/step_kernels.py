@@ -67,3 +67,49 @@ def rotate_back(v_b, R):
         for a in range(3):
             out[i, a] = R[a, 0] * b0 + R[a, 1] * b1 + R[a, 2] * b2
     return out
+
+
+@nb.njit(cache=True)
+def block_rows(W, slots, scale, tol):
+    """The Delassus matrix of the nodes at ``slots`` (k,) of a dense inverse-system block ``W``
+    (3m, 3m) (node i's rows and columns ``3 slots[i] .. 3 slots[i] + 2``), times ``scale``, as
+    block rows without its negligible blocks: ``(ptr (k + 1,), col (nnz,), blocks (nnz, 3, 3))``,
+    row l holding blocks [l, col[p]] for p in ptr[l]..ptr[l+1]-1, its diagonal block first, then
+    the others by column. Block [l, i] is kept when its Frobenius norm exceeds ``tol`` times the
+    geometric mean of those of the diagonal blocks [l, l] and [i, i]
+    (fem.contact_response.sparse_rows, without building the dense (k, k, 3, 3) array first)."""
+    k = len(slots)
+    norm = np.empty((k, k))
+    for l in range(k):
+        for i in range(k):
+            s = 0.0
+            for a in range(3):
+                for b in range(3):
+                    w = scale * W[3 * slots[l] + a, 3 * slots[i] + b]
+                    s += w * w
+            norm[l, i] = np.sqrt(s)
+    d = np.empty(k)
+    for l in range(k):
+        d[l] = np.sqrt(norm[l, l])
+    ptr = np.zeros(k + 1, dtype=np.int64)
+    for l in range(k):
+        count = 1
+        for i in range(k):
+            if i != l and norm[l, i] > tol * (d[l] * d[i]):
+                count += 1
+        ptr[l + 1] = ptr[l] + count
+    col = np.empty(ptr[k], dtype=np.int64)
+    blocks = np.empty((ptr[k], 3, 3))
+    for l in range(k):
+        p = ptr[l]
+        col[p] = l
+        for i in range(-1, k):
+            if i >= 0 and (i == l or not norm[l, i] > tol * (d[l] * d[i])):
+                continue
+            c = l if i < 0 else i
+            for a in range(3):
+                for b in range(3):
+                    blocks[p, a, b] = scale * W[3 * slots[l] + a, 3 * slots[c] + b]
+            col[p] = c
+            p += 1
+    return ptr, col, blocks

@@ -231,3 +231,27 @@ def test_fit_moment_gives_the_best_fit_frame_of_shape_matching(seed):
     np.testing.assert_allclose(c, want_c, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(A, np.einsum("i,ij,ik->jk", w, x - want_c, offsets), rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(rotation_of(A), want_R, rtol=1e-12, atol=1e-13)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_block_rows_match_the_sparse_rows_of_the_dense_delassus_matrix(seed):
+    from fem import contact_response, step_kernels
+    rng = np.random.default_rng(seed)
+    m, k = 40, 25
+    # a symmetric inverse-system block whose entries fall off with the distance between nodes,
+    # so that some blocks drop below the tolerance; two nodes anchored (no response)
+    points = rng.uniform(0, 1, (m, 3))
+    falloff = np.exp(-30 * np.linalg.norm(points[:, None] - points[None], axis=2))
+    B = rng.standard_normal((3 * m, 3 * m)) * np.kron(falloff, np.ones((3, 3)))
+    W_full = B @ B.T
+    W_full[:6] = W_full[:, :6] = 0.0
+    slots = rng.choice(m, k, replace=False)
+    scale = rng.uniform(0.5, 1.0)
+    dofs = (3 * slots[:, None] + np.arange(3)).ravel()
+    dense = W_full[np.ix_(dofs, dofs)].reshape(k, 3, k, 3).transpose(0, 2, 1, 3)
+    want = contact_response.sparse_rows(scale * np.ascontiguousarray(dense), tol=1e-3)
+    got = step_kernels.block_rows(W_full, slots, scale, 1e-3)
+    assert 0 < len(want[1]) < k * k                     # some blocks dropped, some kept
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_array_equal(got[2], want[2])
