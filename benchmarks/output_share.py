@@ -13,7 +13,8 @@ ways, interleaved, ``--repeats`` times:
 - ``thread``: the same files written by the writer thread (the default).
 
 The output share of a way is (median wall with output - median wall of ``none``) / median wall
-with output. Also printed: the stepping thread's own time in the output calls (the frame's
+with output; its CPU share the same with the process's CPU time (all threads), steadier when
+other jobs load the machine. Also printed: the stepping thread's own time in the output calls (the frame's
 fields and rows computed in ``hybrid.app.observe``, and ``write_frame`` / ``write_regions`` /
 ``close``), which the writer thread cannot take over. The goal line takes the larger share of the
 two scenes with the writer thread.
@@ -104,20 +105,21 @@ class OutputClock:
 
 
 def one_run(scene_file, way, out_dir):
-    """``(wall s of Simulation.run, s the stepping thread spent in output calls)``."""
+    """``(wall s of Simulation.run, its process CPU s (all threads), s the stepping thread spent
+    in output calls)``."""
     sim = Simulation.from_toml(scene_file)
     writer = functools.partial(ResumableWriter, background=(way == "thread"))
     saved = run_module.ResumableWriter
     run_module.ResumableWriter = writer
     try:
         with OutputClock() as clock:
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             sim.run(out=None if way == "none" else out_dir, progress=False, log=lambda message: None,
                     checkpoint_every=0)
-            wall = time.perf_counter() - start
+            wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     finally:
         run_module.ResumableWriter = saved
-    return wall, clock.seconds
+    return wall, cpu, clock.seconds
 
 
 def main(argv=None):
@@ -133,28 +135,34 @@ def main(argv=None):
         for label, scene in scenes.items():
             one_run(scene, "thread", work / "warm")            # numba caches and imports loaded
             walls = {w: [] for w in ways}
+            cpus = {w: [] for w in ways}
             inside = {w: [] for w in ways}
             for _ in range(args.repeats):
                 for way in ways:
-                    wall, spent = one_run(scene, way, work / f"{label}_{way}")
+                    wall, cpu, spent = one_run(scene, way, work / f"{label}_{way}")
                     walls[way].append(wall)
+                    cpus[way].append(cpu)
                     inside[way].append(spent)
             sim = Simulation.from_toml(scene)
             simulated = sim.scene.simulation.duration
             base = statistics.median(walls["none"])
+            base_cpu = statistics.median(cpus["none"])
             print(f"\n{label}: {simulated:g} s simulated, {sim.scene.simulation.output_fps:g} frames/s, "
                   f"{args.repeats} runs of each way (medians; machine shared with other jobs)")
-            print(f"  {'way':8s} {'wall s':>8s} {'s/sim s':>8s} {'output share':>13s} "
-                  f"{'stepping thread in output calls':>32s}")
+            print(f"  {'way':8s} {'wall s':>8s} {'s/sim s':>8s} {'output share':>13s} {'CPU s':>7s} "
+                  f"{'CPU share':>10s} {'stepping thread in output calls':>32s}")
             for way in ways:
                 wall = statistics.median(walls[way])
                 share = (wall - base) / wall if way != "none" else 0.0
+                cpu = statistics.median(cpus[way])
+                cpu_share = (cpu - base_cpu) / cpu if way != "none" else 0.0
                 spent = statistics.median(inside[way])
-                print(f"  {way:8s} {wall:8.3f} {wall / simulated:8.3f} {share:13.3f} "
-                      f"{spent:9.3f} s ({spent / wall:.3f} of the run)")
+                print(f"  {way:8s} {wall:8.3f} {wall / simulated:8.3f} {share:13.3f} {cpu:7.3f} "
+                      f"{cpu_share:10.3f} {spent:9.3f} s ({spent / wall:.3f} of the run)")
                 rows.append({"scene": label, "way": way, "repeats": args.repeats,
                              "wall_median_s": wall, "wall_per_simulated_s": wall / simulated,
-                             "output_share": share, "stepping_thread_output_s": spent,
+                             "output_share": share, "cpu_median_s": cpu, "cpu_share": cpu_share,
+                             "stepping_thread_output_s": spent,
                              "walls": " ".join(f"{w:.4f}" for w in walls[way])})
                 if way == "thread":
                     shares[label] = share

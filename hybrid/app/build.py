@@ -61,7 +61,7 @@ def _build_rigid(bodies, planes, index):
 def build(scene, warm=True):
     """HybridModel and initial HybridState of ``scene``; with ``warm``, after :func:`warm_up`."""
     model, state = _build(scene)
-    if warm:
+    if warm and not _warming:
         warm_up(scene)
     return model, state
 
@@ -92,10 +92,13 @@ def _build(scene):
 # -- warm-up of the compiled kernels -----------------------------------------------------------
 log = logging.getLogger(__name__)
 
-# The warm-up kinds already stepped in this process (numba keeps what it compiled or loaded).
+# The warm-up kinds already stepped in this process (numba keeps what it compiled or loaded), and
+# whether a warm-up is under way (its own scene is not warmed up).
 _WARMED = set()
+_warming = False
 WARM_STEPS = 3
 _WARM_SIZE = 0.1        # m, edge of a warm-up FEM box (2 x 2 x 2 cells)
+_WARM_VELOCITY = [0.0, 0.0, -0.2]       # m/s, of every warm-up body: an impact at the first step
 _GEOMETRY_KEYS = ("name", "shape", "mesh", "position", "orientation", "velocity", "angular_velocity",
                   "anchors", "loads", "unbreakable", "fixed")
 
@@ -127,7 +130,8 @@ def _warm_kinds(scene):
 def _warm_scene(scene, kinds):
     """The scene data of the warm-up: per FEM kind a 0.1 m box resting on the ground (a rigid box
     resting on it when the scene has rigid bodies), per rigid shape a small body resting on the
-    ground (a box on a box), all touching from the start."""
+    ground (a box on a box), all touching from the start and moving into each other (so that
+    impacts as well as resting contacts are met)."""
     h = _WARM_SIZE
     rigid_shapes = [k[1] for k in kinds if k[0] == "rigid"]
     bodies, x = [], 0.0
@@ -135,7 +139,7 @@ def _warm_scene(scene, kinds):
         if key[0] != "fem":
             continue
         table = {k: v for k, v in raw.items() if k not in _GEOMETRY_KEYS}
-        table |= {"name": f"fem{len(bodies)}", "position": [x, 0.0, 0.5 * h],
+        table |= {"name": f"fem{len(bodies)}", "position": [x, 0.0, 0.5 * h], "velocity": _WARM_VELOCITY,
                   "shape": {"type": "box", "size": [h, h, h], "resolution": 0.5 * h}}
         if key[2]:
             table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
@@ -146,7 +150,7 @@ def _warm_scene(scene, kinds):
         if rigid_shapes:
             bodies.append({"name": f"on_fem{len(bodies)}", "density": 100.0,
                            "shape": {"type": "box", "size": [0.5 * h] * 3},
-                           "position": [x, 0.0, 1.25 * h]})
+                           "position": [x, 0.0, 1.25 * h], "velocity": _WARM_VELOCITY})
         x += 2 * h
     for shape in rigid_shapes:
         size = {"box": {"size": [0.5 * h] * 3}, "sphere": {"radius": 0.25 * h},
@@ -154,10 +158,10 @@ def _warm_scene(scene, kinds):
                 "cylinder": {"radius": 0.25 * h, "height": 0.5 * h}}[shape]
         low = 0.25 * h if shape != "capsule" else 0.1 * h
         bodies.append({"name": f"rigid_{shape}", "density": 100.0, "shape": {"type": shape} | size,
-                       "position": [x, 0.0, low]})
+                       "position": [x, 0.0, low], "velocity": _WARM_VELOCITY})
         if shape == "box":
             bodies.append({"name": "rigid_box_on_box", "density": 100.0, "shape": {"type": "box"} | size,
-                           "position": [x, 0.0, 0.75 * h]})
+                           "position": [x, 0.0, 0.75 * h], "velocity": [0.0, 0.0, -0.4]})
         x += 2 * h
     sim = scene.raw.get("simulation", {})
     data = {"simulation": {k: v for k, v in sim.items() if k in ("dt", "solver")} | {"name": "warm_up"},
@@ -171,14 +175,17 @@ def _warm_scene(scene, kinds):
 
 
 def warm_up(scene):
-    """Compile, or load from numba's on-disk cache, the kernels stepping ``scene`` calls: build
-    and step (:data:`WARM_STEPS` steps) a tiny scene with one small body of each of its kinds of
-    FEM body and rigid shape, resting on the ground and on each other. Kinds warmed once in a
-    process are not warmed again, and none is with the environment variable
-    ``HYBRID_NO_WARM_UP=1``. Never raises: a warm-up that fails leaves the compilation to the step
-    loop (logged at debug level). Returns the seconds it took."""
+    """Compile, or load from numba's on-disk cache, the kernels running ``scene`` calls: run
+    (:class:`hybrid.simulation.Simulation`, :data:`WARM_STEPS` steps, no output folder, then the
+    fields of a frame) a tiny scene with one small body of each of its kinds of FEM body and
+    rigid shape, resting on the ground and on each other. Kinds warmed once in a process are not
+    warmed again, and none is with the environment variable ``HYBRID_NO_WARM_UP=1``. Never
+    raises: a warm-up that fails leaves the compilation to the step loop (logged at debug
+    level). Returns the seconds it took."""
+    global _warming
+    from hybrid.app.observe import frame_pieces
     from hybrid.app.scene import parse_scene
-    from hybrid.coupling.step import advance
+    from hybrid.simulation import Simulation
 
     if os.environ.get("HYBRID_NO_WARM_UP", "") not in ("", "0"):
         return 0.0
@@ -186,13 +193,16 @@ def warm_up(scene):
     if not any(k[0] in ("fem", "rigid") for k in kinds):
         return 0.0
     start = time.perf_counter()
+    _warming = True
     try:
-        data = _warm_scene(scene, kinds)
-        model, state = _build(parse_scene(data, "<warm-up>", "."))
+        sim = Simulation(parse_scene(_warm_scene(scene, kinds), "<warm-up>", "."))
         with np.errstate(all="ignore"):
-            for _ in range(WARM_STEPS):
-                model, state, _ = advance(model, state)
+            sim.run(until=WARM_STEPS * sim.dt, progress=False, log=lambda message: None,
+                    checkpoint_every=0)
+            frame_pieces(sim.model, sim.state)
     except Exception as error:      # noqa: BLE001 (an optimisation: never stops a run)
         log.debug("kernel warm-up skipped: %s", error)
+    finally:
+        _warming = False
     _WARMED.update(kinds)
     return time.perf_counter() - start
