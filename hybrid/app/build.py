@@ -103,12 +103,18 @@ _GEOMETRY_KEYS = ("name", "shape", "mesh", "position", "orientation", "velocity"
                   "anchors", "loads", "unbreakable", "fixed")
 
 
+# The scene fields of an FEM or auto body that choose which kernels its step calls: by value
+# (choices) or by whether they are given (optional physics).
+_KIND_CHOICES = ("model", "frame", "order", "integrator", "mass_matrix", "fragment_model")
+_KIND_GIVEN = ("yield_stress", "fracture_stress", "tearing_strain", "max_plastic_strain", "damping")
+
+
 def _fem_kind(raw):
-    """What decides which kernels an FEM or auto body's step calls: the choices of its scene table
-    (model, frame, order, integrator, ...) and which optional fields it gives (yield_stress,
-    fracture_stress, damping, ...), not their values; and whether it is held or loaded."""
-    kept = {k: (v if isinstance(v, str) else True) for k, v in raw.items() if k not in _GEOMETRY_KEYS}
-    return repr(sorted(kept.items())), bool(raw.get("anchors")), bool(raw.get("loads"))
+    """What decides which kernels an FEM or auto body's step calls: its choices (model, frame,
+    order, integrator, ...), which optional physics it has (plasticity, fracture, ...), not their
+    values, and whether it is held or loaded."""
+    return (tuple(raw.get(k) for k in _KIND_CHOICES), tuple(k in raw for k in _KIND_GIVEN),
+            bool(raw.get("anchors")), bool(raw.get("loads")))
 
 
 def _warm_kinds(scene):
@@ -141,9 +147,9 @@ def _warm_scene(scene, kinds):
         table = {k: v for k, v in raw.items() if k not in _GEOMETRY_KEYS}
         table |= {"name": f"fem{len(bodies)}", "position": [x, 0.0, 0.5 * h], "velocity": _WARM_VELOCITY,
                   "shape": {"type": "box", "size": [h, h, h], "resolution": 0.5 * h}}
-        if key[2]:
-            table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
         if key[3]:
+            table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
+        if key[4]:
             table["loads"] = [{"box": [[-1.0, -1.0, 0.5 * h - 1e-6], [1.0, 1.0, 0.5 * h + 1e-6]],
                                "force": [0.0, 0.0, -1e-3]}]
         bodies.append(table)
