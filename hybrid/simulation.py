@@ -23,6 +23,10 @@ from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hi
 from .app.scene import SceneError, load_scene
 from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
+from .coupling.substep import advance_in_substeps
+
+# most sub-steps a step with an impact is taken in (a scene's resolve_impacts)
+MAX_SUBSTEPS = 64
 from .scenes import builtin_path
 
 
@@ -130,7 +134,8 @@ class Simulation:
         body's largest stresses and plastic strain over every step) and :attr:`impacts`
         (:class:`hybrid.app.resolution.ImpactWatch`, under-resolved impacts: its ``warnings``,
         once per body and kind; the run log gets each as it is found)."""
-        self.peaks, self.impacts, self._said = Peaks(), ImpactWatch(), []
+        most = MAX_SUBSTEPS if getattr(self.scene.simulation, "resolve_impacts", False) else 1
+        self.peaks, self.impacts, self._said = Peaks(), ImpactWatch(most), []
 
     def step(self):
         """Advance every body by one time step, with the events due (reference-shape updates,
@@ -140,8 +145,22 @@ class Simulation:
         if not hasattr(self, "peaks"):          # made by resume, without __init__
             self._watch()
         self._before = (self.model, self.state)
-        self.model, self.state, happened = advance(self.model, self.state, self.timings,
-                                                   self._took)
+        count = self.impacts.substeps_now(self.time)       # an impact under way: sub-steps
+        if count == 1:
+            kept = (dict(self.fem_time), self.stepped_time, self.peaks.snapshot())
+            model, state, happened = advance(self.model, self.state, self.timings, self._took)
+            count = self.impacts.substeps_needed(self.model.dt, state.time)
+            if count > 1:
+                # an impact shorter than the step began in it: the step again, in sub-steps
+                # (what the first try counted is forgotten; its warnings were judged against
+                # the sub-steps)
+                self.fem_time, self.stepped_time, peaks = kept
+                self.peaks.restore(peaks)
+        if count > 1:
+            model, state, happened = advance_in_substeps(self.model, self.state, count,
+                                                         self.timings, self._took)
+            self.impacts.substepped_step(count, self.model.dt)
+        self.model, self.state = model, state
         self.events.extend(happened)
         return happened
 

@@ -177,3 +177,28 @@ box = [[-0.2, -1, -1], [-0.1499, 1, 1]]
     # Euler-Bernoulli: w L^4 / (8 E I) under its own weight
     exact = -7800.0 * 9.81 * 0.05 * 0.01 * 0.3 ** 4 / (8 * 2e11 * 0.05 * 0.01 ** 3 / 12)
     assert tip / exact == pytest.approx(1.0, abs=0.02)
+
+
+# resolve_impacts: the steps of an impact taken in sub-steps (issue 23)
+
+def test_substepped_slab_cracks_as_a_run_at_the_small_step(sim):
+    # at dt = 0.5 ms the slab's impact (34 us) is spread over a step: 1.9 MPa, no crack; taken
+    # in sub-steps a quarter of the impact long while it lasts, it cracks as a run at that step
+    near = SLAB.replace("position = [0.0, 0.0, 0.034]", "position = [0.0, 0.0, 0.0305]")
+    coarse = sim(near.replace("dt = 5e-4", "dt = 5e-4\nresolve_impacts = true"))
+    summary, lines = run(coarse, 5e-4)
+    assert summary["substeps"]["steps"] == 1
+    h = summary["substeps"]["smallest_dt"]
+    tau = 2 * 0.06 / np.sqrt(30e9 / 2400.0)
+    assert h == pytest.approx(5e-4 / np.ceil(5e-4 * STEPS_PER_IMPACT / tau))
+    assert summary["impact_warnings"] == []          # resolved: nothing to say
+    assert coarse.steps == 1 and coarse.time == pytest.approx(5e-4)
+    fine = sim(near.replace("dt = 5e-4", f"dt = {h!r}")).advance(5e-4)
+    plain = sim(near).advance(5e-4)
+    cracks = [sum(getattr(e, "cracks", 0) for e in s.events) for s in (coarse, fine, plain)]
+    assert cracks[0] > 0 and cracks[2] == 0
+    assert cracks[0] == cracks[1]
+    assert len(coarse.body_names) == len(fine.body_names)
+    peak = coarse.peaks.as_dict()["slab"]["principal_stress"]["value"]
+    assert peak == pytest.approx(fine.peaks.as_dict()["slab"]["principal_stress"]["value"], rel=1e-6)
+    assert peak > 2 * plain.peaks.as_dict()["slab"]["principal_stress"]["value"]

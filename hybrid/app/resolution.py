@@ -117,16 +117,52 @@ class ImpactWatch:
     """Watches a run's steps for under-resolved impacts (see the module). ``check`` returns the
     new warnings; ``warnings`` keeps every one (at most one per scene body and kind)."""
 
-    def __init__(self):
+    def __init__(self, max_substeps=1):
         self.warnings = []
         self._spacing = {}
         self.touching = set()       # (FEM body, partner) names in contact at the last step seen
+        # sub-stepping of impact steps (the scene's resolve_impacts): at most this many sub-steps
+        # per step; step_tau: the shortest impact (s) that began in the last step checked and is
+        # shorter than it, else None; substepped: what sub-stepping did so far (the summary's)
+        self.max_substeps = max_substeps
+        self.step_tau = None
+        self.resolving = None       # (until s, sub-steps): an impact under way is sub-stepped
+        self.substepped = {"steps": 0, "substeps": 0, "smallest_dt": None}
+
+    def substeps_needed(self, dt, end):
+        """Sub-steps the last step checked (ending at time ``end`` s) should be taken in (1:
+        none): enough that its shortest impact spans STEPS_PER_IMPACT of them, at most
+        ``max_substeps``. The steps that follow until the impact is over (``end`` plus its
+        duration) are to be sub-stepped as well (:meth:`substeps_now`)."""
+        if self.step_tau is None or self.max_substeps <= 1:
+            return 1
+        count = int(min(self.max_substeps, np.ceil(dt * STEPS_PER_IMPACT / self.step_tau - 1e-9)))
+        until, most = self.resolving if self.resolving is not None else (end, count)
+        self.resolving = (max(until, end + self.step_tau), max(most, count))
+        return count
+
+    def substeps_now(self, time):
+        """Sub-steps a step starting at ``time`` s is taken in because an impact is under way
+        (1: none is)."""
+        if self.resolving is None or time >= self.resolving[0]:
+            self.resolving = None
+            return 1
+        return self.resolving[1]
+
+    def substepped_step(self, count, dt):
+        """Count a step of ``dt`` s taken in ``count`` sub-steps (the summary's ``substeps``)."""
+        done = self.substepped
+        done["steps"] += 1
+        done["substeps"] += count
+        h = dt / count
+        done["smallest_dt"] = h if done["smallest_dt"] is None else min(done["smallest_dt"], h)
 
     def check(self, before, model, state):
         """New :class:`ImpactWarning` of the step from ``before`` (the coupled ``(model, state)``
         at its start) to ``state`` (``model``: the model it was taken with). Steps taken with
         another model than they started with (an auto body turned deformable) are skipped."""
         old_model, old = before
+        self.step_tau = None
         if old_model is not model or not model.fem or old.fem is None or len(old.fem) != len(model.fem):
             return []
         rm = model.rigid
@@ -137,8 +173,6 @@ class ImpactWatch:
         new, touching = [], set()
         for j, (m, s0, s1) in enumerate(zip(model.fem, old.fem, state.fem)):
             scene_body = model.scene.bodies[origin[int(model.fem_ids[j])]]
-            if (scene_body.name, "space") in warned and (scene_body.name, "time") in warned:
-                continue
             for found in self._impacts(model, old, state, j, scene_body, touching):
                 if (found.body, found.kind) not in warned:
                     warned.add((found.body, found.kind))
@@ -182,7 +216,9 @@ class ImpactWatch:
             nodes_on = int(np.unique(c.body_a[on & (c.gap < TOUCH * spacing)]).size)
             where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
-            out += _judged(impact, where, spacing, nodes_on, model.dt, extent,
+            if impact.tau < model.dt:
+                self.step_tau = min(impact.tau, self.step_tau or np.inf)
+            out += _judged(impact, where, spacing, nodes_on, (model.dt, self.max_substeps), extent,
                            (body.name, state.time, partner_name, speed))
         return out
 
@@ -205,12 +241,16 @@ class ImpactWatch:
         """Plain data a checkpoint keeps: the warnings so far and the contacts of the last step
         (see :meth:`restore`)."""
         return {"warnings": [w.__dict__.copy() for w in self.warnings],
-                "touching": sorted(list(pair) for pair in self.touching)}
+                "touching": sorted(list(pair) for pair in self.touching),
+                "substepped": dict(self.substepped),
+                "resolving": None if self.resolving is None else list(self.resolving)}
 
     def restore(self, snapshot):
         """Continue from a :meth:`snapshot`."""
         self.warnings = [ImpactWarning(**w) for w in snapshot["warnings"]]
         self.touching = {tuple(pair) for pair in snapshot["touching"]}
+        self.substepped = dict(snapshot["substepped"])
+        self.resolving = None if snapshot["resolving"] is None else tuple(snapshot["resolving"])
 
 
 def _near(model, state, j, margin):
@@ -269,10 +309,12 @@ def _relevant(m, body, speed):
     return speed / c_wave >= ELASTIC_STRAIN
 
 
-def _judged(impact, where, spacing, nodes_on, dt, extent, about):
+def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
     """The warnings an :class:`Impact` deserves: ``where`` opens their messages, ``spacing`` m
-    of the body's surface nodes, ``nodes_on`` of them touch, the step ``dt`` s, the body
-    ``extent`` m along the impact; ``about``: (body, time, partner, speed) of the warnings."""
+    of the body's surface nodes, ``nodes_on`` of them touch, ``stepping``: the step ``dt`` s and
+    the most sub-steps it may be taken in, the body ``extent`` m along the impact; ``about``:
+    (body, time, partner, speed) of the warnings."""
+    dt, most = stepping
     see = "check with `hybrid converge` (docs/studies.md)"
     out = []
     if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
@@ -290,13 +332,14 @@ def _judged(impact, where, spacing, nodes_on, dt, extent, about):
             f"warning: {where}: the contact is carried by {nodes_on} node(s) (an edge or corner "
             f"strikes; nodes {spacing * 1e3:.3g} mm apart), so the stress under it is smeared over "
             f"the elements; refine (resolution {need:.2g} m or finer): {see}"))
-    if dt > impact.tau:
+    if dt / most > impact.tau:
         need = impact.tau / STEPS_PER_IMPACT
         lasts = "two wave transits" if impact.a is None else "contact time, at least two wave transits"
+        step = f"dt = {dt:.2g} s" + (f" even in {most} sub-steps" if most > 1 else "")
         out.append(ImpactWarning(
-            about[0], "time", *about[1:], dt, need,
+            about[0], "time", *about[1:], dt / most, need,
             f"warning: {where}: the impact lasts about {impact.tau:.2g} s ({lasts} across "
-            f"{extent * 1e3:.3g} mm), shorter than the step dt = {dt:.2g} s, so its impulse is "
-            f"spread over the step and its peak stress is lowered about {dt / impact.tau:.0f}x; "
+            f"{extent * 1e3:.3g} mm), shorter than the step {step}, so its impulse is spread over "
+            f"the step and its peak stress is lowered about {dt / most / impact.tau:.0f}x; "
             f"dt = {need:.2g} s would resolve it: {see}"))
     return out

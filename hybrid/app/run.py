@@ -251,6 +251,10 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
                       "and equivalent plastic strain over every step, with the time (s) each was "
                       "reached; written frames show only the output rate's steps",
         "impact_warnings": [] if impacts is None else [w.as_dict() for w in impacts.warnings],
+        "substeps": None if impacts is None or impacts.max_substeps <= 1 else dict(impacts.substepped),
+        "substeps_note": "with resolve_impacts: steps taken in sub-steps because an impact shorter "
+                         "than the step began in them, the sub-steps they took and the shortest "
+                         "sub-step (s); null without resolve_impacts",
         "fracture": {
             "cracks": int(sum(getattr(e, "cracks", 0) for e in events)),
             "bodies_at_end": len(model.names),

@@ -27,6 +27,7 @@ class Simulation:
     dt: float = field_default(SIMULATION, "dt")
     gravity: Vec3 = field_default(SIMULATION, "gravity")
     output_fps: float = field_default(SIMULATION, "output_fps")
+    resolve_impacts: bool = field_default(SIMULATION, "resolve_impacts")
     solver: Solver = Solver()
 
 

@@ -118,6 +118,11 @@ SIMULATION = Section("simulation", "[simulation]",
     _positive("dt", 0.001, "s", "Time step."),
     Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
     _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
+    Field("resolve_impacts", "boolean", False, "", "Take a step in which an impact on a "
+          "deformable body begins, and which is longer than the impact, in sub-steps (up to 64) "
+          "short enough that the impact spans four of them, each followed by its events; then "
+          "the scene's `dt` again (docs/scenes.md, what a run says about it). The summary's "
+          "`substeps` counts them."),
     Field("solver", "table", None, "", "Contact and linear solver settings.", table="simulation.solver",
           default_text="see `[simulation.solver]`"),
 ), rules=("`dt` must be <= `duration`.", "`duration / dt` (the number of steps) must be at most 1e9."))
