@@ -147,7 +147,8 @@ class Simulation:
         self._before = (self.model, self.state)
         count = self.impacts.substeps_now(self.time)       # an impact under way: sub-steps
         if count == 1:
-            kept = (dict(self.fem_time), self.stepped_time, self.peaks.snapshot())
+            kept = (dict(self.fem_time), self.stepped_time,
+                    self.peaks.snapshot() if self.impacts.max_substeps > 1 else None)
             model, state, happened = advance(self.model, self.state, self.timings, self._took)
             count = self.impacts.substeps_needed(self.model.dt, state.time)
             if count > 1:

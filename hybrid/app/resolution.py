@@ -115,7 +115,10 @@ def shape_radius(body):
 
 class ImpactWatch:
     """Watches a run's steps for under-resolved impacts (see the module). ``check`` returns the
-    new warnings; ``warnings`` keeps every one (at most one per scene body and kind)."""
+    new warnings; ``warnings`` keeps every one (at most one per scene body and kind). With
+    ``max_substeps`` > 1 (a scene's ``resolve_impacts``) it also says how many sub-steps a step
+    needs (:meth:`substeps_needed`, :meth:`substeps_now`; hybrid.coupling.substep takes them)
+    and warns in time only about impacts shorter than ``dt / max_substeps``."""
 
     def __init__(self, max_substeps=1):
         self.warnings = []
