@@ -18,15 +18,16 @@ legacy .vtk for Drake, in world coordinates. Ours runs in this process through
 ``hybrid.Simulation`` (a warm-up run first: numba kernels loaded, as Drake's are compiled);
 Drake runs in its own interpreter (Python >= 3.12) through benchmarks/drake_driver.py. Each side
 samples the nodes every 10 steps (lowest z for the ground penetration) and is timed from the
-first step to the last, the model built outside the timing. Reported per case: wall time and
-process CPU time per simulated second, ours / Drake (medians of ``--repeats`` runs); for the
+first step to the last, the model built outside the timing; the runs of the two alternate.
+Reported per case: wall time and process CPU time per simulated second, ours / Drake (medians
+of ``--repeats`` runs; the CPU ratio is the steadier one on a loaded machine); for the
 cantilevers the tip deflection (mean z displacement of the tip face nodes) of both and their
 difference; for the cubes the settled height of the top face, the box's height and the deepest
 ground penetration over the run (positive: below z = 0).
 
-Drake's interpreter: ``--drake-python PATH``, else ``$DRAKE_PYTHON``, else ``python3.13`` /
-``python3.12`` on PATH or ``~/drake-venv/bin/python`` if it imports pydrake. Without one the
-benchmark says so on one line and exits 0. Setting it up: benchmarks/README.md.
+Drake's interpreter: ``--drake-python PATH``, else ``$DRAKE_PYTHON`` (only that one), else the
+first of ``python3.13`` / ``python3.12`` on PATH and ``~/drake-venv/bin/python`` that imports
+pydrake. Without one the benchmark says so on one line (``SKIP drake_compare: ...``) and exits 0. Setting it up: benchmarks/README.md.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/drake_compare.py [--repeats 3] [--cases cube_ground ...]
 """
@@ -156,24 +157,28 @@ def run_drake(python, vtk_path, case, repeats, work):
     return json.loads(result_file.read_text())
 
 
+def imports_pydrake(python):
+    """Whether ``python`` runs and imports pydrake's multibody plant."""
+    try:
+        return subprocess.run([python, "-c", "import pydrake.multibody.plant"], capture_output=True,
+                              timeout=120).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
 def find_drake_python(explicit):
-    """The first interpreter that imports pydrake: ``explicit``, $DRAKE_PYTHON, python3.13,
-    python3.12, ~/drake-venv/bin/python; None if none does."""
-    candidates = [explicit, os.environ.get("DRAKE_PYTHON"), shutil.which("python3.13"),
-                  shutil.which("python3.12"), str(Path.home() / "drake-venv" / "bin" / "python")]
-    for python in candidates:
-        if not python:
-            continue
-        try:
-            ok = subprocess.run([python, "-c", "import pydrake.multibody.plant"], capture_output=True,
-                                timeout=120).returncode == 0
-        except (OSError, subprocess.TimeoutExpired):
-            ok = False
-        if ok:
-            return python
-        if python in (explicit, os.environ.get("DRAKE_PYTHON")):
-            print(f"note: {python} does not import pydrake", file=sys.stderr)
-    return None
+    """``(interpreter or None, where it was looked for)``: the one named by ``explicit`` or
+    $DRAKE_PYTHON if given (only that one), else the first of python3.13, python3.12 and
+    ~/drake-venv/bin/python that imports pydrake."""
+    named = explicit or os.environ.get("DRAKE_PYTHON")
+    if named:
+        return (named if imports_pydrake(named) else None), f"{named} does not import pydrake"
+    candidates = [shutil.which("python3.13"), shutil.which("python3.12"),
+                  str(Path.home() / "drake-venv" / "bin" / "python")]
+    for python in filter(None, candidates):
+        if imports_pydrake(python):
+            return python, ""
+    return None, "no Python with Drake found (give --drake-python or DRAKE_PYTHON)"
 
 
 def tip_deflection(points, reference, case):
@@ -198,10 +203,9 @@ def main(argv=None):
     parser.add_argument("--csv", default="outputs/bench/drake_compare.csv")
     args = parser.parse_args(argv)
 
-    python = find_drake_python(args.drake_python)
+    python, why = find_drake_python(args.drake_python)
     if python is None:
-        print("SKIP drake_compare: no Python with Drake found (give --drake-python or DRAKE_PYTHON; "
-              "setup in benchmarks/README.md)")
+        print(f"SKIP drake_compare: {why}; setup in benchmarks/README.md")
         return 0
     work = Path(tempfile.mkdtemp(prefix="drake_compare_"))
     rows, goals = [], []
@@ -216,8 +220,12 @@ def main(argv=None):
             scene_file.write_text(scene_text(case))
 
             run_ours(scene_file, case)                         # warm-up: kernels loaded
-            ours = [run_ours(scene_file, case) for _ in range(args.repeats)]
-            drake = run_drake(python, folder / "body.vtk", case, args.repeats, work)
+            ours, drakes = [], []
+            for _ in range(args.repeats):                      # interleaved: the same load on both
+                ours.append(run_ours(scene_file, case))
+                drakes.append(run_drake(python, folder / "body.vtk", case, 1, work))
+            drake = drakes[-1] | {"walls": [d["walls"][0] for d in drakes],
+                                  "cpus": [d["cpus"][0] for d in drakes]}
             reference = np.asarray(drake["reference"])
             sim = ours[-1][5]
             if not np.allclose(reference, points, atol=1e-12):
