@@ -261,6 +261,12 @@ class FractureModel:
     faces: TetFaces
     smoothing: sp.csr_matrix
 
+    @property
+    def can_open(self) -> bool:
+        """Whether a crack can open in this mesh at all: it has an interior face (a lone tet
+        has none, so `find_crack` would find nothing to cut whatever its stress)."""
+        return bool(self.faces.interior.any())
+
 
 def fracture_model(tets: np.ndarray, tet_volume: np.ndarray, fracture_stress=None,
                    tearing_strain: float | None = None, max_cracks: int | None = None,

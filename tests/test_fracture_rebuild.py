@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from fem.assembly import _csr_pattern, assemble, assemble_subset, warped_assembly
-from fem.fracture import fracture_candidates, principal_tension, tension_bound
+from fem.fracture import (find_crack, fracture_candidates, fracture_model, principal_tension,
+                          tension_bound)
 from fem.mesh import box_tet_mesh, quadratic_tets, surface_triangles
 from fem.model import build_fem_model
 from fem.split import split_bodies, split_mesh, tet_faces
@@ -158,3 +159,19 @@ def test_csr_pattern_from_node_pairs_is_the_pattern_of_every_dof_pair(order):
     if order == 1:
         for mesh in (tets, shuffled, pieces[0].tets, pieces[-1].tets):
             assert np.array_equal(surface_triangles(mesh), _surface_by_rows(mesh))
+
+
+def test_a_piece_without_interior_faces_is_not_checked_because_it_cannot_open():
+    """apply_fracture skips bodies whose FractureModel cannot open (a lone tet): find_crack would
+    cut nothing there whatever the stress, so skipping it changes no result."""
+    _, _, pieces = _pieces(1)
+    lone, whole = pieces[-1], pieces[0]
+    assert len(lone.tet_index) == 1 and len(whole.tet_index) > 1
+    for piece, opens in ((lone, False), (whole, True)):
+        volume = np.abs(np.linalg.det(piece.points[piece.tets[:, 1:]]
+                                      - piece.points[piece.tets[:, :1]])) / 6.0
+        fracture = fracture_model(piece.tets, volume, 1.0e6)
+        sigma = np.broadcast_to(np.diag([5.0e7, 0.0, 0.0]), (len(piece.tets), 3, 3))
+        cut, found = find_crack(fracture, piece.points, piece.tets, sigma)
+        assert fracture.can_open == opens and (len(cut) > 0) == opens
+        assert len(found.element) > 0 or not opens

@@ -358,8 +358,9 @@ def apply_fracture(model, state, timings=None):
     data, pending = fracture_data(model), pending_faces(model, state)
     if data is not model.fracture:
         model = replace(model, fracture=data, fragment_of=fragment_of(model))
+    # a body without an interior face (a lone tet) has nothing to open: no stress is computed
     cracked = [(j, *find_cracks(model.fem[j], state.fem[j], d, pending[j]))
-               for j, d in enumerate(data) if d is not None]
+               for j, d in enumerate(data) if d is not None and d.fracture.can_open]
     cracked = [(j, cut, found) for j, cut, found in cracked if len(cut)]
     t1 = clock.perf_counter()
     timings["fracture_check"] += t1 - t0
