@@ -2,7 +2,8 @@
 
 Algorithm (Bridson's fracture notes; O'Brien and Hodgins 1999; Mueller and Gross 2004):
 1. smooth each element's stress with its face neighbours (volume-weighted mean),
-2. take the largest principal stress sigma_1 of the smoothed stress (one batched eigh);
+2. take the largest principal stress sigma_1 of the smoothed stress (one batched eigh of
+   the elements that a cheap bound, `tension_bound`, does not rule out);
    where sigma_1 exceeds the tensile strength, a crack opens perpendicular to its
    eigenvector (compression, sigma_1 <= 0, never cracks); ductile bodies also tear where
    their equivalent plastic strain passes a tearing strain while they flow,
@@ -133,8 +134,8 @@ def fracture_candidates(sigma: np.ndarray, fracture_stress, max_cracks: int | No
     threshold = np.broadcast_to(np.asarray(fracture_stress, dtype=float), sigma.shape[:1])
     if np.any(~(threshold > 0.0)):
         raise ValueError("fracture_stress must be positive (tensile strength)")
-    # only elements whose Gershgorin bound passes the strength can crack: the eigensolve runs on
-    # those alone (each matrix is solved on its own, so the values are those of a full solve)
+    # only elements whose bound (tension_bound) passes the strength can crack: the eigensolve
+    # runs on those alone (each matrix is solved on its own, so the values are a full solve's)
     maybe = tension_bound(sigma) > threshold
     if unbreakable is not None:
         maybe &= ~np.asarray(unbreakable, dtype=bool)
