@@ -5,6 +5,7 @@ a tiny scene with the same kinds of bodies and contacts is built and stepped a f
 kernels are compiled, or loaded from numba's on-disk cache, before the step loop instead of at
 the first contact inside it.
 """
+import functools
 import logging
 import os
 import time
@@ -61,7 +62,7 @@ def _build_rigid(bodies, planes, index):
 def build(scene, warm=True):
     """HybridModel and initial HybridState of ``scene``; with ``warm``, after :func:`warm_up`."""
     model, state = _build(scene)
-    if warm and not _warming:
+    if warm:
         warm_up(scene)
     return model, state
 
@@ -92,91 +93,91 @@ def _build(scene):
 # -- warm-up of the compiled kernels -----------------------------------------------------------
 log = logging.getLogger(__name__)
 
-# The warm-up kinds already stepped in this process (numba keeps what it compiled or loaded), and
-# whether a warm-up is under way (its own scene is not warmed up).
-_WARMED = set()
-_warming = False
 WARM_STEPS = 3
+WARM_SOURCE = "<warm-up>"               # the warm-up scene's source name (it is not warmed up itself)
 _WARM_SIZE = 0.1        # m, edge of a warm-up FEM box (2 x 2 x 2 cells)
 _WARM_VELOCITY = [0.0, 0.0, -0.2]       # m/s, of every warm-up body: an impact at the first step
-_GEOMETRY_KEYS = ("name", "shape", "mesh", "position", "orientation", "velocity", "angular_velocity",
-                  "anchors", "loads", "unbreakable", "fixed")
-
-
 # The scene fields of an FEM or auto body that choose which kernels its step calls: by value
-# (choices) or by whether they are given (optional physics).
+# (choices) or by whether they are given (optional physics, warmed with the values below).
 _KIND_CHOICES = ("model", "frame", "order", "integrator", "mass_matrix", "fragment_model")
-_KIND_GIVEN = ("yield_stress", "fracture_stress", "tearing_strain", "max_plastic_strain", "damping")
+_KIND_GIVEN = {"yield_stress": 2e3, "fracture_stress": 1e12, "tearing_strain": 10.0,
+               "max_plastic_strain": 1.0, "damping": {"mass": 1.0, "stiffness": 1e-3}}
 
 
 def _fem_kind(raw):
     """What decides which kernels an FEM or auto body's step calls: its choices (model, frame,
     order, integrator, ...), which optional physics it has (plasticity, fracture, ...), not their
     values, and whether it is held or loaded."""
-    return (tuple(raw.get(k) for k in _KIND_CHOICES), tuple(k in raw for k in _KIND_GIVEN),
+    return ("fem", tuple(raw.get(k) for k in _KIND_CHOICES), tuple(k in raw for k in _KIND_GIVEN),
             bool(raw.get("anchors")), bool(raw.get("loads")))
 
 
-def _warm_kinds(scene):
-    """The warm-up kinds of ``scene``: ``("plane",)``, ``("rigid", shape type)`` and
-    ``("fem", kind)`` entries, each with the raw table it stands for."""
-    kinds = {}
-    if scene.planes:
-        kinds[("plane",)] = None
-    raws = scene.raw.get("bodies", [])
-    for body, raw in zip(scene.bodies, raws):
+def warm_kinds(scene):
+    """The kinds of work stepping ``scene`` calls kernels for (a frozenset): ``("plane",)``,
+    ``("rigid", shape type)`` and one ``("fem", ...)`` per kind of FEM or auto body."""
+    kinds = {("plane",)} if scene.planes else set()
+    for body, raw in zip(scene.bodies, scene.raw.get("bodies", [])):
         if body.model == "rigid":
-            shape = body.shape.type if body.shape is not None else "box"    # a mesh body: a box
-            kinds.setdefault(("rigid", shape), raw)
+            kinds.add(("rigid", body.shape.type if body.shape is not None else "box"))  # a mesh: a box
         else:
-            kinds.setdefault(("fem",) + _fem_kind(raw), raw)
-    return kinds
+            kinds.add(_fem_kind(raw))
+    return frozenset(kinds)
 
 
-def _warm_scene(scene, kinds):
-    """The scene data of the warm-up: per FEM kind a 0.1 m box resting on the ground (a rigid box
-    resting on it when the scene has rigid bodies), per rigid shape a small body resting on the
-    ground (a box on a box), all touching from the start and moving into each other (so that
-    impacts as well as resting contacts are met)."""
+def _fem_table(kind, x):
+    """The warm-up body of an FEM kind: a 0.1 m box resting on the ground at ``x``, with the
+    kind's choices and its optional physics (held at its bottom, loaded on its top if the kind is)."""
+    _, choices, given, anchored, loaded = kind
     h = _WARM_SIZE
-    rigid_shapes = [k[1] for k in kinds if k[0] == "rigid"]
+    table = {k: v for k, v in zip(_KIND_CHOICES, choices) if v is not None}
+    table |= {k: v for (k, v), g in zip(_KIND_GIVEN.items(), given) if g}
+    table |= {"density": 1000.0, "young": 1e5, "poisson": 0.3, "position": [x, 0.0, 0.5 * h],
+              "velocity": _WARM_VELOCITY, "shape": {"type": "box", "size": [h, h, h], "resolution": 0.5 * h}}
+    if anchored:
+        table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
+    if loaded:
+        table["loads"] = [{"box": [[-1.0, -1.0, 0.5 * h - 1e-6], [1.0, 1.0, 0.5 * h + 1e-6]],
+                           "force": [0.0, 0.0, -1e-3]}]
+    return table
+
+
+def _rigid_tables(shape, x):
+    """The warm-up bodies of a rigid shape: one resting on the ground at ``x`` (a box: two, one on
+    the other)."""
+    h = _WARM_SIZE
+    size = {"box": {"size": [0.5 * h] * 3}, "sphere": {"radius": 0.25 * h},
+            "capsule": {"radius": 0.1 * h, "height": 0.5 * h},
+            "cylinder": {"radius": 0.25 * h, "height": 0.5 * h}}[shape]
+    low = 0.25 * h if shape != "capsule" else 0.1 * h
+    tables = [{"density": 100.0, "shape": {"type": shape} | size, "position": [x, 0.0, low],
+               "velocity": _WARM_VELOCITY}]
+    if shape == "box":
+        tables.append({"density": 100.0, "shape": {"type": "box"} | size,
+                       "position": [x, 0.0, 0.75 * h], "velocity": [0.0, 0.0, -0.4]})
+    return tables
+
+
+def _warm_scene(kinds, dt):
+    """The scene data of the warm-up: per FEM kind a small box resting on the ground (a rigid box
+    resting on it when there are rigid kinds), per rigid shape a small body resting on the ground
+    (a box on a box), all touching from the start and moving into each other (so that impacts as
+    well as resting contacts are met)."""
+    rigid = sorted(k[1] for k in kinds if k[0] == "rigid")
     bodies, x = [], 0.0
-    for key, raw in kinds.items():
-        if key[0] != "fem":
-            continue
-        table = {k: v for k, v in raw.items() if k not in _GEOMETRY_KEYS}
-        table |= {"name": f"fem{len(bodies)}", "position": [x, 0.0, 0.5 * h], "velocity": _WARM_VELOCITY,
-                  "shape": {"type": "box", "size": [h, h, h], "resolution": 0.5 * h}}
-        if key[3]:
-            table["anchors"] = [{"box": [[-1.0, -1.0, -0.5 * h - 1e-6], [1.0, 1.0, -0.5 * h + 1e-6]]}]
-        if key[4]:
-            table["loads"] = [{"box": [[-1.0, -1.0, 0.5 * h - 1e-6], [1.0, 1.0, 0.5 * h + 1e-6]],
-                               "force": [0.0, 0.0, -1e-3]}]
-        bodies.append(table)
-        if rigid_shapes:
-            bodies.append({"name": f"on_fem{len(bodies)}", "density": 100.0,
-                           "shape": {"type": "box", "size": [0.5 * h] * 3},
-                           "position": [x, 0.0, 1.25 * h], "velocity": _WARM_VELOCITY})
-        x += 2 * h
-    for shape in rigid_shapes:
-        size = {"box": {"size": [0.5 * h] * 3}, "sphere": {"radius": 0.25 * h},
-                "capsule": {"radius": 0.1 * h, "height": 0.5 * h},
-                "cylinder": {"radius": 0.25 * h, "height": 0.5 * h}}[shape]
-        low = 0.25 * h if shape != "capsule" else 0.1 * h
-        bodies.append({"name": f"rigid_{shape}", "density": 100.0, "shape": {"type": shape} | size,
-                       "position": [x, 0.0, low], "velocity": _WARM_VELOCITY})
-        if shape == "box":
-            bodies.append({"name": "rigid_box_on_box", "density": 100.0, "shape": {"type": "box"} | size,
-                           "position": [x, 0.0, 0.75 * h], "velocity": [0.0, 0.0, -0.4]})
-        x += 2 * h
-    sim = scene.raw.get("simulation", {})
-    data = {"simulation": {k: v for k, v in sim.items() if k in ("dt", "solver")} | {"name": "warm_up"},
-            "bodies": bodies}
-    if scene.planes:
+    for kind in sorted((k for k in kinds if k[0] == "fem"), key=repr):
+        bodies.append(_fem_table(kind, x))
+        if rigid:
+            bodies += _rigid_tables("box", x)[1:]                 # a rigid box on the FEM box
+            bodies[-1]["position"] = [x, 0.0, 1.25 * _WARM_SIZE]
+        x += 2 * _WARM_SIZE
+    for shape in rigid:
+        bodies += _rigid_tables(shape, x)
+        x += 2 * _WARM_SIZE
+    for i, body in enumerate(bodies):
+        body["name"] = f"warm{i}"
+    data = {"simulation": {"name": "warm_up", "dt": min(dt, 0.01), "duration": 1.0}, "bodies": bodies}
+    if ("plane",) in kinds:
         data["planes"] = [{"point": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, 1.0]}]
-    if data["simulation"].get("dt", 0.0) > 0.01:
-        data["simulation"]["dt"] = 0.01
-    data["simulation"]["duration"] = 1.0
     return data
 
 
@@ -184,31 +185,34 @@ def warm_up(scene):
     """Compile, or load from numba's on-disk cache, the kernels running ``scene`` calls: run
     (:class:`hybrid.simulation.Simulation`, :data:`WARM_STEPS` steps, no output folder, then the
     fields of a frame) a tiny scene with one small body of each of its kinds of FEM body and
-    rigid shape, resting on the ground and on each other. Kinds warmed once in a process are not
-    warmed again, and none is with the environment variable ``HYBRID_NO_WARM_UP=1``. Never
-    raises: a warm-up that fails leaves the compilation to the step loop (logged at debug
-    level). Returns the seconds it took."""
-    global _warming
+    rigid shape (:func:`warm_kinds`), resting on the ground and on each other. A set of kinds is
+    warmed once per process; none is with the environment variable ``HYBRID_NO_WARM_UP=1``. Never
+    raises: a warm-up that fails leaves the compilation to the step loop (logged at debug level).
+    Returns the seconds the warm-up of these kinds took (the first time in the process; 0 when
+    there was nothing to warm up)."""
+    if os.environ.get("HYBRID_NO_WARM_UP", "") not in ("", "0") or str(scene.source_path) == WARM_SOURCE:
+        return 0.0
+    kinds = warm_kinds(scene)
+    if not any(k[0] in ("fem", "rigid") for k in kinds):
+        return 0.0
+    return _warm_once(kinds, float(scene.simulation.dt))
+
+
+@functools.lru_cache(maxsize=None)
+def _warm_once(kinds, dt):
+    """:func:`warm_up` of a set of kinds, memoised for the process: numba keeps what it compiled
+    or loaded, so a second warm-up of the same kinds would do nothing."""
     from hybrid.app.observe import frame_pieces
     from hybrid.app.scene import parse_scene
     from hybrid.simulation import Simulation
 
-    if os.environ.get("HYBRID_NO_WARM_UP", "") not in ("", "0"):
-        return 0.0
-    kinds = {k: v for k, v in _warm_kinds(scene).items() if k not in _WARMED}
-    if not any(k[0] in ("fem", "rigid") for k in kinds):
-        return 0.0
     start = time.perf_counter()
-    _warming = True
     try:
-        sim = Simulation(parse_scene(_warm_scene(scene, kinds), "<warm-up>", "."))
+        sim = Simulation(parse_scene(_warm_scene(kinds, dt), WARM_SOURCE, "."))
         with np.errstate(all="ignore"):
             sim.run(until=WARM_STEPS * sim.dt, progress=False, log=lambda message: None,
                     checkpoint_every=0)
             frame_pieces(sim.model, sim.state)
     except Exception as error:      # noqa: BLE001 (an optimisation: never stops a run)
         log.debug("kernel warm-up skipped: %s", error)
-    finally:
-        _warming = False
-    _WARMED.update(kinds)
     return time.perf_counter() - start

@@ -24,26 +24,22 @@ goes on (docs/output.md, "Writing off the stepping thread").
 
 from __future__ import annotations
 
-import csv
 import io
 import json
-import math
 import os
 import re
 import tempfile
-import threading
-import time
 import xml.etree.ElementTree as ET
-import zlib
-from base64 import b64encode
-from collections import deque
-from xml.sax.saxutils import quoteattr
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import meshio
 import numpy as np
+
+from .text_files import atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain
+from .vtu import VtuEncoder, pvd_text as _pvd_text, write_vtu
+from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
     "time", "body", "x", "y", "z", "qw", "qx", "qy", "qz",
@@ -88,70 +84,6 @@ class FramePiece:
         return sum(len(c) for _, c in self.cells)
 
 
-def _plain(value: Any) -> Any:
-    """Convert numpy scalars/arrays, tuples and paths to JSON-ready Python values.
-
-    Non-finite floats become None so that the file is strict JSON.
-    """
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (list, tuple, set, frozenset)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        return value if math.isfinite(value) else None
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    return value
-
-
-def _csv_value(value: Any) -> Any:
-    """Python value for the csv module: ints exact, floats at full precision (repr)."""
-    if isinstance(value, (bool, np.bool_)):
-        return int(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return repr(float(value))
-    return value
-
-
-def _csv_rows(rows: Iterable[Any], columns: Sequence[str]) -> str:
-    """Format rows (tuples in column order, or dicts with exactly ``columns``) as CSV text."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    for row in rows:
-        if isinstance(row, Mapping):
-            if set(row) != set(columns):
-                missing = sorted(set(columns) - set(row))
-                extra = sorted(set(row) - set(columns))
-                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
-            values = [row[c] for c in columns]
-        else:
-            values = list(row)
-            if len(values) != len(columns):
-                raise ValueError(f"row has {len(values)} values, expected {len(columns)}: {columns}")
-        writer.writerow([_csv_value(v) for v in values])
-    return buffer.getvalue()
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _field_array(name: str, value: Any, count: int, owner: str) -> np.ndarray:
     """Field values as a (count,) or (count, k) float array (0-d values are broadcast)."""
     array = np.asarray(value)
@@ -176,86 +108,6 @@ def _merge_blocks(blocks: list[tuple[str, np.ndarray, dict[str, np.ndarray]]]):
     names = merged[0][2].keys() if merged else []
     cell_data = {n: [np.concatenate(d[n]) for _, _, d in merged] for n in names}
     return cells, cell_data
-
-
-# -- VTK XML unstructured grid (.vtu) ---------------------------------------------------------
-# The frames' own writer: the file meshio writes (binary, zlib-compressed blocks, UInt32 headers,
-# which meshio, VTK and ParaView read), at zlib's fastest level, and with each array's encoding
-# kept from the frame before: connectivity, offsets, cell types and fields that do not change
-# (body ids, fragment_of, a body's plastic strain at rest) are compressed once per run, not once
-# per frame. Compressing every array of every frame took most of the writing time.
-VTK_CELL_TYPES = {"triangle": 5, "tetra": 10, "tetra10": 24}   # VTK's cell type ids (same node order as meshio)
-_VTU_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "i2": "Int16", "i1": "Int8",
-              "u8": "UInt64", "u4": "UInt32", "u2": "UInt16", "u1": "UInt8"}
-_VTU_BLOCK = 32768          # bytes per compressed block, as VTK writes them
-
-
-class VtuEncoder:
-    """Encodes arrays as base64 zlib blocks of a ``.vtu`` file, reusing the previous encoding of
-    an array (by key) whose bytes did not change."""
-
-    def __init__(self, level: int = 1):
-        self.level = level
-        self._last: dict[Any, tuple[bytes, str]] = {}
-
-    def encode(self, key: Any, array: np.ndarray) -> tuple[str, str]:
-        """``(VTK type name, encoded text)`` of ``array`` (little-endian, C order)."""
-        array = np.ascontiguousarray(array)
-        array = array.astype(array.dtype.newbyteorder("<"), copy=False)
-        vtk_type = _VTU_TYPES[f"{array.dtype.kind}{array.dtype.itemsize}"]
-        raw = array.tobytes()
-        last = self._last.get(key)
-        if last is not None and last[0] == raw:
-            return vtk_type, last[1]
-        blocks = [zlib.compress(raw[i:i + _VTU_BLOCK], self.level) for i in range(0, len(raw), _VTU_BLOCK)]
-        last_size = len(raw) - (len(blocks) - 1) * _VTU_BLOCK if blocks else 0
-        header = np.array([len(blocks), _VTU_BLOCK, last_size] + [len(b) for b in blocks], dtype="<u4")
-        text = b64encode(header.tobytes()).decode() + b64encode(b"".join(blocks)).decode()
-        self._last[key] = (raw, text)
-        return vtk_type, text
-
-
-def _vtu_array(encoder: VtuEncoder, key: Any, name: str, array: np.ndarray) -> str:
-    array = np.asarray(array)
-    if array.dtype == bool:
-        array = array.astype(np.uint8)
-    vtk_type, text = encoder.encode(key, array)
-    components = f' NumberOfComponents="{int(np.prod(array.shape[1:]))}"' if array.ndim > 1 else ""
-    return (f'<DataArray type="{vtk_type}" Name={quoteattr(name)}{components} format="binary">\n'
-            f"{text}\n</DataArray>\n")
-
-
-def write_vtu(path: Path | str, mesh: meshio.Mesh, encoder: VtuEncoder | None = None) -> None:
-    """Write ``mesh`` (triangle, tetra and tetra10 blocks; anything else through meshio) as a
-    ``.vtu`` file at ``path``; ``encoder`` carries unchanged arrays over from the last frame."""
-    if any(block.type not in VTK_CELL_TYPES for block in mesh.cells):
-        meshio.write(path, mesh, file_format="vtu")
-        return
-    encoder = encoder or VtuEncoder()
-    conn = [np.asarray(block.data, dtype=np.int64) for block in mesh.cells]
-    sizes = np.concatenate([np.full(len(c), c.shape[1], dtype=np.int64) for c in conn])
-    types = np.concatenate([np.full(len(c), VTK_CELL_TYPES[b.type], dtype=np.uint8)
-                            for b, c in zip(mesh.cells, conn)])
-    parts = ['<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" '
-             'byte_order="LittleEndian" compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n'
-             f'<Piece NumberOfPoints="{len(mesh.points)}" NumberOfCells="{len(types)}">\n<Points>\n',
-             _vtu_array(encoder, "points", "Points", np.asarray(mesh.points, dtype=float)),
-             "</Points>\n<Cells>\n",
-             _vtu_array(encoder, "connectivity", "connectivity", np.concatenate([c.ravel() for c in conn])),
-             _vtu_array(encoder, "offsets", "offsets", np.cumsum(sizes)),
-             _vtu_array(encoder, "types", "types", types),
-             "</Cells>\n"]
-    if mesh.point_data:
-        parts.append("<PointData>\n")
-        parts += [_vtu_array(encoder, ("point", n), n, v) for n, v in mesh.point_data.items()]
-        parts.append("</PointData>\n")
-    if mesh.cell_data:
-        parts.append("<CellData>\n")
-        parts += [_vtu_array(encoder, ("cell", n), n, np.concatenate(v)) for n, v in mesh.cell_data.items()]
-        parts.append("</CellData>\n")
-    parts.append("</Piece>\n</UnstructuredGrid>\n</VTKFile>\n")
-    with open(path, "w", encoding="ascii") as f:
-        f.write("".join(parts))
 
 
 class RunWriter:
@@ -292,7 +144,6 @@ class RunWriter:
     def __init__(self, out_dir: Path | str, scene_name: str, background: bool = True):
         self.out_dir = Path(out_dir)
         self.scene_name = str(scene_name)
-        self.background = bool(background)
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
         self._started = False
@@ -304,35 +155,33 @@ class RunWriter:
         self._bodies: io.TextIOWrapper | None = None
         self._regions: io.TextIOWrapper | None = None
         self._encoder = VtuEncoder()
-        # hand-over: queued jobs, the caller's frame count, the thread and its first error
         self._queued = 0                      # frames handed over (written or waiting)
-        self._jobs: deque = deque()
-        self._busy = False                    # the worker is running a job it has taken
-        self._worker: threading.Thread | None = None
-        self._error: BaseException | None = None
-        self._error_raised = False
-        self._lock = threading.Condition()
-        self.writer_seconds = 0.0             # wall time spent writing files (either thread)
+        self._writer = WriterThread(background, self.queue_frames, "RunWriter")
+
+    @property
+    def writer_seconds(self) -> float:
+        """Wall time (s) spent writing files so far, on whichever thread wrote them."""
+        return self._writer.seconds
 
     # -- file state, as on disk once the queued work is done -----------------------------
     @property
     def frames_written(self) -> int:
         """Frames written so far (waits for the frames handed over to reach the disk)."""
-        self._wait_idle()
+        self._writer.wait()
         return self._count
 
     @frames_written.setter
     def frames_written(self, value: int) -> None:
-        self._wait_idle()
+        self._writer.wait()
         self._count = self._queued = int(value)
 
     def _state_property(name: str, doc: str):          # noqa: N805 (a property factory)
         def get(self):
-            self._wait_idle()
+            self._writer.wait()
             return getattr(self, name)
 
         def put(self, value):
-            self._wait_idle()
+            self._writer.wait()
             setattr(self, name, value)
         return property(get, put, doc=doc)
 
@@ -381,11 +230,11 @@ class RunWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
-            self._wait_idle()
+            self._writer.wait()
         finally:
             self._close_files()
         if exc_type is None:
-            self._raise_error()           # a writer error nobody has seen yet
+            self._writer.raise_error()           # a writer error nobody has seen yet
 
     def _close_files(self) -> None:
         for f in (self._bodies, self._regions):
@@ -395,8 +244,8 @@ class RunWriter:
     def flush(self) -> None:
         """Wait until everything handed over is on disk; raise the writer thread's error if it
         has not been raised yet."""
-        self._wait_idle()
-        self._raise_error()
+        self._writer.wait()
+        self._writer.raise_error()
 
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
         """Wait for the frames handed over, write ``summary.json`` (if a summary is given) and
@@ -411,72 +260,6 @@ class RunWriter:
         finally:
             self._close_files()
             self._closed = True
-
-    # -- the writer thread ---------------------------------------------------------------
-    def _submit(self, job) -> None:
-        """Queue ``job`` (a callable without arguments) for the writer thread, starting it if
-        none runs; waits while ``queue_frames`` jobs are waiting. Without ``background``: runs
-        it now."""
-        if not self.background:
-            start = time.perf_counter()
-            try:
-                job()
-            except BaseException as error:
-                self._error, self._error_raised = error, True
-                raise
-            finally:
-                self.writer_seconds += time.perf_counter() - start
-            return
-        with self._lock:
-            while len(self._jobs) >= self.queue_frames and self._error is None:
-                self._lock.wait()
-            if self._error is not None:
-                return                    # writing stopped; the caller hears of it via _raise_error
-            self._jobs.append(job)
-            if self._worker is None:
-                self._worker = threading.Thread(target=self._work, name="RunWriter", daemon=False)
-                self._worker.start()
-
-    def _work(self) -> None:
-        """The writer thread: run the jobs in order until none is left (or one fails)."""
-        while True:
-            with self._lock:
-                if not self._jobs or self._error is not None:
-                    self._jobs.clear()
-                    self._worker = None
-                    self._lock.notify_all()
-                    return
-                job = self._jobs.popleft()
-                self._busy = True
-                self._lock.notify_all()
-            start = time.perf_counter()
-            try:
-                job()
-            except BaseException as error:     # noqa: BLE001 (kept for the caller's thread)
-                with self._lock:
-                    self._error = error
-            finally:
-                with self._lock:
-                    self._busy = False
-                    self.writer_seconds += time.perf_counter() - start
-
-    def _wait_idle(self) -> None:
-        """Block until the writer thread has nothing left to do."""
-        if self._worker is None:
-            return
-        if self._worker is threading.current_thread():
-            return
-        with self._lock:
-            while self._jobs or self._busy or self._worker is not None:
-                self._lock.wait()
-
-    def _raise_error(self) -> None:
-        """Raise the writer thread's error on the caller's thread, once."""
-        with self._lock:
-            error = None if self._error_raised else self._error
-            self._error_raised = self._error_raised or error is not None
-        if error is not None:
-            raise error
 
     # -- frames --------------------------------------------------------------------------
     def _register(self, registry: dict[str, tuple[int, ...]], name: str, array: np.ndarray, kind: str) -> None:
@@ -546,13 +329,13 @@ class RunWriter:
         The input is checked (ValueError) and copied here; the files are written by the writer
         thread. Returns the path the frame file gets.
         """
-        self._raise_error()
+        self._writer.raise_error()
         mesh = self.build_mesh(pieces)
         rows_text = _csv_rows(body_rows, BODY_COLUMNS)
         self._start()
         path = self.frame_path(self._queued)
         self._queued += 1
-        self._submit(lambda: self._write_frame_files(float(time), path, mesh, rows_text))
+        self._writer.submit(lambda: self._write_frame_files(float(time), path, mesh, rows_text))
         return path
 
     def _write_frame_files(self, time: float, path: Path, mesh: meshio.Mesh, rows_text: str) -> None:
@@ -579,12 +362,12 @@ class RunWriter:
 
     def write_regions(self, rows: Iterable[Any]) -> None:
         """Append region rows (``REGION_COLUMNS`` order, or dicts); creates regions.csv on first rows."""
-        self._raise_error()
+        self._writer.raise_error()
         text = _csv_rows(rows, REGION_COLUMNS)
         if not text:
             return
         self._start()
-        self._submit(lambda: self._write_region_rows(text))
+        self._writer.submit(lambda: self._write_region_rows(text))
 
     def _write_region_rows(self, text: str) -> None:
         """The writer thread's part of :meth:`write_regions`."""
@@ -593,17 +376,6 @@ class RunWriter:
             text = ",".join(REGION_COLUMNS) + "\n" + text
         self._regions.write(text)
         self._regions.flush()
-
-
-def _pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
-    """The ``.pvd`` index listing ``files`` at ``times`` (built as text: it is rewritten at
-    every frame)."""
-    lines = [f'    <DataSet timestep={quoteattr(repr(float(time)))} group="" part="0" file={quoteattr(file)} />\n'
-             for time, file in zip(times, files)]
-    head = '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
-    if not lines:
-        return head + '  <Collection />\n</VTKFile>\n'
-    return head + "  <Collection>\n" + "".join(lines) + "  </Collection>\n</VTKFile>\n"
 
 
 def find_pvd(run_dir: Path | str, summary: Mapping[str, Any] | None = None) -> Path:

@@ -1,0 +1,80 @@
+"""Plain-text files of a run: JSON-ready values, CSV rows at full precision, atomic writes.
+
+Used by :mod:`hybrid.app.output` for ``summary.json``, ``bodies.csv``, ``regions.csv`` and the
+``.pvd`` index.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+
+def plain(value: Any) -> Any:
+    """Convert numpy scalars/arrays, tuples and paths to JSON-ready Python values.
+
+    Non-finite floats become None so that the file is strict JSON.
+    """
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return plain(value.tolist())
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [plain(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value
+
+
+def csv_value(value: Any) -> Any:
+    """Python value for the csv module: ints exact, floats at full precision (repr)."""
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return value
+
+
+def csv_rows(rows: Iterable[Any], columns: Sequence[str]) -> str:
+    """Format rows (tuples in column order, or dicts with exactly ``columns``) as CSV text."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    for row in rows:
+        if isinstance(row, Mapping):
+            if set(row) != set(columns):
+                missing = sorted(set(columns) - set(row))
+                extra = sorted(set(row) - set(columns))
+                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
+            values = [row[c] for c in columns]
+        else:
+            values = list(row)
+            if len(values) != len(columns):
+                raise ValueError(f"row has {len(values)} values, expected {len(columns)}: {columns}")
+        writer.writerow([csv_value(v) for v in values])
+    return buffer.getvalue()
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
