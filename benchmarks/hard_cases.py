@@ -550,7 +550,8 @@ def markdown(rows, command):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="The hard-case table: deliberately hard scenes "
+                                     "run to their end, written to docs/hard-cases.md.")
     parser.add_argument("--only", nargs="*", default=None, help="rows whose name contains one of these")
     parser.add_argument("--short", action="store_true", help="the tests' shortened runs")
     parser.add_argument("--doc", default=str(ROOT / "docs" / "hard-cases.md"),
