@@ -56,7 +56,7 @@ at ~10k tets over the elastic step (goal: under 30% extra) and the reference upd
 
 Prints the tables and writes outputs/bench/fem_step.csv (and plastic_step's CSV). Default run:
 ~1k and ~10k tets, both backends, about 10 minutes on two shared cores. ``--big`` adds ~50k tets;
-its first coupled step on the ground solves the response columns of 1,346 touched nodes (41 s with
+its first coupled step on the ground solves the response columns of 1,346 touched nodes (22 s CPU with
 CHOLMOD), so e.g. ``--sizes 50000 --steps 15 --warmup 100 --naive-steps 1 --backends cholmod
 --frames floating --no-plastic`` (20 warm-up steps are not enough there: the bottom face is not held yet).
 """
