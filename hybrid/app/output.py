@@ -38,7 +38,7 @@ import meshio
 import numpy as np
 
 from .text_files import atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain
-from .vtu import VtuEncoder, pvd_text as _pvd_text, write_vtu
+from .vtu import VtuEncoder, pvd_document, pvd_line, pvd_text as _pvd_text, write_vtu
 from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
@@ -155,6 +155,7 @@ class RunWriter:
         self._bodies: io.TextIOWrapper | None = None
         self._regions: io.TextIOWrapper | None = None
         self._encoder = VtuEncoder()
+        self._pvd_lines: list[str] = []       # the .pvd's lines of the frames written
         self._queued = 0                      # frames handed over (written or waiting)
         self._writer = WriterThread(background, self.queue_frames, "RunWriter")
 
@@ -352,7 +353,10 @@ class RunWriter:
         self._frame_times.append(time)
         self._frame_files.append(f"{FRAMES_DIR}/{path.name}")
         self._count += 1
-        _atomic_write_text(self.pvd_path, _pvd_text(self._frame_times, self._frame_files))
+        if len(self._pvd_lines) != self._count - 1:          # files taken back by a resume
+            self._pvd_lines = [pvd_line(t, f) for t, f in zip(self._frame_times[:-1], self._frame_files[:-1])]
+        self._pvd_lines.append(pvd_line(time, self._frame_files[-1]))
+        _atomic_write_text(self.pvd_path, pvd_document(self._pvd_lines))
 
         if self._bodies is None:
             self._bodies = open(self.out_dir / BODIES_CSV, "w", encoding="utf-8", newline="")

@@ -91,12 +91,24 @@ def write_vtu(path: Path | str, mesh: meshio.Mesh, encoder: VtuEncoder | None = 
         f.write("".join(parts))
 
 
-def pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
-    """The ``.pvd`` index listing ``files`` at ``times`` (built as text: it is rewritten at
-    every frame)."""
-    lines = [f'    <DataSet timestep={quoteattr(repr(float(time)))} group="" part="0" file={quoteattr(file)} />\n'
-             for time, file in zip(times, files)]
+def pvd_line(time: float, file: str) -> str:
+    """The ``.pvd`` index's line of one frame: ``file`` at ``time`` (s)."""
+    return f'    <DataSet timestep={_attribute(repr(float(time)))} group="" part="0" file={_attribute(file)} />\n'
+
+
+def _attribute(value: str) -> str:
+    """An XML attribute value in double quotes (escaped only when it needs it: quoteattr is slow)."""
+    return f'"{value}"' if not any(c in value for c in '&<>"\n\r\t') else quoteattr(value)
+
+
+def pvd_document(lines: Sequence[str]) -> str:
+    """The ``.pvd`` index made of :func:`pvd_line` lines."""
     head = '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
     if not lines:
         return head + '  <Collection />\n</VTKFile>\n'
     return head + "  <Collection>\n" + "".join(lines) + "  </Collection>\n</VTKFile>\n"
+
+
+def pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
+    """The ``.pvd`` index listing ``files`` at ``times``."""
+    return pvd_document([pvd_line(time, file) for time, file in zip(times, files)])
