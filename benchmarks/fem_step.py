@@ -22,7 +22,7 @@ support and frame (floating, corotated), measured in the same run, side by side:
            CPU time of the process (``time.process_time``: on a machine running more processes
            than cores, wall time counts the waits for a core; both are in the CSV)
   step     the same through ``hybrid.Simulation.step``, which adds its per-step watch (stress
-           peaks, impact resolution); median of ``--steps`` steps
+           peaks, impact resolution); median of ``--steps`` steps, CPU time
   elastic  the FEM step alone, ``fem.dynamics.step`` (no contacts), repeated from the settled,
            loaded state; median of ``--steps`` repetitions
   in-step  the same back-substitutions timed inside ``--steps`` more coupled steps (median): the
@@ -212,9 +212,9 @@ def measure(cells, frame, support, backend, steps, warmup):
     coupled, cold, coupled_wall, cold_wall = coupled_and_cold_ms(sim, fem_model, steps)
     times = []
     for _ in range(steps):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         sim.step()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     state = sim.state
     step_ms = 1e3 * float(np.median(times))
     q1, q3 = 1e3 * np.percentile(coupled, [25, 75])
