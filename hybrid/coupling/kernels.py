@@ -215,7 +215,7 @@ def turned(v, rest, now):
 
 
 @nb.njit(cache=True)
-def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
+def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, inward):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
     ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
@@ -224,8 +224,13 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
     close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (and, for a
     point on an edge or vertex, with every triangle holding it as closely, to 1e-6 of the
     triangle's size, averaged); ``X_now`` (p, 3) the points moved as the surface moved, ``radius``
-    (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
-    the barycentric weights, the turned normal and the gap along it to the place as it is now."""
+    (p,) m. ``inward`` (p, 3): where it is a unit vector (a surface node's own face normal,
+    reversed, in the body's frame), a point on an edge or vertex is met along it instead: there
+    the grid's gradient is any blend of the faces around, decided by round-off (two cubes meeting
+    face on with coinciding edges parted spinning at 2.5 rad/s), and a node meets an edge along
+    its own face's normal, as it meets a rigid edge (fem_contact.edge_normals). Returns
+    ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle, the barycentric
+    weights, the turned normal and the gap along it to the place as it is now."""
     p = len(Y)
     corners = np.zeros((p, 3), dtype=np.int64)
     weights = np.zeros((p, 3))
@@ -285,7 +290,11 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
                     now[i, a] = rest[i, a] + moved[triangles[g, i], a]
             n += turned(n_rest[k], rest, now)
         if tied:
-            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+            own = inward[k, 0] * inward[k, 0] + inward[k, 1] * inward[k, 1] + inward[k, 2] * inward[k, 2]
+            if abs(own - 1.0) < 1e-6:
+                n = inward[k].copy()
+            else:
+                n /= max(np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), 1e-300)
         normal[k] = n
         s = 0.0
         for a in range(3):
