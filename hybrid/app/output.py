@@ -38,7 +38,8 @@ import meshio
 import numpy as np
 
 from .text_files import atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain
-from .vtu import VtuEncoder, pvd_document, pvd_line, pvd_text as _pvd_text, write_vtu
+from .vtu import (VtuEncoder, field_array as _field_array, merge_blocks as _merge_blocks, pvd_document,
+                  pvd_line, pvd_text as _pvd_text, write_vtu)
 from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
@@ -82,32 +83,6 @@ class FramePiece:
     def cell_count(self) -> int:
         """Number of cells of the piece over all its blocks."""
         return sum(len(c) for _, c in self.cells)
-
-
-def _field_array(name: str, value: Any, count: int, owner: str) -> np.ndarray:
-    """Field values as a (count,) or (count, k) float array (0-d values are broadcast)."""
-    array = np.asarray(value)
-    if array.ndim == 0:
-        array = np.full(count, array)
-    if array.ndim not in (1, 2) or len(array) != count:
-        raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
-    return array
-
-
-def _merge_blocks(blocks: list[tuple[str, np.ndarray, dict[str, np.ndarray]]]):
-    """Join consecutive blocks of the same cell type (keeps cell order)."""
-    merged: list[tuple[str, list[np.ndarray], dict[str, list[np.ndarray]]]] = []
-    for cell_type, conn, data in blocks:
-        if merged and merged[-1][0] == cell_type:
-            merged[-1][1].append(conn)
-            for name, values in data.items():
-                merged[-1][2][name].append(values)
-        else:
-            merged.append((cell_type, [conn], {n: [v] for n, v in data.items()}))
-    cells = [meshio.CellBlock(t, np.concatenate(c)) for t, c, _ in merged]
-    names = merged[0][2].keys() if merged else []
-    cell_data = {n: [np.concatenate(d[n]) for _, _, d in merged] for n in names}
-    return cells, cell_data
 
 
 class RunWriter:
@@ -156,6 +131,7 @@ class RunWriter:
         self._regions: io.TextIOWrapper | None = None
         self._encoder = VtuEncoder()
         self._pvd_lines: list[str] = []       # the .pvd's lines of the frames written
+        self._pvd_listed = 0                  # frames the .pvd on disk lists
         self._queued = 0                      # frames handed over (written or waiting)
         self._writer = WriterThread(background, self.queue_frames, "RunWriter")
 
@@ -336,8 +312,27 @@ class RunWriter:
         self._start()
         path = self.frame_path(self._queued)
         self._queued += 1
-        self._writer.submit(lambda: self._write_frame_files(float(time), path, mesh, rows_text))
+        self._writer.submit(lambda: self._job(self._write_frame_files, float(time), path, mesh, rows_text))
         return path
+
+    def _job(self, work, *args) -> None:
+        """Run ``work(*args)`` (the writer thread's part of a call), then bring the ``.pvd`` up to
+        date unless more work waits: replacing a file costs a few ms of disk wait (ext4 flushes
+        it), so a writer behind the stepping rewrites the index once it has caught up, and
+        always before it stops on an error."""
+        try:
+            work(*args)
+        except BaseException:
+            self._write_index()
+            raise
+        if not self._writer.pending():
+            self._write_index()
+
+    def _write_index(self) -> None:
+        """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
+        if self._pvd_listed != len(self._pvd_lines):
+            _atomic_write_text(self.pvd_path, pvd_document(self._pvd_lines))
+            self._pvd_listed = len(self._pvd_lines)
 
     def _write_frame_files(self, time: float, path: Path, mesh: meshio.Mesh, rows_text: str) -> None:
         """The writer thread's part of a frame: ``.vtu``, ``.pvd`` and body rows, in that order."""
@@ -356,7 +351,6 @@ class RunWriter:
         if len(self._pvd_lines) != self._count - 1:          # files taken back by a resume
             self._pvd_lines = [pvd_line(t, f) for t, f in zip(self._frame_times[:-1], self._frame_files[:-1])]
         self._pvd_lines.append(pvd_line(time, self._frame_files[-1]))
-        _atomic_write_text(self.pvd_path, pvd_document(self._pvd_lines))
 
         if self._bodies is None:
             self._bodies = open(self.out_dir / BODIES_CSV, "w", encoding="utf-8", newline="")
@@ -371,7 +365,7 @@ class RunWriter:
         if not text:
             return
         self._start()
-        self._writer.submit(lambda: self._write_region_rows(text))
+        self._writer.submit(lambda: self._job(self._write_region_rows, text))
 
     def _write_region_rows(self, text: str) -> None:
         """The writer thread's part of :meth:`write_regions`."""

@@ -1,4 +1,5 @@
-"""VTK XML files of a run: frames (``.vtu`` unstructured grids) and the ``.pvd`` index.
+"""VTK XML files of a run: frames (``.vtu`` unstructured grids) and the ``.pvd`` index, and the
+merging of bodies' cells and fields into one frame mesh.
 
 The frames' own writer: the file meshio writes (binary, zlib-compressed blocks, UInt32 headers,
 which meshio, VTK and ParaView read), at zlib's fastest level, and with each array's encoding
@@ -16,6 +17,33 @@ from xml.sax.saxutils import quoteattr
 
 import meshio
 import numpy as np
+
+def field_array(name: str, value: Any, count: int, owner: str) -> np.ndarray:
+    """Field values as a (count,) or (count, k) float array (0-d values are broadcast)."""
+    array = np.asarray(value)
+    if array.ndim == 0:
+        array = np.full(count, array)
+    if array.ndim not in (1, 2) or len(array) != count:
+        raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
+    return array
+
+
+def merge_blocks(blocks: list[tuple[str, np.ndarray, dict[str, np.ndarray]]]):
+    """Join consecutive blocks ``(cell type, connectivity, cell data)`` of the same cell type
+    (keeps cell order): ``(meshio cell blocks, cell data by name, one array per block)``."""
+    merged: list[tuple[str, list[np.ndarray], dict[str, list[np.ndarray]]]] = []
+    for cell_type, conn, data in blocks:
+        if merged and merged[-1][0] == cell_type:
+            merged[-1][1].append(conn)
+            for name, values in data.items():
+                merged[-1][2][name].append(values)
+        else:
+            merged.append((cell_type, [conn], {n: [v] for n, v in data.items()}))
+    cells = [meshio.CellBlock(t, np.concatenate(c)) for t, c, _ in merged]
+    names = merged[0][2].keys() if merged else []
+    cell_data = {n: [np.concatenate(d[n]) for _, _, d in merged] for n in names}
+    return cells, cell_data
+
 
 VTK_CELL_TYPES = {"triangle": 5, "tetra": 10, "tetra10": 24}   # VTK's cell type ids (same node order as meshio)
 _VTU_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "i2": "Int16", "i1": "Int8",

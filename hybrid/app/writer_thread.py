@@ -75,6 +75,11 @@ class WriterThread:
                     self._busy = False
                     self.seconds += time.perf_counter() - start
 
+    def pending(self) -> int:
+        """Jobs waiting to run (not counting the one running)."""
+        with self._lock:
+            return len(self._jobs)
+
     def wait(self) -> None:
         """Block until every job submitted has run (or was dropped after a failure)."""
         thread = self._thread
