@@ -189,3 +189,50 @@ def test_an_unknown_quantity_is_an_exit_2_error_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--quantity box.spin" in err and "box.com" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_box_meshed_by_default_is_refined_by_splitting_its_default_cells(tmp_path):
+    """``--refine`` on a plate with no ``resolution``: each rung splits the default mesh's cells
+    (two quadratic layers through the thin side, longer cells along the long sides) 2, 4, ...
+    times, keeping the order; halving a cubic ``resolution`` instead would have meshed the
+    30 x 30 x 1 cm plate's first rung in linear tets 5 mm on a side (43,200 of them)."""
+    import tomllib
+    from hybrid.app.converge import ladder
+    from hybrid.app.scene import parse_scene
+    from hybrid.app.variants import apply_setting
+    from hybrid import Simulation
+    text = """
+[simulation]
+duration = 0.01
+dt = 0.001
+[[bodies]]
+name = "plate"
+model = "fem"
+young = 7e10
+density = 2700
+shape = { type = "box", size = [0.3, 0.3, 0.01] }
+"""
+    base = tomllib.loads(text)
+    rungs = ladder(parse_scene(base, "plate.toml", tmp_path), dt_levels=1, refine_levels=2)
+    meshes = []
+    for rung in rungs:
+        data = tomllib.loads(text)
+        for key, value in rung.settings.items():
+            apply_setting(data, key, value)
+        model = Simulation(parse_scene(data, "plate.toml", tmp_path)).model.fem[0]
+        meshes.append((model.order, model.tet_count, np.ptp(model.rest_points[:, 2])))
+    (order0, count0, thick0), (order1, count1, thick1) = meshes
+    assert order0 == order1 == 2
+    assert count1 == 8 * count0                   # every cell split in two along each side
+    assert thick0 == thick1 == pytest.approx(0.01)
+    # the CSV's resolution column: the shortest cell side, halved
+    from hybrid.app.converge import _resolution
+    scene = parse_scene(base, "plate.toml", tmp_path)
+    assert _resolution(rungs[1], scene) == pytest.approx(_resolution(rungs[0], scene) / 2)
+
+
+def test_refine_must_be_a_whole_number_of_at_least_one(tmp_path):
+    scene = tmp_path / "bad.toml"
+    scene.write_text('[[bodies]]\nname = "b"\nshape = { type = "box", size = [1, 1, 1], refine = 0 }\n')
+    code = main(["validate", str(scene)])
+    assert code == 2

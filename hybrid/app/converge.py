@@ -98,7 +98,9 @@ def ladder(scene, dt_levels, refine_levels=0, meshes=None, across=()):
 
 def _mesh_settings(scene, levels, meshes):
     """``{key: [value per mesh level]}``: a mesh ladder for each listed body, halved resolutions
-    for the other FEM bodies meshed from a shape."""
+    for the other FEM bodies meshed from a shape; a box meshed by default has each of its default
+    cells split 2, 4, ... times instead (``shape.refine``: its default cells may be longer along
+    its long sides, and its default element order is kept)."""
     from .deformable import default_resolution
     if levels < 2:
         return {}
@@ -112,6 +114,9 @@ def _mesh_settings(scene, levels, meshes):
         out[f"bodies.{name}.mesh"] = [str(Path(f).resolve()) for f in files]
     for b in scene.bodies:
         if b.model != "rigid" and b.shape is not None and b.name not in meshes:
+            if b.shape.type == "box" and b.shape.resolution is None:
+                out[f"bodies.{b.name}.shape.refine"] = [b.shape.refine * 2 ** j for j in range(levels)]
+                continue
             h = b.shape.resolution or default_resolution(b.shape)
             out[f"bodies.{b.name}.shape.resolution"] = [h / 2 ** j for j in range(levels)]
     if not out:
@@ -214,7 +219,7 @@ def _rows(scene, rungs, records, names, tol, refine_levels):
     for rung, record in zip(rungs, records):
         summary_time = scene.simulation.duration
         row = {"id": record["id"], **dict(rung.group), "dt": rung.settings["simulation.dt"],
-               "resolution": _resolution(rung) if refine_levels > 1 else "",
+               "resolution": _resolution(rung, scene) if refine_levels > 1 else "",
                "status": record["status"], "wall_s": record["wall_s"],
                "wall_per_sim_s": record["wall_s"] / summary_time if record["wall_s"] else ""}
         worst = 0.0
@@ -234,11 +239,16 @@ def _rows(scene, rungs, records, names, tol, refine_levels):
     return rows
 
 
-def _resolution(rung):
-    """The rung's first refined body's resolution (m) or mesh file."""
+def _resolution(rung, scene):
+    """The rung's first refined body's resolution (m; a box refined from its default mesh: the
+    shortest side of its cells) or mesh file."""
+    from .deformable import default_box_mesh
     for key, value in rung.settings.items():
         if key.endswith(".shape.resolution") or key.endswith(".mesh"):
             return value
+        if key.endswith(".shape.refine"):
+            body = next(b for b in scene.bodies if f"bodies.{b.name}.shape.refine" == key)
+            return default_box_mesh(body.shape.size, body.order).resolution / value
     return ""
 
 

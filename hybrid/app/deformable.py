@@ -103,6 +103,17 @@ def default_resolution(shape):
     return default_box_mesh(shape.size).resolution if shape.type == "box" else shape.radius / 2
 
 
+def box_cells(shape, order=None):
+    """Cell counts (3,) int of a deformable box ``shape``: its default mesh's
+    (:func:`default_box_mesh`, for the scene's ``order``, None when not given) or cubic cells of
+    its ``resolution``, each split ``refine`` times along each side."""
+    if shape.resolution is None:
+        cells = np.asarray(default_box_mesh(shape.size, order).cells)
+    else:
+        cells = _cell_counts(np.broadcast_to(np.asarray(shape.size, float), (3,)), shape.resolution)
+    return (cells * shape.refine).astype(int)
+
+
 def body_order(body):
     """Element order (1 or 2) a body is built with: its ``order``, else its default mesh's (a
     box without a ``resolution``), else 1."""
@@ -119,15 +130,12 @@ def _tet_mesh(body):
     if body.mesh is not None:
         return geometry.load_tet_mesh(body.mesh)
     s = body.shape
-    if s.type == "box" and s.resolution is None:
-        points, tets = box_tet_mesh(np.asarray(s.size, float), default_box_mesh(s.size, body.order).cells)
+    if s.type == "box":
+        points, tets = box_tet_mesh(np.asarray(s.size, float), box_cells(s, body.order))
         return points, tets, 1
     h = s.resolution or default_resolution(s)
     # the fem.mesh generators take cell counts; scene resolutions are edge lengths in metres
-    if s.type == "box":
-        size = np.broadcast_to(np.asarray(s.size, float), (3,))
-        points, tets = box_tet_mesh(size, np.maximum(1, np.ceil(size / h - 1e-9)).astype(int))
-    elif s.type == "sphere":
+    if s.type == "sphere":
         points, tets = sphere_tet_mesh(s.radius, 2 * s.radius / h)
     elif s.type == "cylinder":
         points, tets = cylinder_tet_mesh(s.radius, s.height, 2 * s.radius / h)
@@ -153,11 +161,13 @@ def mesh_notes(model):
         if body.mesh is not None:
             lines.append(f"{head}, from {body.mesh.name}")
         elif s.resolution is not None:
-            lines.append(f"{head}, resolution {s.resolution:.3g} m (given)")
+            split = f", each cell split {s.refine} times" if s.type == "box" and s.refine > 1 else ""
+            lines.append(f"{head}, resolution {s.resolution:.3g} m (given{split})")
         elif s.type == "box":
             d = default_box_mesh(s.size, body.order)
-            cells = " x ".join(f"{a * 1e3:.3g}" for a in np.asarray(s.size) / np.asarray(d.cells))
-            lines.append(f"{head}, cells {cells} mm (default: {d.why}; set `resolution` to choose)")
+            cells = " x ".join(f"{a * 1e3:.3g}" for a in np.asarray(s.size) / box_cells(s, body.order))
+            split = f", each cell split {s.refine} times" if s.refine > 1 else ""
+            lines.append(f"{head}, cells {cells} mm (default: {d.why}{split}; set `resolution` to choose)")
         else:
             lines.append(f"{head}, resolution {default_resolution(s):.3g} m (default: half the "
                          f"radius; set `resolution` to choose)")

@@ -217,11 +217,13 @@ def _check_element_count(shape, fem_model, where, problems, order=None):
     if h is None:
         return
     # in floats, capped, so no size or resolution overflows an integer (inf counts are rejected)
+    refine = shape.refine if shape.type == "box" and valid(shape.refine) else 1
     if shape.type == "box" and fem_model and shape.resolution is None:
         default = deformable.default_box_mesh(shape.size, order)
-        h, count = default.resolution, float(default.tet_count)
+        h, count = default.resolution / refine, float(default.tet_count) * refine ** 3
     elif shape.type == "box":
-        cells = [max(1.0, math.ceil(min(a / h, 1e18) - 1e-9)) for a in shape.size]
+        cells = [max(1.0, math.ceil(min(a / h, 1e18) - 1e-9)) * (refine if fem_model else 1)
+                 for a in shape.size]
         count = 6 * cells[0] * cells[1] * cells[2] if fem_model else \
             4 * (cells[0] * cells[1] + cells[1] * cells[2] + cells[2] * cells[0])
     else:

@@ -46,6 +46,7 @@ class Shape:
     radius: float | None = None
     height: float | None = None
     resolution: float | None = None
+    refine: int = 1
 
 
 @dataclass(frozen=True)

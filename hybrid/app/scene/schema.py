@@ -150,6 +150,11 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
               "(docs/scenes.md, default meshes); a sphere or cylinder at half its radius. The run log "
               "states each body's mesh and why.",
               shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
+    Field("refine", "integer", 1, "", "A deformable box's mesh (its default mesh, or the one "
+          "`resolution` gives) with each cell split this many times along each side, the element "
+          "order kept: how `hybrid converge --refine` refines a box (a default mesh's cells may be "
+          "longer along its long sides, which halving `resolution` would not keep).", low=1,
+          shapes=("box",)),
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
           "`capsule`; `height` with `cylinder`, `capsule`.",
           "A capsule's `height` must be >= 2 `radius`.",
