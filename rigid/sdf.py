@@ -31,6 +31,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from .sdf_build import band_distances, neighbour_pass, pair_distances
+
 DEFAULT_CELLS_ACROSS = 40  # default cell size = largest extent / 40
 DEFAULT_PADDING_CELLS = 3  # default margin around the bounding box, in cells
 BAND_CELLS = 2.0  # exact-distance band half width, in cells
@@ -115,117 +117,6 @@ def _winding_number_kernel(points, corners):
             total += np.arctan2(det, den)  # half the signed solid angle
         result[p] = total / (2.0 * np.pi)
     return result
-
-
-@numba.njit(cache=True)
-def _closest_weights(px, py, pz, a0, a1, a2, b0, b1, b2, c0, c1, c2):
-    """:func:`closest_point_weights` of one point ``(px, py, pz)`` and one triangle with corners
-    ``a, b, c``, the same regions in the same priority (corners, then edges ab, ac, bc, then the
-    face)."""
-    ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
-    ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
-    ap0, ap1, ap2 = px - a0, py - a1, pz - a2
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    bp0, bp1, bp2 = px - b0, py - b1, pz - b2
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    cp0, cp1, cp2 = px - c0, py - c1, pz - c2
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    if d1 <= 0 and d2 <= 0:
-        return 0.0, 0.0
-    if d3 >= 0 and d4 <= d3:
-        return 1.0, 0.0
-    if d6 >= 0 and d5 <= d6:
-        return 0.0, 1.0
-    if vc <= 0 and d1 >= 0 and d3 <= 0:
-        den = d1 - d3
-        return d1 / (den if den != 0 else 1.0), 0.0
-    if vb <= 0 and d2 >= 0 and d6 <= 0:
-        den = d2 - d6
-        return 0.0, d2 / (den if den != 0 else 1.0)
-    if va <= 0 and d4 >= d3 and d5 >= d6:
-        den = (d4 - d3) + (d5 - d6)
-        edge_bc = (d4 - d3) / (den if den != 0 else 1.0)
-        return 1.0 - edge_bc, edge_bc
-    total = va + vb + vc
-    total = total if total != 0 else 1.0
-    return vb / total, vc / total
-
-
-@numba.njit(cache=True)
-def _distance_squared(px, py, pz, corners, t):
-    """Squared distance from one point to triangle ``t`` of ``corners`` (T, 3, 3)
-    (:func:`point_triangle_distance_squared`)."""
-    a0, a1, a2 = corners[t, 0, 0], corners[t, 0, 1], corners[t, 0, 2]
-    b0, b1, b2 = corners[t, 1, 0], corners[t, 1, 1], corners[t, 1, 2]
-    c0, c1, c2 = corners[t, 2, 0], corners[t, 2, 1], corners[t, 2, 2]
-    v, w = _closest_weights(px, py, pz, a0, a1, a2, b0, b1, b2, c0, c1, c2)
-    o0 = px - a0 - v * (b0 - a0) - w * (c0 - a0)
-    o1 = py - a1 - v * (b1 - a1) - w * (c1 - a1)
-    o2 = pz - a2 - v * (b2 - a2) - w * (c2 - a2)
-    return o0 * o0 + o1 * o1 + o2 * o2
-
-
-@numba.njit(cache=True)
-def _band_kernel(corners, origin, h, shape, first, extent, best_d2, best_tri):
-    """The narrow band's loop over triangles and the grid nodes of their grown boxes (see
-    :func:`_narrow_band`); the last triangle attaining a node's minimum names it."""
-    ny, nz = shape[1], shape[2]
-    for t in range(len(corners)):
-        for i in range(first[t, 0], first[t, 0] + extent[t, 0]):
-            px = origin[0] + h * i
-            for j in range(first[t, 1], first[t, 1] + extent[t, 1]):
-                py = origin[1] + h * j
-                for k in range(first[t, 2], first[t, 2] + extent[t, 2]):
-                    d2 = _distance_squared(px, py, origin[2] + h * k, corners, t)
-                    node = (i * ny + j) * nz + k
-                    if d2 <= best_d2[node]:
-                        best_d2[node] = d2
-                        best_tri[node] = t
-
-
-@numba.njit(cache=True)
-def _pair_kernel(flat, tri, corners, origin, h, shape):
-    """Squared distances (k,) from grid nodes ``flat`` (k,) to their triangles ``tri`` (k,)."""
-    ny, nz = shape[1], shape[2]
-    out = np.empty(len(flat))
-    for p in range(len(flat)):
-        n = flat[p]
-        out[p] = _distance_squared(origin[0] + h * (n // (ny * nz)), origin[1] + h * ((n // nz) % ny),
-                                   origin[2] + h * (n % nz), corners, tri[p])
-    return out
-
-
-@numba.njit(cache=True)
-def _neighbour_kernel(far, d2, tri, corners, origin, h, shape):
-    """The propagation's repair pass (see :func:`_propagate`): each far node ``far`` (k,) tries
-    the closest triangles its six neighbours had, ``tri`` before the pass, in the order -x, +x,
-    -y, +y, -z, +z, and keeps any strictly closer; updates ``d2`` and returns the new ``tri``."""
-    nx, ny, nz = shape[0], shape[1], shape[2]
-    out = tri.copy()
-    for p in range(len(far)):
-        n = far[p]
-        i, j, k = n // (ny * nz), (n // nz) % ny, n % nz
-        px, py, pz = origin[0] + h * i, origin[1] + h * j, origin[2] + h * k
-        best, best_tri = d2[n], out[n]
-        for axis in range(3):
-            for step in (-1, 1):
-                a, b, c = i, j, k
-                if axis == 0:
-                    a = min(max(i + step, 0), nx - 1)
-                elif axis == 1:
-                    b = min(max(j + step, 0), ny - 1)
-                else:
-                    c = min(max(k + step, 0), nz - 1)
-                other = tri[(a * ny + b) * nz + c]
-                trial = _distance_squared(px, py, pz, corners, other)
-                if trial < best:
-                    best, best_tri = trial, other
-        d2[n], out[n] = best, best_tri
-    return out
 
 
 # --------------------------------------------------------------------------------- the grid
@@ -322,7 +213,7 @@ def _narrow_band(corners, origin, h, shape, band):
     best_d2 = np.full(node_count, np.inf)
     best_tri = np.full(node_count, -1, dtype=np.int64)
     first, extent = _node_range(corners.min(axis=1) - band, corners.max(axis=1) + band, origin, h, shape)
-    _band_kernel(np.ascontiguousarray(corners), origin, float(h), np.asarray(shape, dtype=np.int64),
+    band_distances(np.ascontiguousarray(corners), origin, float(h), np.asarray(shape, dtype=np.int64),
                  first, extent, best_d2, best_tri)
     return best_d2, best_tri
 
@@ -332,7 +223,7 @@ def _node_points(flat, origin, h, shape):
 
 
 def _distance_to(flat, tri, corners, origin, h, shape):
-    return _pair_kernel(np.asarray(flat, dtype=np.int64), np.asarray(tri, dtype=np.int64),
+    return pair_distances(np.asarray(flat, dtype=np.int64), np.asarray(tri, dtype=np.int64),
                         np.ascontiguousarray(corners), origin, float(h), np.asarray(shape, dtype=np.int64))
 
 
@@ -349,7 +240,7 @@ def _propagate(node_d2, node_tri, exact, corners, origin, h, shape):
         d2[far] = _distance_to(far, tri[far], corners, origin, h, shape)
         # One Jacobi pass over the six neighbours' closest triangles repairs seeds picked near
         # ties (medial surfaces, e.g. a box's diagonal planes).
-        tri = _neighbour_kernel(far.astype(np.int64), d2, tri, np.ascontiguousarray(corners), origin,
+        tri = neighbour_pass(far.astype(np.int64), d2, tri, np.ascontiguousarray(corners), origin,
                                 float(h), np.asarray(shape, dtype=np.int64))
     return np.sqrt(d2), tri
 

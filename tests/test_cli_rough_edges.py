@@ -69,6 +69,7 @@ def test_an_unexpected_error_in_a_step_ends_the_run_with_its_frames_and_summary(
         return solve(*args)
 
     monkeypatch.setattr(coupled, "solve", failing)
+    monkeypatch.setenv("HYBRID_NO_WARM_UP", "1")       # the build's warm-up steps would count too
     scene = tmp_path / "drop.toml"
     scene.write_text("""
 [simulation]

@@ -198,9 +198,9 @@ def test_a_box_meshed_by_default_is_refined_by_splitting_its_default_cells(tmp_p
     30 x 30 x 1 cm plate's first rung in linear tets 5 mm on a side (43,200 of them)."""
     import tomllib
     from hybrid.app.converge import ladder
+    from hybrid.app.deformable import body_order, box_cells
     from hybrid.app.scene import parse_scene
     from hybrid.app.variants import apply_setting
-    from hybrid import Simulation
     text = """
 [simulation]
 duration = 0.01
@@ -219,12 +219,13 @@ shape = { type = "box", size = [0.3, 0.3, 0.01] }
         data = tomllib.loads(text)
         for key, value in rung.settings.items():
             apply_setting(data, key, value)
-        model = Simulation(parse_scene(data, "plate.toml", tmp_path)).model.fem[0]
-        meshes.append((model.order, model.tet_count, np.ptp(model.rest_points[:, 2])))
-    (order0, count0, thick0), (order1, count1, thick1) = meshes
+        body = parse_scene(data, "plate.toml", tmp_path).bodies[0]
+        meshes.append((body_order(body), box_cells(body.shape, body.order)))
+    (order0, cells0), (order1, cells1) = meshes
     assert order0 == order1 == 2
-    assert count1 == 8 * count0                   # every cell split in two along each side
-    assert thick0 == thick1 == pytest.approx(0.01)
+    assert cells0[2] == 2                         # the default's two layers through the 1 cm side
+    assert list(cells1) == [2 * c for c in cells0]   # every cell split in two along each side
+    assert cells0[0] < 0.3 / 0.005                # longer cells along the long sides than across
     # the CSV's resolution column: the shortest cell side, halved
     from hybrid.app.converge import _resolution
     scene = parse_scene(base, "plate.toml", tmp_path)

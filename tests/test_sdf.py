@@ -194,10 +194,10 @@ def test_non_convex_star_shape_sign_and_distance_at_nodes():
 
 
 def test_compiled_point_triangle_distance_matches_the_numpy_one_in_every_region():
-    """The grid build's compiled loops (rigid.sdf._band_kernel, _pair_kernel) use a scalar copy of
+    """The grid build's compiled loops (rigid.sdf_build) use a scalar copy of
     the closest-point classification; on random points around random, thin and degenerate
     triangles it gives the numpy version's squared distances to round-off."""
-    from rigid.sdf import _pair_kernel
+    from rigid.sdf_build import pair_distances
     rng = np.random.default_rng(7)
     k = 4000
     corners = rng.standard_normal((k, 3, 3))
@@ -208,5 +208,5 @@ def test_compiled_point_triangle_distance_matches_the_numpy_one_in_every_region(
     # one grid node (the origin) against every triangle moved by a random offset
     corners -= 2.0 * rng.standard_normal((k, 1, 3))
     want = point_triangle_distance_squared(np.zeros((k, 3)), corners[:, 0], corners[:, 1], corners[:, 2])
-    got = _pair_kernel(np.zeros(k, dtype=np.int64), np.arange(k), corners, origin, h, shape)
+    got = pair_distances(np.zeros(k, dtype=np.int64), np.arange(k), corners, origin, h, shape)
     assert np.allclose(got, want, rtol=1e-12, atol=1e-15)
