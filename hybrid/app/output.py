@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import re
-import tempfile
+import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +38,8 @@ from typing import Any, Iterable, Mapping, Sequence
 import meshio
 import numpy as np
 
-from .text_files import atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain
+from .text_files import (atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain,
+                         temporary_path)
 from .vtu import (VtuEncoder, field_array as _field_array, merge_blocks as _merge_blocks, pvd_document,
                   pvd_line, pvd_text as _pvd_text, write_vtu)
 from .writer_thread import WriterThread
@@ -115,6 +117,7 @@ class RunWriter:
     """
 
     queue_frames = 8
+    index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
 
     def __init__(self, out_dir: Path | str, scene_name: str, background: bool = True):
         self.out_dir = Path(out_dir)
@@ -132,6 +135,7 @@ class RunWriter:
         self._encoder = VtuEncoder()
         self._pvd_lines: list[str] = []       # the .pvd's lines of the frames written
         self._pvd_listed = 0                  # frames the .pvd on disk lists
+        self._index_time = -math.inf          # time.monotonic() of its last rewrite
         self._queued = 0                      # frames handed over (written or waiting)
         self._writer = WriterThread(background, self.queue_frames, "RunWriter")
 
@@ -208,6 +212,8 @@ class RunWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             self._writer.wait()
+            if exc_type is None:
+                self._write_index()
         finally:
             self._close_files()
         if exc_type is None:
@@ -223,6 +229,7 @@ class RunWriter:
         has not been raised yet."""
         self._writer.wait()
         self._writer.raise_error()
+        self._write_index()
 
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
         """Wait for the frames handed over, write ``summary.json`` (if a summary is given) and
@@ -317,15 +324,15 @@ class RunWriter:
 
     def _job(self, work, *args) -> None:
         """Run ``work(*args)`` (the writer thread's part of a call), then bring the ``.pvd`` up to
-        date unless more work waits: replacing a file costs a few ms of disk wait (ext4 flushes
-        it), so a writer behind the stepping rewrites the index once it has caught up, and
-        always before it stops on an error."""
+        date if no more work waits and it was last written ``index_every`` s ago: replacing a
+        file costs a few ms of disk wait (ext4 flushes it). Always before the writer stops on an
+        error, and in ``flush`` / ``close``."""
         try:
             work(*args)
         except BaseException:
             self._write_index()
             raise
-        if not self._writer.pending():
+        if not self._writer.pending() and time.monotonic() - self._index_time >= self.index_every:
             self._write_index()
 
     def _write_index(self) -> None:
@@ -333,11 +340,11 @@ class RunWriter:
         if self._pvd_listed != len(self._pvd_lines):
             _atomic_write_text(self.pvd_path, pvd_document(self._pvd_lines))
             self._pvd_listed = len(self._pvd_lines)
+        self._index_time = time.monotonic()
 
     def _write_frame_files(self, time: float, path: Path, mesh: meshio.Mesh, rows_text: str) -> None:
         """The writer thread's part of a frame: ``.vtu``, ``.pvd`` and body rows, in that order."""
-        fd, tmp = tempfile.mkstemp(dir=self.frames_dir, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
+        tmp = temporary_path(path)
         try:
             write_vtu(tmp, mesh, self._encoder)
             os.replace(tmp, path)
