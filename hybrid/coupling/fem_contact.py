@@ -139,16 +139,14 @@ def _current_nearest(m, s, x):
     return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
-def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, own=None):
+def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
     those closer than ``reach`` (p,) m, ``motion`` being b's :func:`_motion`: ``(rows, corners,
     weights, nearest, point, normal, gap)``. b's side is a place in its surface triangle ``corners``
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
     node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
     With ``off_nodes`` (m), points within that distance of their nearest node across the normal
-    are left out (that node's own contact covers them). ``own`` (p, 3): the points' own outward
-    unit normals (surface nodes; zero where none), along which they meet b's edges and vertices
-    (kernels.places)."""
+    are left out (that node's own contact covers them)."""
     radius = np.zeros(len(x)) if radius is None else radius
     moved, largest = motion[2], motion[3]
     # into b's rest frame, less the deformation there: the displacement of b's surface node now
@@ -159,11 +157,7 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, own=None):
     grid = _grid(mb)
     phi, n_rest = kernels.grid_query(grid.origin, grid.cell_size, grid.shape, grid.values, X)
     phi = phi - radius
-    # a point exactly on an edge or a vertex may find the grid's gradient zero (its neighbours
-    # cancel, and a cube's corner node lost its contact): with its own normal to meet edges by it
-    # stays (a place left without a unit normal is dropped, detect._movable)
-    near = np.nonzero((phi < reach + largest)
-                      & (np.any(n_rest != 0, axis=1) | (own is not None)))[0]
+    near = np.nonzero((phi < reach + largest) & np.any(n_rest != 0, axis=1))[0]
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
     close = _nearest_nodes(mb, Y) if len(near) else np.zeros((0, 1), np.int64)
     if off_nodes is not None and len(near):
@@ -179,15 +173,10 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, own=None):
     # triangle around it, averaged (with the first triangle found alone, mirror-image corners
     # turned differently, and a soft cube hit face on by a rigid one left spinning about the
     # impact axis)
-    # the triangle is searched with the point itself (less its radius), not with Y: the grid's
-    # interpolated distance and gradient put Y off the closest place (by 2% of an edge beside a
-    # cube's corner), and mirror-image nodes met mirror-image places at gaps of 1.0 and 2.3 mm
     _, tri, around = _surface_index(mb)
-    inward = np.zeros((len(near), 3)) if own is None else -own[near] @ sb.R
     corners, weights, n, gap = kernels.places(
-        X[near] - radius[near, None] * n_rest[near], close, around, tri,
-        mb.rest_points[mb.surface_nodes], moved, n_rest[near], X[near] + local[near],
-        radius[near], inward)
+        Y, close, around, tri, mb.rest_points[mb.surface_nodes], moved, n_rest[near],
+        X[near] + local[near], radius[near])
     hit = gap < reach[near]
     rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], close[hit, 0], gap[hit]
     normal = n[hit] @ sb.R.T
@@ -254,11 +243,7 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
                                               <= radius + slack + node_sweep))[0]
         if not len(near):
             continue
-        own = np.zeros((len(near), 3))
-        for j in np.unique(node_body[near]):
-            mine = node_body[near] == j
-            own[mine] = _node_normals(models[j], states[j], near[mine] - node_offset[j])
-        found = _against(mb, sb, motion, node_x[near], slack + node_sweep[near], own=own)
+        found = _against(mb, sb, motion, node_x[near], slack + node_sweep[near])
         rows, corners, weights, nearest, point, normal, gap = found
         a = near[rows]
         _append(parts, a, ib[corners], weights, ib[nearest], point, normal, gap,

@@ -215,42 +215,7 @@ def turned(v, rest, now):
 
 
 @nb.njit(cache=True)
-def _candidates(y, close, around, triangles, P, faces, dist):
-    """The triangles ``around`` the nearest surface nodes ``close`` (kc,) of point ``y`` (3,):
-    fills ``faces`` and their squared distances ``dist``; returns ``(count, best, v, w)``, the
-    number filled, the index of the closest (the first among equally close) and its barycentric
-    weights (:func:`closest_weights`)."""
-    count, best, best_v, best_w = 0, -1, 0.0, 0.0
-    for j in range(len(close)):
-        for slot in range(around.shape[1]):
-            f = around[close[j], slot]
-            if f < 0:
-                continue
-            a, b, c = P[triangles[f, 0]], P[triangles[f, 1]], P[triangles[f, 2]]
-            v, w = closest_weights(y[0], y[1], y[2], a, b, c)
-            o0 = y[0] - a[0] - v * (b[0] - a[0]) - w * (c[0] - a[0])
-            o1 = y[1] - a[1] - v * (b[1] - a[1]) - w * (c[1] - a[1])
-            o2 = y[2] - a[2] - v * (b[2] - a[2]) - w * (c[2] - a[2])
-            faces[count] = f
-            dist[count] = o0 * o0 + o1 * o1 + o2 * o2
-            if best < 0 or dist[count] < dist[best]:
-                best, best_v, best_w = count, v, w
-            count += 1
-    return count, best, best_v, best_w
-
-
-@nb.njit(cache=True)
-def _triangle_into(f, triangles, P, moved, rest, now):
-    """Corners of triangle ``f`` at rest (``P``) and moved (``P + moved``) into ``rest`` and
-    ``now`` (3, 3)."""
-    for i in range(3):
-        for a in range(3):
-            rest[i, a] = P[triangles[f, i], a]
-            now[i, a] = rest[i, a] + moved[triangles[f, i], a]
-
-
-@nb.njit(cache=True)
-def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, inward):
+def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
     ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
@@ -259,28 +224,44 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, inward)
     close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (and, for a
     point on an edge or vertex, with every triangle holding it as closely, to 1e-6 of the
     triangle's size, averaged); ``X_now`` (p, 3) the points moved as the surface moved, ``radius``
-    (p,) m. ``inward`` (p, 3): where it is a unit vector (a surface node's own face normal,
-    reversed, in the body's frame), a point on an edge or vertex is met along it instead: there
-    the grid's gradient is any blend of the faces around, decided by round-off (two cubes meeting
-    face on with coinciding edges parted spinning at 2.5 rad/s), and a node meets an edge along
-    its own face's normal, as it meets a rigid edge (fem_contact.edge_normals). Returns
-    ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle, the barycentric
-    weights, the turned normal and the gap along it to the place as it is now."""
+    (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
+    the barycentric weights, the turned normal and the gap along it to the place as it is now."""
     p = len(Y)
     corners = np.zeros((p, 3), dtype=np.int64)
     weights = np.zeros((p, 3))
     normal = np.zeros((p, 3))
     gap = np.zeros(p)
-    faces = np.empty(close.shape[1] * around.shape[1], dtype=np.int64)
-    dist = np.empty(len(faces))
+    kc, d = close.shape[1], around.shape[1]
+    faces = np.empty(kc * d, dtype=np.int64)
+    dist = np.empty(kc * d)
     rest = np.empty((3, 3))
     now = np.empty((3, 3))
     for k in range(p):
-        count, best, best_v, best_w = _candidates(Y[k], close[k], around, triangles, P, faces, dist)
+        count = 0
+        best = -1
+        best_v = 0.0
+        best_w = 0.0
+        for j in range(kc):
+            for slot in range(d):
+                f = around[close[k, j], slot]
+                if f < 0:
+                    continue
+                a, b, c = P[triangles[f, 0]], P[triangles[f, 1]], P[triangles[f, 2]]
+                v, w = closest_weights(Y[k, 0], Y[k, 1], Y[k, 2], a, b, c)
+                o0 = Y[k, 0] - a[0] - v * (b[0] - a[0]) - w * (c[0] - a[0])
+                o1 = Y[k, 1] - a[1] - v * (b[1] - a[1]) - w * (c[1] - a[1])
+                o2 = Y[k, 2] - a[2] - v * (b[2] - a[2]) - w * (c[2] - a[2])
+                faces[count] = f
+                dist[count] = o0 * o0 + o1 * o1 + o2 * o2
+                if best < 0 or dist[count] < dist[best]:
+                    best, best_v, best_w = count, v, w
+                count += 1
         f = faces[best]
-        _triangle_into(f, triangles, P, moved, rest, now)
         for i in range(3):
             corners[k, i] = triangles[f, i]
+            for a in range(3):
+                rest[i, a] = P[triangles[f, i], a]
+                now[i, a] = rest[i, a] + moved[triangles[f, i], a]
         weights[k, 0], weights[k, 1], weights[k, 2] = 1.0 - best_v - best_w, best_v, best_w
         n = turned(n_rest[k], rest, now)
         e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
@@ -298,14 +279,13 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, inward)
             if seen:
                 continue
             tied = True
-            _triangle_into(g, triangles, P, moved, rest, now)
+            for i in range(3):
+                for a in range(3):
+                    rest[i, a] = P[triangles[g, i], a]
+                    now[i, a] = rest[i, a] + moved[triangles[g, i], a]
             n += turned(n_rest[k], rest, now)
         if tied:
-            own = inward[k, 0] * inward[k, 0] + inward[k, 1] * inward[k, 1] + inward[k, 2] * inward[k, 2]
-            if abs(own - 1.0) < 1e-6:
-                n = inward[k].copy()
-            else:
-                n /= max(np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), 1e-300)
+            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         normal[k] = n
         s = 0.0
         for a in range(3):
