@@ -26,32 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import meshio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_csv  # noqa: E402
+from _common import cube_scene, write_csv  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-CUBE_SCENE = """
-[simulation]
-name = "cube"
-duration = 1.0
-dt = 0.001
-output_fps = 100
-
-[[planes]]
-friction = 0.5
-
-[[bodies]]
-name = "cube"
-model = "fem"
-mesh = "cube.vtu"
-position = [0.0, 0.0, 0.15]
-density = 1000.0
-young = 1.0e5
-poisson = 0.3
-damping = { mass = 0.0, stiffness = 0.01 }
-"""
 DECORATOR = re.compile(r"@(?:nb\.|numba\.)?(?:njit|jit)\b(\([^)]*\))?")
 
 
@@ -70,14 +49,6 @@ def uncached_kernels():
 def kernel_count():
     return sum(len(DECORATOR.findall(path.read_text()))
                for folder in ("rigid", "fem", "hybrid") for path in (ROOT / folder).rglob("*.py"))
-
-
-def cube_scene(folder):
-    from fem.mesh import box_tet_mesh
-    points, tets = box_tet_mesh([0.2, 0.2, 0.2], (6, 6, 6))
-    meshio.write(folder / "cube.vtu", meshio.Mesh(points, [("tetra", tets)]))
-    (folder / "cube.toml").write_text(CUBE_SCENE)
-    return str(folder / "cube.toml")
 
 
 def one_run(scene, out, cache, warm):
@@ -109,7 +80,7 @@ def main(argv=None):
     work = Path(tempfile.mkdtemp(prefix="cold_start_"))
     rows = []
     try:
-        scenes = {"default": "default", "cube": cube_scene(work) if "cube" in args.scenes else None}
+        scenes = {"default": "default", "cube": str(cube_scene(work)) if "cube" in args.scenes else None}
         for label in args.scenes:
             print(f"\n{label}: hybrid run {scenes[label] if label == 'default' else 'cube.toml'} "
                   f"(machine shared with other jobs)")

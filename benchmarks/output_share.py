@@ -30,49 +30,18 @@ import tempfile
 import time
 from pathlib import Path
 
-import meshio
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_csv  # noqa: E402
+from _common import cube_scene, write_csv  # noqa: E402
 
-from fem.mesh import box_tet_mesh  # noqa: E402
 from hybrid import Simulation  # noqa: E402
 from hybrid.app import observe, output, run as run_module  # noqa: E402
 from hybrid.app.output_resume import ResumableWriter  # noqa: E402
 
-CUBE_SCENE = """
-[simulation]
-name = "cube"
-duration = 1.0
-dt = 0.001
-output_fps = 100
-
-[[planes]]
-friction = 0.5
-
-[[bodies]]
-name = "cube"
-model = "fem"
-mesh = "cube.vtu"
-position = [0.0, 0.0, 0.15]
-density = 1000.0
-young = 1.0e5
-poisson = 0.3
-damping = { mass = 0.0, stiffness = 0.01 }
-"""
 
 OUTPUT_CALLS = ((observe, "frame_pieces"), (observe, "body_rows"), (observe, "region_rows"),
                 (output.RunWriter, "write_frame"), (output.RunWriter, "write_regions"),
                 (output.RunWriter, "close"))
-
-
-def cube_scene(folder):
-    """The 1,296-tet cube scene file in ``folder`` (its mesh written beside it)."""
-    points, tets = box_tet_mesh([0.2, 0.2, 0.2], (6, 6, 6))
-    meshio.write(folder / "cube.vtu", meshio.Mesh(points, [("tetra", tets)]))
-    (folder / "cube.toml").write_text(CUBE_SCENE)
-    return folder / "cube.toml"
 
 
 class OutputClock:
