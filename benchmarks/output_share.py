@@ -1,23 +1,27 @@
-"""Share of a run's wall time spent writing its output, frames written in place against off the
-stepping thread, side by side in one run.
+"""Share of a run's wall time spent writing its output, frames written in place, by a writer
+thread and by a writer process, side by side in one run.
 
 Scenes: the built-in default scene (rigid bodies, 3 s at 1/240 s, 30 frames/s) and a soft
 1,296-tet cube (0.2 m, 6 x 6 x 6 cells, E = 100 kPa) dropped on the ground (1 s at dt = 1 ms,
 100 frames/s, the rate at which writing frames took 0.4 s of 1.5 s per simulated second). Each
-scene is run through ``Simulation.run`` (what ``hybrid run SCENE --out DIR`` does) in three
+scene is run through ``Simulation.run`` (what ``hybrid run SCENE --out DIR`` does) in these
 ways, interleaved, ``--repeats`` times:
 
 - ``none``: no output folder (the run still keeps its conserved quantities per frame);
 - ``inline``: frames, tables and summary written on the stepping thread (``RunWriter(...,
   background=False)``, the writer before issue 24);
-- ``thread``: the same files written by the writer thread (the default).
+- ``thread``: the same files written by a writer thread (``background="thread"``);
+- ``process``: written by a writer process (``background="process"``);
+- ``auto``: the default (``background="auto"``): the thread until multiprocessing's fork server
+  is up, then a process. The server is started by the warm-up run before the timed runs, as the
+  first run of a process starts it (docs/performance.md gives what that costs a single run).
 
 The output share of a way is (median wall with output - median wall of ``none``) / median wall
 with output; its CPU share the same with the process's CPU time (all threads), steadier when
 other jobs load the machine. Also printed: the stepping thread's own time in the output calls (the frame's
 fields and rows computed in ``hybrid.app.observe``, and ``write_frame`` / ``write_regions`` /
 ``close``), which the writer thread cannot take over. The goal line takes the larger share of the
-two scenes with the writer thread.
+two scenes with the default way (``auto``).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/output_share.py [--repeats 5]
 """
@@ -39,6 +43,7 @@ from hybrid.app import observe, output, run as run_module  # noqa: E402
 from hybrid.app.output_resume import ResumableWriter  # noqa: E402
 
 
+WAYS = {"none": False, "inline": False, "thread": "thread", "process": "process", "auto": "auto"}
 OUTPUT_CALLS = ((observe, "frame_pieces"), (observe, "body_rows"), (observe, "region_rows"),
                 (output.RunWriter, "write_frame"), (output.RunWriter, "write_regions"),
                 (output.RunWriter, "close"))
@@ -77,7 +82,7 @@ def one_run(scene_file, way, out_dir):
     """``(wall s of Simulation.run, its process CPU s (all threads), s the stepping thread spent
     in output calls)``."""
     sim = Simulation.from_toml(scene_file)
-    writer = functools.partial(ResumableWriter, background=(way == "thread"))
+    writer = functools.partial(ResumableWriter, background=WAYS[way])
     saved = run_module.ResumableWriter
     run_module.ResumableWriter = writer
     try:
@@ -96,13 +101,17 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5, help="runs of each way (medians)")
     parser.add_argument("--csv", default="outputs/bench/output_share.csv")
     args = parser.parse_args(argv)
+    from hybrid.app import writer_process
+    why = writer_process.unavailable()
+    if why is not None:
+        print(f"no writer process here ({why}): 'process' falls back to nothing, 'auto' to the thread")
     work = Path(tempfile.mkdtemp(prefix="output_share_"))
     try:
         scenes = {"default": "default", "cube_1296": cube_scene(work)}
-        ways = ("none", "inline", "thread")
+        ways = tuple(WAYS)
         rows, shares = [], {}
         for label, scene in scenes.items():
-            one_run(scene, "thread", work / "warm")            # numba caches and imports loaded
+            one_run(scene, "auto", work / "warm")      # numba caches, imports, the fork server
             walls = {w: [] for w in ways}
             cpus = {w: [] for w in ways}
             inside = {w: [] for w in ways}
@@ -133,11 +142,11 @@ def main(argv=None):
                              "output_share": share, "cpu_median_s": cpu, "cpu_share": cpu_share,
                              "stepping_thread_output_s": spent,
                              "walls": " ".join(f"{w:.4f}" for w in walls[way])})
-                if way == "thread":
+                if way == "auto":
                     shares[label] = share
             inline = statistics.median(walls["inline"])
-            thread = statistics.median(walls["thread"])
-            print(f"  thread / inline wall: {thread / inline:.3f}")
+            for way in ("thread", "process", "auto"):
+                print(f"  {way} / inline wall: {statistics.median(walls[way]) / inline:.3f}")
         write_csv(args.csv, rows)
         worst = max(shares.values())
         print(f"\nwrote {args.csv}")

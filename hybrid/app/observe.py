@@ -10,14 +10,18 @@ from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_ener
 from hybrid.coupling.switch import fem_state
 
 from .output import FramePiece
+from .vtu import Deferred
 
 
-def tet_fields(fem_model, fem_state):
+def tet_fields(fem_model, fem_state, deferred=False):
     """Per-tet fields of an FEM body: ``von_mises`` and ``principal_stress`` (largest principal
     stress, Pa) of the element stress, ``plastic_strain`` (accumulated equivalent plastic strain,
-    the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1)."""
+    the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1).
+    ``deferred``: ``principal_stress`` as a :class:`hybrid.app.vtu.Deferred` of the stresses,
+    computed by the run's writer (the batched eigenvalues are most of a frame's fields' time)."""
     sigma = element_stress(fem_model, fem_state, fem_state.tet_plastic_strain)
-    fields = {"von_mises": von_mises(sigma), "principal_stress": principal_stress_max(sigma),
+    principal = Deferred(principal_stress_max, sigma) if deferred else principal_stress_max(sigma)
+    fields = {"von_mises": von_mises(sigma), "principal_stress": principal,
               "plastic_strain": 0.0, "yielded": 0}
     if fem_state.tet_peeq is not None:
         fields["plastic_strain"] = fem_state.tet_peeq.max(axis=1)
@@ -28,7 +32,7 @@ def tet_fields(fem_model, fem_state):
 def _tet_piece(body_id, m, s):
     """The FramePiece of an FEM body (model ``m``, state ``s``): its tets with their fields."""
     cell = "tetra10" if m.order == 2 else "tetra"
-    cell_data = tet_fields(m, s) | {"deformable": np.int8(1)}       # rigid bodies' cells: 0
+    cell_data = tet_fields(m, s, deferred=True) | {"deformable": np.int8(1)}   # rigid bodies' cells: 0
     return FramePiece(body_id, s.x, [(cell, m.tets)], cell_data=cell_data,
                       point_data={"displacement": s.x - m.rest_points, "velocity": s.v})
 
@@ -78,7 +82,7 @@ def body_rows(model, state):
     velocity I^-1 L of the node cloud about its centre of mass.
     """
     rows = {}
-    t = state.time
+    t = float(state.time)
     rm, rs = model.rigid, state.rigid
     if rm.body_count:
         v = reported_velocity(rm, rs, model.gravity)
@@ -90,7 +94,11 @@ def body_rows(model, state):
             k = int(model.rigid_ids[i])
             if k in model.parked:
                 q[i] = _parked_orientation(model, state, i, k)
-            rows[k] = (t, model.names[k], *rs.position[i], *q[i], *v[i], *w[i], float(ke[i]), "rigid")
+        # one conversion of the whole table to Python floats (not one per value)
+        table = np.column_stack([rs.position, q, v, w, ke]).tolist()
+        for i, values in enumerate(table):
+            k = int(model.rigid_ids[i])
+            rows[k] = (t, model.names[k], *values, "rigid")
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
         weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix
         mass = weights.sum()
@@ -102,9 +110,9 @@ def body_rows(model, state):
         placed = model.scene.bodies[model.fem_ids[j]].orientation
         q = quat.from_matrix(s.R @ quat.to_matrix(np.asarray(placed, float)))
         ke = fem_dyn.kinetic_energy(m, s)
-        rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *com, *q, *(p / mass), *w,
-                                       ke, "fem")
-    return [tuple(float(x) if not isinstance(x, str) else x for x in rows[k]) for k in sorted(rows)]
+        values = np.concatenate([com, q, p / mass, w, [ke]]).tolist()
+        rows[int(model.fem_ids[j])] = (t, model.names[model.fem_ids[j]], *values, "fem")
+    return [rows[k] for k in sorted(rows)]
 
 
 def _parked_orientation(model, state, i, k):

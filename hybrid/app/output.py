@@ -14,34 +14,29 @@ index and the summary are written to a temporary file in the same folder and mov
 with ``os.replace``; CSV rows of one frame go out in one ``write`` followed by ``flush``, so only
 whole lines reach the disk.
 
-Frames are written off the stepping thread: ``RunWriter.write_frame`` checks its input, merges the
-pieces into one mesh of copied arrays and formats the CSV rows, then hands them to a writer thread
-that writes the ``.vtu``, rewrites the ``.pvd`` and appends the rows, in order, while the stepping
-goes on (docs/output.md, "Writing off the stepping thread").
+Frames are written off the stepping thread: ``RunWriter.write_frame`` checks its input and hands
+the pieces' arrays and the rows over, as plain data, to a writer process (or thread) that merges
+them, writes the ``.vtu``, rewrites the ``.pvd`` and appends the rows, in order, while the stepping
+goes on (:mod:`hybrid.app.writer_process`; docs/output.md, "Writing off the stepping thread").
 
 ``read_run`` is the matching reader used by rendering and tests.
 """
 
 from __future__ import annotations
 
-import io
 import json
-import math
-import os
 import re
-import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-import meshio
 import numpy as np
 
-from .text_files import (atomic_write_text as _atomic_write_text, csv_rows as _csv_rows, plain as _plain,
-                         temporary_path)
-from .vtu import (VtuEncoder, field_array as _field_array, merge_blocks as _merge_blocks, pvd_document,
-                  pvd_line, pvd_text as _pvd_text, write_vtu)
+from . import writer_process
+from .text_files import atomic_write_text as _atomic_write_text, plain as _plain
+from .vtu import Deferred, merge_pieces, pvd_text as _pvd_text, write_vtu
+from .writer_process import FrameFiles, WriterProcess
 from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
@@ -103,74 +98,76 @@ class RunWriter:
     Cell and point field names are discovered from the pieces: once a field has been seen, every
     later frame carries it, with 0 for bodies that do not supply it.
 
-    Writing happens on a writer thread (started when there is work, ended when there is none, so
-    it never keeps the interpreter alive): ``write_frame`` and ``write_regions`` check and copy
-    their input on the caller's thread, raise ValueError for bad input at once, and queue the
-    files' work; at most ``queue_frames`` frames wait, beyond that the caller waits for the disk.
-    The files are written in the order of the calls, exactly as a synchronous writer writes them.
-    An error in the writer thread (a full disk) stops the writing, keeping the frames written
+    ``background`` says where the files are written (:mod:`hybrid.app.writer_process`):
+
+    - ``"process"``: by a writer process, a child of this one that ends with the writer;
+    - ``True`` or ``"thread"``: by a writer thread (started when there is work, ended when there
+      is none, so it never keeps the interpreter alive);
+    - ``"auto"``: by the writer thread until multiprocessing's fork server is up (started by the
+      first such writer of the process, it takes most of a second), then by a writer process;
+      by the thread only in a daemonic process (a Dask worker), which cannot have children;
+    - ``False`` or ``"inline"``: on the caller's thread.
+
+    ``write_frame`` and ``write_regions`` check and copy their input on the caller's thread, raise
+    ValueError for bad input at once (nothing of that call is written), and queue the files' work;
+    beyond ``queue_frames`` frames waiting (a process: and 64 MB) the caller waits for the disk.
+    The files are written in the order of the calls, byte for byte as the caller's thread writes
+    them. An error in the writer (a full disk) stops the writing, keeping the frames written
     before it and the ``.pvd`` that lists them, and is raised on the caller's thread by the next
     ``write_frame``, ``write_regions``, ``flush`` or ``close``. ``flush()`` waits until every
-    queued frame is on disk; reading ``frames_written`` (or the other file state a subclass
-    reads) does so too, so what is read matches the files. ``background=False`` writes on the
-    caller's thread instead (the same files, byte for byte).
+    queued frame is on disk; reading ``frames_written`` does so too, so what is read matches the
+    files. ``close()`` (or leaving the ``with`` block) ends the writer process.
     """
 
     queue_frames = 8
     index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
+    _MODES = {False: "inline", True: "thread", "inline": "inline", "thread": "thread",
+              "process": "process", "auto": "auto"}
 
-    def __init__(self, out_dir: Path | str, scene_name: str, background: bool = True):
+    def __init__(self, out_dir: Path | str, scene_name: str, background: bool | str = True):
+        if background not in self._MODES:
+            raise ValueError(f"background must be one of False, True, 'inline', 'thread', 'process', "
+                             f"'auto', not {background!r}")
         self.out_dir = Path(out_dir)
         self.scene_name = str(scene_name)
+        self.mode = self._MODES[background]
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
         self._started = False
         self._closed = False
-        # the writer thread's side: files as written so far (read through the properties below)
-        self._count = 0                       # frames on disk
-        self._frame_times: list[float] = []
-        self._frame_files: list[str] = []
-        self._bodies: io.TextIOWrapper | None = None
-        self._regions: io.TextIOWrapper | None = None
-        self._encoder = VtuEncoder()
-        self._pvd_lines: list[str] = []       # the .pvd's lines of the frames written
-        self._pvd_listed = 0                  # frames the .pvd on disk lists
-        self._index_time = -math.inf          # time.monotonic() of its last rewrite
         self._queued = 0                      # frames handed over (written or waiting)
-        self._writer = WriterThread(background, self.queue_frames, "RunWriter")
+        # the files as written on this process (inline, thread, and "auto" until a process takes over)
+        self._frame_files = FrameFiles(self.out_dir, self.pvd_path.name, self.index_every,
+                                       write_vtu=lambda *args: write_vtu(*args))
+        self._writer = WriterThread(self.mode != "inline", self.queue_frames, "RunWriter")
+        self._process: WriterProcess | None = None
+        self._process_error: BaseException | None = None     # why "auto" stayed on the thread
+        self._ended_seconds = 0.0           # writing time of the writer process once it ended
+        if self.mode == "auto" and writer_process.unavailable() is None:
+            writer_process.fork_server.start()
 
     @property
     def writer_seconds(self) -> float:
-        """Wall time (s) spent writing files so far, on whichever thread wrote them."""
-        return self._writer.seconds
+        """Wall time (s) spent writing files so far, on whichever thread or process wrote them."""
+        return self._writer.seconds + self._ended_seconds + (self._process.seconds if self._process else 0.0)
+
+    @property
+    def writer_pid(self) -> int | None:
+        """The id of the writer process while one writes this run's files, else None."""
+        return self._process.pid if self._process else None
 
     # -- file state, as on disk once the queued work is done -----------------------------
+    def _file_state(self) -> dict:
+        """:meth:`hybrid.app.writer_process.FrameFiles.state` once the queued work is done."""
+        if self._process is not None:
+            return self._process.state()
+        self._writer.wait()
+        return self._frame_files.state()
+
     @property
     def frames_written(self) -> int:
         """Frames written so far (waits for the frames handed over to reach the disk)."""
-        self._writer.wait()
-        return self._count
-
-    @frames_written.setter
-    def frames_written(self, value: int) -> None:
-        self._writer.wait()
-        self._count = self._queued = int(value)
-
-    def _state_property(name: str, doc: str):          # noqa: N805 (a property factory)
-        def get(self):
-            self._writer.wait()
-            return getattr(self, name)
-
-        def put(self, value):
-            self._writer.wait()
-            setattr(self, name, value)
-        return property(get, put, doc=doc)
-
-    _times = _state_property("_frame_times", "Times (s) of the frames written.")
-    _files = _state_property("_frame_files", "The .pvd's file entries of the frames written.")
-    _bodies_file = _state_property("_bodies", "bodies.csv, open once its first row is written.")
-    _regions_file = _state_property("_regions", "regions.csv, open once its first row is written.")
-    del _state_property
+        return self._file_state()["count"]
 
     # -- paths ---------------------------------------------------------------------------
     @property
@@ -210,31 +207,39 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
+        if self._closed:
+            return
         try:
-            self._writer.wait()
-            if exc_type is None:
-                self._write_index()
+            self._wait()
+            self._submit(("index",))            # every frame on disk listed, also on an error
+            self._wait()
         finally:
-            self._close_files()
+            self._end()
         if exc_type is None:
-            self._writer.raise_error()           # a writer error nobody has seen yet
+            self._raise_error()                 # a writer error nobody has seen yet
 
-    def _close_files(self) -> None:
-        for f in (self._bodies, self._regions):
-            if f is not None and not f.closed:
-                f.close()
+    def _end(self) -> None:
+        """Close the tables and end the writer process (its files closed)."""
+        self._frame_files.close()
+        if self._process is not None:
+            self._process.stop()
+            self._ended_seconds += self._process.seconds
+            self._process = None
+        self._closed = True
 
     def flush(self) -> None:
-        """Wait until everything handed over is on disk; raise the writer thread's error if it
-        has not been raised yet."""
-        self._writer.wait()
-        self._writer.raise_error()
-        self._write_index()
+        """Wait until everything handed over is on disk; raise the writer's error if it has not
+        been raised yet."""
+        self._wait()
+        self._raise_error()
+        self._submit(("index",))
+        self._wait()
+        self._raise_error()
 
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
-        """Wait for the frames handed over, write ``summary.json`` (if a summary is given) and
-        close the CSV files. Raises the writer thread's error (if not raised yet) instead of
-        writing the summary."""
+        """Wait for the frames handed over, write ``summary.json`` (if a summary is given), close
+        the CSV files and end the writer process. Raises the writer's error (if not raised yet)
+        instead of writing the summary."""
         try:
             self.flush()
             if summary is not None:
@@ -242,145 +247,158 @@ class RunWriter:
                 text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
                 _atomic_write_text(self.out_dir / SUMMARY_JSON, text)
         finally:
-            self._close_files()
-            self._closed = True
+            self._end()
+
+    # -- the writer: here, on the thread, or in the process ------------------------------
+    def _submit(self, job: tuple) -> None:
+        """Hand ``job`` (a :class:`hybrid.app.writer_process.FrameFiles` job) to the writer."""
+        if self._process is None and self.mode == "auto" and writer_process.fork_server.ready():
+            self._take_over()
+        if self._process is None and self.mode == "process":
+            self._process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+        if self._process is not None:
+            self._process.submit(job)
+            return
+        if self.mode == "thread" or self.mode == "auto":
+            job = _owned(job)            # the caller may change its arrays once this returns
+        files, writer = self._frame_files, self._writer
+        writer.submit(lambda: files.run(job, idle=not writer.pending()))
+
+    def _take_over(self) -> None:
+        """Hand the files over from the writer thread to a new writer process (``auto``)."""
+        self._writer.wait()
+        if self._writer.failed():
+            return                       # a failed thread's error is raised as it is
+        try:
+            process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+        except (OSError, RuntimeError) as error:          # stay on the thread
+            self.mode, self._process_error = "thread", error
+            return
+        state = self._frame_files.state()
+        self._frame_files.close()
+        process.submit(("restore", state))
+        self._process = process
+
+    def _wait(self) -> None:
+        self._writer.wait()
+        if self._process is not None:
+            self._process.wait()
+
+    def _raise_error(self) -> None:
+        self._writer.raise_error()
+        if self._process is not None:
+            self._process.raise_error()
 
     # -- frames --------------------------------------------------------------------------
-    def _register(self, registry: dict[str, tuple[int, ...]], name: str, array: np.ndarray, kind: str) -> None:
-        trailing = array.shape[1:]
-        known = registry.setdefault(name, trailing)
-        if known != trailing:
-            raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
-
-    def build_mesh(self, pieces: Sequence[FramePiece]) -> meshio.Mesh:
-        """Merge pieces into one meshio mesh (cell data ``body_id`` plus every known field).
-
-        Every array of the mesh is a new one (concatenated or converted), so the pieces' arrays
-        may change as soon as this returns."""
-        arrays = []
+    def _check_pieces(self, pieces: Sequence[FramePiece]) -> list[tuple]:
+        """The pieces as :func:`hybrid.app.vtu.merge_pieces` takes them, checked (ValueError);
+        registers their fields once all are good."""
+        cell_fields, point_fields = dict(self._cell_fields), dict(self._point_fields)
+        checked, cell_total = [], 0
         for piece in pieces:
+            owner = f"body {piece.body_id}"
             points = np.asarray(piece.points, dtype=float)
             if points.ndim != 2 or points.shape[1] != 3:
-                raise ValueError(f"body {piece.body_id}: points have shape {points.shape}, expected (n, 3)")
-            cell_count = sum(len(np.asarray(c)) for _, c in piece.cells)
-            cdata = {n: _field_array(n, v, cell_count, f"body {piece.body_id} cell")
-                     for n, v in piece.cell_data.items()}
-            pdata = {n: _field_array(n, v, len(points), f"body {piece.body_id} point")
-                     for n, v in piece.point_data.items()}
-            for name, array in cdata.items():
-                self._register(self._cell_fields, name, array, "cell")
-            for name, array in pdata.items():
-                self._register(self._point_fields, name, array, "point")
-            arrays.append((piece, points, cell_count, cdata, pdata))
-
-        blocks = []
-        offset = 0
-        for piece, points, cell_count, cdata, pdata in arrays:
-            start = 0
+                raise ValueError(f"{owner}: points have shape {points.shape}, expected (n, 3)")
+            blocks = []
             for cell_type, conn in piece.cells:
                 conn = np.asarray(conn, dtype=np.int64)
                 if conn.ndim != 2:
-                    raise ValueError(f"body {piece.body_id}: {cell_type} cells must be a 2-d index array")
+                    raise ValueError(f"{owner}: {cell_type} cells must be a 2-d index array")
                 if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
-                    raise ValueError(f"body {piece.body_id}: {cell_type} cell index out of range")
-                stop = start + len(conn)
-                data = {"body_id": np.full(len(conn), piece.body_id, dtype=np.int32)}
-                for name, trailing in self._cell_fields.items():
-                    if name in cdata:
-                        data[name] = cdata[name][start:stop].astype(float)
-                    else:
-                        data[name] = np.zeros((len(conn), *trailing))
-                blocks.append((cell_type, conn + offset, data))
-                start = stop
-            offset += len(points)
-
-        points = np.concatenate([a[1] for a in arrays]) if arrays else np.zeros((0, 3))
-        point_data = {}
-        for name, trailing in self._point_fields.items():
-            parts = [a[4][name].astype(float) if name in a[4] else np.zeros((len(a[1]), *trailing))
-                     for a in arrays]
-            point_data[name] = np.concatenate(parts) if parts else np.zeros((0, *trailing))
-        cells, cell_data = _merge_blocks(blocks)
-        if not cells or not sum(len(block.data) for block in cells):
-            # meshio cannot write (or read back) an empty unstructured grid.
+                    raise ValueError(f"{owner}: {cell_type} cell index out of range")
+                blocks.append((str(cell_type), conn))
+            cell_count = sum(len(c) for _, c in blocks)
+            cell_total += cell_count
+            cdata = {n: _field(n, v, cell_count, f"{owner} cell", cell_fields) for n, v in piece.cell_data.items()}
+            pdata = {n: _field(n, v, len(points), f"{owner} point", point_fields)
+                     for n, v in piece.point_data.items()}
+            checked.append((int(piece.body_id), points, blocks, cdata, pdata))
+        if not cell_total:
+            # VTK readers cannot read back an empty unstructured grid.
             raise ValueError("a frame needs at least one body with at least one cell")
-        return meshio.Mesh(points, cells, point_data=point_data, cell_data=cell_data)
+        self._cell_fields, self._point_fields = cell_fields, point_fields
+        return checked
+
+    def build_mesh(self, pieces: Sequence[FramePiece]):
+        """Merge pieces into one ``meshio.Mesh`` (cell data ``body_id`` plus every known field),
+        as the frame files hold them. Every array of the mesh is a new one."""
+        checked = self._check_pieces(pieces)
+        return merge_pieces(checked, self._cell_fields, self._point_fields).to_meshio()
 
     def write_frame(self, time: float, pieces: Sequence[FramePiece], body_rows: Iterable[Any] = ()) -> Path:
         """Write one frame: the merged ``.vtu``, the updated ``.pvd`` and the frame's body rows.
 
         ``body_rows`` are tuples in the order of ``BODY_COLUMNS`` or dicts with exactly those keys.
-        The input is checked (ValueError) and copied here; the files are written by the writer
-        thread. Returns the path the frame file gets.
+        The input is checked (ValueError) and copied here; the files are written by the writer.
+        Returns the path the frame file gets.
         """
-        self._writer.raise_error()
-        mesh = self.build_mesh(pieces)
-        rows_text = _csv_rows(body_rows, BODY_COLUMNS)
+        self._raise_error()
+        checked = self._check_pieces(pieces)
+        rows = _check_rows(body_rows, BODY_COLUMNS)
         self._start()
         path = self.frame_path(self._queued)
+        self._submit(("frame", float(time), path.name, checked, dict(self._cell_fields),
+                      dict(self._point_fields), BODIES_CSV, BODY_COLUMNS, rows))
         self._queued += 1
-        self._writer.submit(lambda: self._job(self._write_frame_files, float(time), path, mesh, rows_text))
         return path
-
-    def _job(self, work, *args) -> None:
-        """Run ``work(*args)`` (the writer thread's part of a call), then bring the ``.pvd`` up to
-        date if no more work waits and it was last written ``index_every`` s ago: replacing a
-        file costs a few ms of disk wait (ext4 flushes it). Always before the writer stops on an
-        error, and in ``flush`` / ``close``."""
-        try:
-            work(*args)
-        except BaseException:
-            self._write_index()
-            raise
-        if not self._writer.pending() and time.monotonic() - self._index_time >= self.index_every:
-            self._write_index()
-
-    def _write_index(self) -> None:
-        """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
-        if self._pvd_listed != len(self._pvd_lines):
-            _atomic_write_text(self.pvd_path, pvd_document(self._pvd_lines))
-            self._pvd_listed = len(self._pvd_lines)
-        self._index_time = time.monotonic()
-
-    def _write_frame_files(self, time: float, path: Path, mesh: meshio.Mesh, rows_text: str) -> None:
-        """The writer thread's part of a frame: ``.vtu``, ``.pvd`` and body rows, in that order."""
-        tmp = temporary_path(path)
-        try:
-            write_vtu(tmp, mesh, self._encoder)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-
-        self._frame_times.append(time)
-        self._frame_files.append(f"{FRAMES_DIR}/{path.name}")
-        self._count += 1
-        if len(self._pvd_lines) != self._count - 1:          # files taken back by a resume
-            self._pvd_lines = [pvd_line(t, f) for t, f in zip(self._frame_times[:-1], self._frame_files[:-1])]
-        self._pvd_lines.append(pvd_line(time, self._frame_files[-1]))
-
-        if self._bodies is None:
-            self._bodies = open(self.out_dir / BODIES_CSV, "w", encoding="utf-8", newline="")
-            rows_text = ",".join(BODY_COLUMNS) + "\n" + rows_text
-        self._bodies.write(rows_text)
-        self._bodies.flush()
 
     def write_regions(self, rows: Iterable[Any]) -> None:
         """Append region rows (``REGION_COLUMNS`` order, or dicts); creates regions.csv on first rows."""
-        self._writer.raise_error()
-        text = _csv_rows(rows, REGION_COLUMNS)
-        if not text:
+        self._raise_error()
+        rows = _check_rows(rows, REGION_COLUMNS)
+        if not rows:
             return
         self._start()
-        self._writer.submit(lambda: self._job(self._write_region_rows, text))
+        self._submit(("rows", REGIONS_CSV, REGION_COLUMNS, rows))
 
-    def _write_region_rows(self, text: str) -> None:
-        """The writer thread's part of :meth:`write_regions`."""
-        if self._regions is None:
-            self._regions = open(self.out_dir / REGIONS_CSV, "w", encoding="utf-8", newline="")
-            text = ",".join(REGION_COLUMNS) + "\n" + text
-        self._regions.write(text)
-        self._regions.flush()
+
+def _field(name: str, value: Any, count: int, owner: str, registry: dict) -> np.ndarray:
+    """A piece's field checked: a 0-d value (the same on every cell or point), (count,) or
+    (count, k), or a :class:`hybrid.app.vtu.Deferred` of ``count`` rows; its row shape registered
+    in ``registry`` (ValueError if it differs from before)."""
+    if isinstance(value, Deferred):
+        array, trailing = value, tuple(value.trailing)
+        if len(value.trailing) > 1 or len(value) != count:
+            raise ValueError(f"{owner} field {name!r} has {len(value)} rows, expected {count}")
+    else:
+        array = np.asarray(value)
+        if array.ndim != 0 and (array.ndim not in (1, 2) or len(array) != count):
+            raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
+        trailing = array.shape[1:]
+    known = registry.setdefault(name, trailing)
+    if known != trailing:
+        kind = owner.rsplit(" ", 1)[-1]
+        raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
+    return array
+
+
+def _check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
+    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
+    out = []
+    for row in rows:
+        if isinstance(row, Mapping):
+            if set(row) != set(columns):
+                missing = sorted(set(columns) - set(row))
+                extra = sorted(set(row) - set(columns))
+                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
+            row = tuple(row[c] for c in columns)
+        else:
+            row = tuple(row)
+            if len(row) != len(columns):
+                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
+        out.append(row)
+    return out
+
+
+def _owned(job: tuple) -> tuple:
+    """``job`` with its frame's arrays copied (a job run later by the writer thread)."""
+    if job[0] != "frame":
+        return job
+    pieces = [(body_id, points.copy(), [(t, c.copy()) for t, c in blocks],
+               {n: v.copy() for n, v in cdata.items()}, {n: v.copy() for n, v in pdata.items()})
+              for body_id, points, blocks, cdata, pdata in job[3]]
+    return job[:3] + (pieces,) + job[4:]
 
 
 def find_pvd(run_dir: Path | str, summary: Mapping[str, Any] | None = None) -> Path:

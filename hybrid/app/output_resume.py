@@ -7,6 +7,7 @@ folder back to that point: frames written after it are deleted, the tables cut t
 (rows an interrupted run wrote after the checkpoint are dropped), ``summary.json`` removed, the
 ``.pvd`` index rewritten; the run then appends as if it had never stopped.
 """
+import os
 from pathlib import Path
 
 from .output import (BODIES_CSV, FRAME_PATTERN, FRAMES_DIR, REGIONS_CSV, SUMMARY_JSON, RunWriter,
@@ -21,7 +22,17 @@ class ResumeError(ValueError):
 
 class ResumableWriter(RunWriter):
     """A :class:`hybrid.app.output.RunWriter` whose files can be continued after a checkpoint;
-    a new run also removes an earlier run's checkpoint with its other files."""
+    a new run also removes an earlier run's checkpoint with its other files. It writes with
+    ``background="auto"`` unless told otherwise, here or by the environment variable
+    ``HYBRID_WRITER`` (``auto``, ``process``, ``thread``, ``inline``): a run's files are written
+    by a writer process once multiprocessing's fork server is up (see
+    :class:`hybrid.app.output.RunWriter`)."""
+
+    def __init__(self, out_dir, scene_name, background=None):
+        if background is None:
+            background = os.environ.get("HYBRID_WRITER", "auto")
+            background = {"true": True, "false": False}.get(background.lower(), background)
+        super().__init__(out_dir, scene_name, background)
 
     def _start(self):
         """Create the run folder on first output, clearing an earlier run's files and checkpoint."""
@@ -29,51 +40,55 @@ class ResumableWriter(RunWriter):
             (self.out_dir / CHECKPOINT).unlink(missing_ok=True)
         super()._start()
 
-    def _tables(self):
-        """``(file name, open file or None)`` of the two tables."""
-        return ((BODIES_CSV, self._bodies_file), (REGIONS_CSV, self._regions_file))
-
     def snapshot(self):
-        """What :meth:`resume` needs to continue these files from now (a JSON-ready dict)."""
-        for _, f in self._tables():
-            if f is not None:
-                f.flush()
-        return {"frames": self.frames_written, "times": list(self._times), "files": list(self._files),
+        """What :meth:`resume` needs to continue these files from now (a JSON-ready dict); waits
+        for the frames handed over to reach the disk."""
+        state = self._file_state()
+        return {"frames": state["count"], "times": state["times"], "files": state["files"],
                 "cell_fields": [[n, list(s)] for n, s in self._cell_fields.items()],
                 "point_fields": [[n, list(s)] for n, s in self._point_fields.items()],
-                "tables": {name: f.tell() for name, f in self._tables() if f is not None}}
+                "tables": state["tables"]}
 
     def resume(self, snapshot):
         """Take the run folder back to ``snapshot`` and append from there. Raises ResumeError
         when a frame or table the snapshot counts is missing or shorter."""
-        self.frames_written = int(snapshot["frames"])
-        self._times = [float(t) for t in snapshot["times"]]
-        self._files = [str(f) for f in snapshot["files"]]
-        self._cell_fields = {n: tuple(s) for n, s in snapshot["cell_fields"]}
-        self._point_fields = {n: tuple(s) for n, s in snapshot["point_fields"]}
-        for name in self._files:
+        self._wait()
+        times = [float(t) for t in snapshot["times"]]
+        files = [str(f) for f in snapshot["files"]]
+        for name in files:
             if not (self.out_dir / name).is_file():
                 raise ResumeError(f"{self.out_dir / name}: missing, the checkpoint counts it")
+        tables = {name: snapshot["tables"].get(name) for name in (BODIES_CSV, REGIONS_CSV)}
+        for name, length in tables.items():
+            self._check_table(name, length)
         for stale in self.frames_dir.iterdir() if self.frames_dir.is_dir() else ():
-            if FRAME_PATTERN.match(stale.name) and f"{FRAMES_DIR}/{stale.name}" not in self._files:
+            if FRAME_PATTERN.match(stale.name) and f"{FRAMES_DIR}/{stale.name}" not in files:
                 stale.unlink()
-        self._bodies_file = self._cut(BODIES_CSV, snapshot["tables"].get(BODIES_CSV))
-        self._regions_file = self._cut(REGIONS_CSV, snapshot["tables"].get(REGIONS_CSV))
+        for name, length in tables.items():
+            self._cut(name, length)
         (self.out_dir / SUMMARY_JSON).unlink(missing_ok=True)
-        _atomic_write_text(self.pvd_path, _pvd_text(self._times, self._files))
+        _atomic_write_text(self.pvd_path, _pvd_text(times, files))
+        self._cell_fields = {n: tuple(s) for n, s in snapshot["cell_fields"]}
+        self._point_fields = {n: tuple(s) for n, s in snapshot["point_fields"]}
+        self._queued = int(snapshot["frames"])
+        self._submit(("restore", {"count": self._queued, "times": times, "files": files,
+                                  "tables": [name for name, length in tables.items() if length is not None]}))
+        self._wait()
         self._started = True
 
+    def _check_table(self, name, length):
+        """ResumeError when the table ``name`` is missing or shorter than ``length`` bytes."""
+        path = Path(self.out_dir) / name
+        size = path.stat().st_size if path.is_file() else -1
+        if length is not None and size < length:
+            raise ResumeError(f"{path}: {'missing' if size < 0 else f'{size} bytes'}, the checkpoint "
+                              f"wrote {length}")
+
     def _cut(self, name, length):
-        """The table ``name`` cut to ``length`` bytes and open for appending (None, and the file
-        removed, when the checkpoint had none)."""
+        """The table ``name`` cut to ``length`` bytes (removed when the checkpoint had none)."""
         path = Path(self.out_dir) / name
         if length is None:
             path.unlink(missing_ok=True)
-            return None
-        size = path.stat().st_size if path.is_file() else -1
-        if size < length:
-            raise ResumeError(f"{path}: {'missing' if size < 0 else f'{size} bytes'}, the checkpoint "
-                              f"wrote {length}")
+            return
         with open(path, "r+b") as f:
             f.truncate(length)
-        return open(path, "a", encoding="utf-8", newline="")

@@ -1,5 +1,5 @@
 """VTK XML files of a run: frames (``.vtu`` unstructured grids) and the ``.pvd`` index, and the
-merging of bodies' cells and fields into one frame mesh.
+merging of bodies' cells and fields into one frame mesh (:func:`merge_pieces`).
 
 The frames' own writer: the file meshio writes (binary, zlib-compressed blocks, UInt32 headers,
 which meshio, VTK and ParaView read), at zlib's fastest level, and with each array's encoding
@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import zlib
 from base64 import b64encode
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 from xml.sax.saxutils import quoteattr
 
-import meshio
 import numpy as np
+
+# meshio (a quarter of a second to import) is imported only where it is used, so that the writer
+# process (hybrid.app.writer_process) starts without it.
 
 def field_array(name: str, value: Any, count: int, owner: str) -> np.ndarray:
     """Field values as a (count,) or (count, k) float array (0-d values are broadcast)."""
@@ -39,6 +42,7 @@ def merge_blocks(blocks: list[tuple[str, np.ndarray, dict[str, np.ndarray]]]):
                 merged[-1][2][name].append(values)
         else:
             merged.append((cell_type, [conn], {n: [v] for n, v in data.items()}))
+    import meshio
     cells = [meshio.CellBlock(t, np.concatenate(c)) for t, c, _ in merged]
     names = merged[0][2].keys() if merged else []
     cell_data = {n: [np.concatenate(d[n]) for _, _, d in merged] for n in names}
@@ -86,17 +90,126 @@ def _vtu_array(encoder: VtuEncoder, key: Any, name: str, array: np.ndarray) -> s
             f"{text}\n</DataArray>\n")
 
 
-def write_vtu(path: Path | str, mesh: meshio.Mesh, encoder: VtuEncoder | None = None) -> None:
-    """Write ``mesh`` (triangle, tetra and tetra10 blocks; anything else through meshio) as a
-    ``.vtu`` file at ``path``; ``encoder`` carries unchanged arrays over from the last frame."""
-    if any(block.type not in VTK_CELL_TYPES for block in mesh.cells):
-        meshio.write(path, mesh, file_format="vtu")
+@dataclass
+class FrameMesh:
+    """One frame's mesh as plain arrays (what :func:`write_vtu` writes).
+
+    points: (n, 3) m. cells: ``(cell type, (m, k) int64 indices into points)`` blocks in order.
+    point_data: name -> (n,) or (n, k). cell_data: name -> (cell_count,) or (cell_count, k), one
+    value or row per cell over all blocks in order."""
+
+    points: np.ndarray
+    cells: list[tuple[str, np.ndarray]]
+    point_data: dict[str, np.ndarray] = field(default_factory=dict)
+    cell_data: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, mesh: Any) -> "FrameMesh":
+        """A FrameMesh of a ``meshio.Mesh`` (its cell data joined over the blocks), or ``mesh``."""
+        if isinstance(mesh, cls):
+            return mesh
+        return cls(np.asarray(mesh.points), [(b.type, np.asarray(b.data)) for b in mesh.cells],
+                   dict(mesh.point_data), {n: np.concatenate(v) for n, v in mesh.cell_data.items()})
+
+    def to_meshio(self):
+        """The same mesh as a ``meshio.Mesh`` (consecutive blocks of one cell type joined)."""
+        import meshio
+        sizes = [len(c) for _, c in self.cells]
+        splits = np.cumsum(sizes)[:-1]
+        blocks = [(t, c, {n: v for n, v in zip(self.cell_data, parts)})
+                  for (t, c), *parts in zip(self.cells, *(np.split(a, splits) for a in self.cell_data.values()))]
+        cells, cell_data = merge_blocks(blocks)
+        return meshio.Mesh(self.points, cells, point_data=self.point_data, cell_data=cell_data)
+
+
+Piece = tuple       # (body id, points (n, 3) float, [(cell type, (m, k) int64)], cell data, point data)
+
+
+@dataclass
+class Deferred:
+    """A field computed by the writer: ``function(argument)``, one value (``trailing`` shape) per
+    row of ``argument``. ``function`` must be a module-level function (pickled by name for the
+    writer process), e.g. ``Deferred(fem.stress.principal_stress_max, sigma)``: the stepping
+    thread hands over the stresses and the writer computes their largest eigenvalues."""
+
+    function: Any
+    argument: np.ndarray
+    trailing: tuple = ()
+
+    def __len__(self) -> int:
+        return len(self.argument)
+
+    def value(self) -> np.ndarray:
+        """The field's values."""
+        return np.asarray(self.function(self.argument))
+
+    def copy(self) -> "Deferred":
+        """The same field with its argument copied."""
+        return Deferred(self.function, np.array(self.argument), self.trailing)
+
+
+def _value(field_value):
+    return field_value.value() if isinstance(field_value, Deferred) else field_value
+
+
+def merge_pieces(pieces: Sequence[Piece], cell_fields: Mapping[str, tuple[int, ...]],
+                 point_fields: Mapping[str, tuple[int, ...]]) -> FrameMesh:
+    """Merge checked pieces (see :meth:`hybrid.app.output.RunWriter.write_frame`) into one frame:
+    cell data ``body_id`` (int32) and every field of ``cell_fields`` / ``point_fields`` (name ->
+    row shape, in order) as float64, 0 where a piece does not supply it; a piece's field may be
+    0-d (the same value on every cell or point). Every array returned is a new one."""
+    conn, body_ids = [], []
+    cell_parts = {name: [] for name in cell_fields}
+    offset = 0
+    for body_id, points, blocks, cdata, pdata in pieces:
+        cdata = {n: _value(v) for n, v in cdata.items()}
+        start = 0
+        for cell_type, c in blocks:
+            stop = start + len(c)
+            conn.append((cell_type, c + offset))
+            body_ids.append(np.full(len(c), body_id, dtype=np.int32))
+            for name, trailing in cell_fields.items():
+                value = cdata.get(name)
+                if value is None:
+                    part = np.zeros((len(c), *trailing))
+                elif np.ndim(value) == 0:
+                    part = np.full(len(c), value).astype(float)
+                else:
+                    part = value[start:stop].astype(float)
+                cell_parts[name].append(part)
+            start = stop
+        offset += len(points)
+    point_data = {}
+    for name, trailing in point_fields.items():
+        parts = []
+        for _, points, _, _, pdata in pieces:
+            value = _value(pdata.get(name))
+            if value is None:
+                parts.append(np.zeros((len(points), *trailing)))
+            elif np.ndim(value) == 0:
+                parts.append(np.full(len(points), value).astype(float))
+            else:
+                parts.append(value.astype(float))
+        point_data[name] = np.concatenate(parts) if parts else np.zeros((0, *trailing))
+    points = np.concatenate([p[1] for p in pieces]) if pieces else np.zeros((0, 3))
+    cell_data = {"body_id": np.concatenate(body_ids)} | {n: np.concatenate(v) for n, v in cell_parts.items()}
+    return FrameMesh(points, conn, point_data, cell_data)
+
+
+def write_vtu(path: Path | str, mesh: Any, encoder: VtuEncoder | None = None) -> None:
+    """Write ``mesh`` (a :class:`FrameMesh` or ``meshio.Mesh``; triangle, tetra and tetra10
+    blocks, anything else through meshio) as a ``.vtu`` file at ``path``; ``encoder`` carries
+    unchanged arrays over from the last frame."""
+    mesh = FrameMesh.of(mesh)
+    if any(cell_type not in VTK_CELL_TYPES for cell_type, _ in mesh.cells):
+        import meshio
+        meshio.write(path, mesh.to_meshio(), file_format="vtu")
         return
     encoder = encoder or VtuEncoder()
-    conn = [np.asarray(block.data, dtype=np.int64) for block in mesh.cells]
+    conn = [np.asarray(c, dtype=np.int64) for _, c in mesh.cells]
     sizes = np.concatenate([np.full(len(c), c.shape[1], dtype=np.int64) for c in conn])
-    types = np.concatenate([np.full(len(c), VTK_CELL_TYPES[b.type], dtype=np.uint8)
-                            for b, c in zip(mesh.cells, conn)])
+    types = np.concatenate([np.full(len(c), VTK_CELL_TYPES[t], dtype=np.uint8)
+                            for (t, _), c in zip(mesh.cells, conn)])
     parts = ['<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" '
              'byte_order="LittleEndian" compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n'
              f'<Piece NumberOfPoints="{len(mesh.points)}" NumberOfCells="{len(types)}">\n<Points>\n',
@@ -112,7 +225,7 @@ def write_vtu(path: Path | str, mesh: meshio.Mesh, encoder: VtuEncoder | None = 
         parts.append("</PointData>\n")
     if mesh.cell_data:
         parts.append("<CellData>\n")
-        parts += [_vtu_array(encoder, ("cell", n), n, np.concatenate(v)) for n, v in mesh.cell_data.items()]
+        parts += [_vtu_array(encoder, ("cell", n), n, v) for n, v in mesh.cell_data.items()]
         parts.append("</CellData>\n")
     parts.append("</Piece>\n</UnstructuredGrid>\n</VTKFile>\n")
     with open(path, "w", encoding="ascii") as f:

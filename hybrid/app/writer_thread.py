@@ -89,6 +89,11 @@ class WriterThread:
             while self._jobs or self._busy or self._thread is not None:
                 self._lock.wait()
 
+    def failed(self) -> bool:
+        """Whether a job failed (its error raised or not)."""
+        with self._lock:
+            return self._error is not None
+
     def raise_error(self) -> None:
         """Raise the error of the job that failed, once (later calls return)."""
         with self._lock:

@@ -1,0 +1,437 @@
+"""The files' side of a run's output (:class:`FrameFiles`) and the process that can run it
+(:class:`WriterProcess`).
+
+:class:`hybrid.app.output.RunWriter` checks each frame on the stepping thread and hands it over
+as plain data (numpy arrays, numbers, strings: no simulation objects) in a job. A
+:class:`FrameFiles` runs the jobs in order: it merges the bodies into one mesh, encodes the
+``.vtu``, appends the CSV rows and keeps the ``.pvd`` index. It runs on the caller's thread, on a
+writer thread, or in a writer process: a child process of the run (started through
+multiprocessing's fork server, so it is never forked from a process whose numba or BLAS threads
+are running) that receives the jobs pickled through a pipe. The stepping thread's part is then
+to check and copy; the interpreter lock no longer makes the stepping wait for the encoding.
+
+The process ignores SIGINT (a Ctrl-C reaches every process of the terminal's group; the run
+stops cleanly and closes its writer, which writes every frame handed over), writes what it has
+received and ends when the run closes its writer or when the run's process is gone (its end of
+the pipe closed), and stops at the first job that fails: later jobs are dropped and the error is
+raised on the stepping thread, naming the process.
+"""
+from __future__ import annotations
+
+import atexit
+import math
+import multiprocessing
+import multiprocessing.util
+import os
+import pickle
+import queue
+import re
+import signal
+import sys
+import threading
+import time
+import traceback
+import weakref
+from pathlib import Path
+from typing import Any
+
+from .text_files import atomic_write_text, csv_rows, temporary_path
+from .vtu import VtuEncoder, merge_pieces, pvd_document, pvd_line, write_vtu as _write_vtu
+
+FRAMES_DIR = "frames"
+
+
+class FrameFiles:
+    """The files of one run as written so far, and the jobs that write them.
+
+    A job is a tuple ``(name, *args)`` naming a method: ``frame``, ``rows``, ``index``,
+    ``restore`` or ``state``. ``write_vtu``: the function that writes a frame file (the default
+    :func:`hybrid.app.vtu.write_vtu`). ``index_every``: wall time (s), at least, between rewrites
+    of the ``.pvd`` while frames come (replacing a file waits a few ms for the disk)."""
+
+    def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, write_vtu=None):
+        self.out_dir, self.pvd_path = Path(out_dir), Path(out_dir) / pvd_name
+        self.index_every = index_every
+        self.write_vtu = write_vtu or _write_vtu
+        self.count = 0                      # frames on disk
+        self.times: list[float] = []        # their times (s)
+        self.files: list[str] = []          # their .pvd entries (frames/frame_00000.vtu, ...)
+        self.pvd_lines: list[str] = []      # the .pvd's lines of those frames
+        self.pvd_listed = 0                 # frames the .pvd on disk lists
+        self.index_time = -math.inf         # time.monotonic() of its last rewrite
+        self.tables: dict[str, Any] = {}    # CSV file name -> open file
+        self.encoder = VtuEncoder()
+
+    JOBS = ("frame", "rows", "index", "restore", "state")
+
+    def run(self, job: tuple, idle: bool) -> Any:
+        """Run ``job``; then, when ``idle`` (no job waits) and the ``.pvd`` was last written
+        ``index_every`` s ago, bring it up to date. An error writes the ``.pvd`` first, so the
+        index lists every frame on disk, and is raised."""
+        if job[0] not in self.JOBS:
+            raise ValueError(f"unknown writer job {job[0]!r}")
+        try:
+            result = getattr(self, job[0])(*job[1:])
+        except BaseException:
+            self.index()
+            raise
+        if idle and time.monotonic() - self.index_time >= self.index_every:
+            self.index()
+        return result
+
+    def frame(self, t: float, name: str, pieces, cell_fields, point_fields, table, columns, rows) -> None:
+        """Frame file ``frames/<name>`` of the checked ``pieces`` (merged with
+        :func:`hybrid.app.vtu.merge_pieces`), its ``.pvd`` line, and its ``rows`` in ``table``."""
+        mesh = merge_pieces(pieces, cell_fields, point_fields)
+        path = self.out_dir / FRAMES_DIR / name
+        tmp = temporary_path(path)
+        try:
+            self.write_vtu(tmp, mesh, self.encoder)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        self.times.append(float(t))
+        self.files.append(f"{FRAMES_DIR}/{name}")
+        self.pvd_lines.append(pvd_line(t, self.files[-1]))
+        self.count += 1
+        self.rows(table, columns, rows)
+
+    def rows(self, table: str, columns, rows) -> None:
+        """Append ``rows`` (checked tuples in ``columns`` order) to the CSV file ``table``, which
+        gets its header when it is created; one write, flushed, so only whole lines reach disk."""
+        text = csv_rows(rows, columns)
+        f = self.tables.get(table)
+        if f is None:
+            f = self.tables[table] = open(self.out_dir / table, "w", encoding="utf-8", newline="")
+            text = ",".join(columns) + "\n" + text
+        f.write(text)
+        f.flush()
+
+    def index(self) -> None:
+        """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
+        if self.pvd_listed != len(self.pvd_lines):
+            atomic_write_text(self.pvd_path, pvd_document(self.pvd_lines))
+            self.pvd_listed = len(self.pvd_lines)
+        self.index_time = time.monotonic()
+
+    def state(self) -> dict:
+        """Where the files stand: ``count``, ``times``, ``files``, ``tables`` (name -> bytes
+        written, tables flushed), ``index_time``."""
+        for f in self.tables.values():
+            f.flush()
+        return {"count": self.count, "times": list(self.times), "files": list(self.files),
+                "tables": {name: f.tell() for name, f in self.tables.items()},
+                "index_time": self.index_time}
+
+    def restore(self, state: dict) -> None:
+        """Continue files that stand at ``state`` (from :meth:`state`, or a checkpoint's files
+        taken back to it): the ``.pvd`` on disk lists its frames, its tables exist with exactly
+        those lengths and are appended to."""
+        self.close()
+        self.count, self.times, self.files = int(state["count"]), list(state["times"]), list(state["files"])
+        self.pvd_lines = [pvd_line(t, f) for t, f in zip(self.times, self.files)]
+        self.pvd_listed = len(self.pvd_lines)
+        self.index_time = state.get("index_time", -math.inf)
+        for name in state["tables"]:
+            self.tables[name] = open(self.out_dir / name, "a", encoding="utf-8", newline="")
+
+    def close(self) -> None:
+        """Close the tables."""
+        tables, self.tables = self.tables, {}
+        for f in tables.values():
+            f.close()
+
+
+class WriterProcessError(RuntimeError):
+    """The writer process ended without saying why (killed, or out of memory)."""
+
+
+class RemoteTraceback(Exception):
+    """The traceback of an error raised in the writer process (the ``__cause__`` of the error
+    raised again on the stepping thread)."""
+
+    def __str__(self):
+        return self.args[0]
+
+
+def unavailable() -> str | None:
+    """Why this process cannot start a writer process, or None when it can."""
+    if multiprocessing.current_process().daemon:
+        return "a daemonic process (a Dask worker) cannot start processes"
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return "multiprocessing's fork server is not available on this platform"
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or getattr(main, "__spec__", None) is not None:
+        return None                 # interactive, -c, or run by name (python -m): not imported again
+    if getattr(getattr(main, "main", None), "__module__", None) == "hybrid.app.cli":
+        return None                 # the hybrid command
+    try:
+        text = Path(path).read_text(errors="replace")
+    except OSError:
+        text = ""
+    if not _MAIN_GUARD.search(text):
+        # multiprocessing imports the main script again in the new process: a script without
+        # the guard would run again there
+        return f"the script {path} has no 'if __name__ == \"__main__\":' guard"
+    return None
+
+
+_MAIN_GUARD = re.compile(r"""^if\s+__name__\s*==\s*['"]__main__['"]\s*:""", re.MULTILINE)
+
+
+class WriterProcess:
+    """Runs :class:`FrameFiles` jobs in a child process, in order (the process counterpart of
+    :class:`hybrid.app.writer_thread.WriterThread`, with jobs as data).
+
+    Jobs are pickled on the caller's thread (a copy: the caller may change its arrays as soon as
+    :meth:`submit` returns) and fed to the pipe by a thread, so the caller does not wait for a
+    child that is starting or busy; it waits when more than ``limit_bytes`` of jobs (and more
+    than ``limit`` jobs) are in flight. ``start_method``: ``forkserver`` (default; the fork
+    server is started once per process and imports this module, so a writer process starts in a
+    few ms) or ``spawn``."""
+
+    limit = 8
+    limit_bytes = 64 << 20
+    start_method = "forkserver"
+
+    def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, start_method: str | None = None):
+        why = unavailable()
+        if why is not None:
+            raise RuntimeError(f"no writer process: {why}")
+        method = start_method or self.start_method
+        context = multiprocessing.get_context(method)
+        if method == "forkserver":
+            # the fork server imports this module once, so each writer process starts forked
+            # from it with its imports done (the hybrid package takes most of a second)
+            context.set_forkserver_preload(["__main__", __name__])
+        receive, self._jobs = context.Pipe(duplex=False)
+        self._replies, send = context.Pipe(duplex=False)
+        self._process = context.Process(target=_serve, args=(receive, send, str(out_dir), pvd_name, index_every),
+                                        name="RunWriter process", daemon=True)
+        self._process.start()
+        receive.close()
+        send.close()
+        # the pipe is fed by a thread of its own, so the caller never waits for a full pipe
+        self._outbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._feeder = threading.Thread(target=_feed, args=(self._outbox, self._jobs), name="RunWriter feeder",
+                                        daemon=True)
+        self._feeder.start()
+        self.seconds = 0.0                  # the child's time in jobs (s)
+        self._sent = self._done = 0
+        self._in_flight: list[int] = []     # bytes of the jobs not yet done, in order
+        self._in_flight_bytes = 0
+        self._error: BaseException | None = None
+        self._error_raised = False
+        self._gone = False                  # the child's end of the replies closed
+        self._state: dict | None = None
+        _LIVE.add(self)
+        # a writer dropped without stop(): its process still writes what it has and ends
+        self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox)
+
+    @property
+    def pid(self) -> int:
+        """The writer process's id."""
+        return self._process.pid
+
+    def submit(self, job: tuple, always: bool = False) -> None:
+        """Hand ``job`` over; dropped when an earlier job failed (see :meth:`raise_error`) unless
+        ``always`` (the child still answers ``state``)."""
+        self._read(block=False)
+        while self._error is None and len(self._in_flight) > self.limit \
+                and self._in_flight_bytes > self.limit_bytes:
+            self._read(block=True)
+        if self._error is not None and not always or self._gone:
+            return
+        payload = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+        self._in_flight.append(len(payload))
+        self._in_flight_bytes += len(payload)
+        self._sent += 1
+        self._outbox.put(payload)
+
+    def _read(self, block: bool) -> None:
+        """Take the child's replies (blocking for one when ``block``)."""
+        while not self._gone and (block or self._replies.poll()):
+            block = False
+            try:
+                kind, *values = self._replies.recv()
+            except (EOFError, OSError):
+                self._gone = True
+                self._process.join(5.0)
+                self._error = self._error or WriterProcessError(
+                    f"the writer process (pid {self.pid}) ended unexpectedly (exit code "
+                    f"{self._process.exitcode}); the frames it wrote stay, with a .pvd listing them")
+                return
+            if kind == "done":
+                self._done += 1
+                self._in_flight_bytes -= self._in_flight.pop(0)
+                self.seconds = values[0]
+                if values[1] is not None:
+                    self._state = values[1]
+            elif kind == "error" and self._error is None:
+                error, remote = values
+                error.__cause__ = RemoteTraceback(remote)
+                error.add_note(f"(raised in the run's writer process, pid {self.pid})")
+                self._error = error
+
+    def pending(self) -> int:
+        """Jobs handed over and not yet done."""
+        self._read(block=False)
+        return self._sent - self._done
+
+    def wait(self) -> None:
+        """Block until every job handed over is done (or dropped after a failure)."""
+        while not self._gone and self._done < self._sent:
+            self._read(block=True)
+
+    def state(self) -> dict:
+        """The files' :meth:`FrameFiles.state` once every job before is done (also after a
+        failure: the files as the failure left them)."""
+        self._state = None
+        self.submit(("state",), always=True)
+        self.wait()
+        if self._state is None:
+            self.raise_error()
+            raise self._error
+        return self._state
+
+    def raise_error(self) -> None:
+        """Raise the writer's error, once (later calls return)."""
+        self._read(block=False)
+        if self._error is not None and not self._error_raised:
+            self._error_raised = True
+            raise self._error
+
+    def stop(self, timeout: float = 60.0) -> None:
+        """Let the child write what it has, close its files and end; it is terminated if it has
+        not ended after ``timeout`` s. Its error, if any, is kept for :meth:`raise_error`."""
+        if self._process is None:
+            return
+        self._outbox.put(b"")
+        self._outbox.put(None)
+        self._feeder.join()
+        self._read(block=False)
+        _finish(self._process, None, timeout)
+        self._finalizer.detach()
+        for conn in (self._jobs, self._replies):
+            conn.close()
+        self._process.close()
+        self._process = None
+        _LIVE.discard(self)
+
+
+_LIVE: "weakref.WeakSet[WriterProcess]" = weakref.WeakSet()
+
+
+def _feed(outbox: queue.SimpleQueue, jobs) -> None:
+    """The feeder thread: send the payloads put in ``outbox`` until None."""
+    while (payload := outbox.get()) is not None:
+        try:
+            jobs.send_bytes(payload)
+        except OSError:
+            pass            # the child is gone: WriterProcess._read reports it
+
+
+def _finish(process, outbox, timeout: float = 60.0) -> None:
+    """End ``process``: the stop message through ``outbox`` (unless sent already), then wait for
+    it (terminated after ``timeout`` s)."""
+    if outbox is not None:
+        outbox.put(b"")
+        outbox.put(None)
+    process.join(timeout)
+    if process.exitcode is None:
+        process.terminate()
+        process.join(5.0)
+
+
+@atexit.register
+def _stop_all() -> None:
+    """At exit, before multiprocessing ends its daemonic children (registered after its own
+    exit function, so run before it): writer processes still running write what they have."""
+    for writer in list(_LIVE):
+        writer.stop()
+
+
+def _noop() -> None:
+    """A child that does nothing (:func:`ForkServer` warms the fork server with it)."""
+
+
+class ForkServer:
+    """multiprocessing's fork server, as the ``auto`` writers of this process see it: started
+    (once) by the first of them on a thread of its own, with this module imported in it, and
+    ready once a first child forked from it has ended; until then the writers write on their
+    thread."""
+
+    def __init__(self):
+        self._thread: threading.Thread | None = None
+        self._ready = False
+        self.seconds: float | None = None     # wall time it took to get ready (s)
+
+    def start(self) -> None:
+        """Start the fork server and its first child on a thread (once; returns at once)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._warm, name="RunWriter fork server", daemon=True)
+            self._thread.start()
+
+    def _warm(self) -> None:
+        start = time.perf_counter()
+        try:
+            context = multiprocessing.get_context("forkserver")
+            context.set_forkserver_preload(["__main__", __name__])
+            child = context.Process(target=_noop, name="RunWriter fork server warm-up", daemon=True)
+            child.start()
+            child.join()
+        except Exception:                       # noqa: BLE001 (the writers stay on their thread)
+            return
+        self.seconds = time.perf_counter() - start
+        self._ready = True
+
+    def ready(self) -> bool:
+        """Whether a writer process now starts in a few ms."""
+        return self._ready
+
+
+fork_server = ForkServer()
+
+
+def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
+    """The writer process: run the jobs received on ``jobs`` until an empty message (stop) or
+    the end of the pipe, replying ``("done", seconds, result)`` or ``("error", error, traceback)``
+    on ``replies``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    files = FrameFiles(out_dir, pvd_name, index_every)
+    seconds, failed = 0.0, False
+    try:
+        while True:
+            try:
+                payload = jobs.recv_bytes()
+            except (EOFError, OSError):
+                break                       # the run's process is gone
+            if not payload:
+                break
+            result = None
+            job = pickle.loads(payload)
+            if not failed or job[0] == "state":
+                start = time.perf_counter()
+                try:
+                    result = files.run(job, idle=not jobs.poll())
+                except BaseException as error:     # noqa: BLE001 (sent to the stepping thread)
+                    failed = True
+                    _reply_error(replies, error)
+                seconds += time.perf_counter() - start
+            replies.send(("done", seconds, result))
+    finally:
+        if not failed:
+            files.index()
+        files.close()
+
+
+def _reply_error(replies, error: BaseException) -> None:
+    """Send ``error`` with its traceback (as a RuntimeError naming it if it does not pickle)."""
+    remote = "".join(traceback.format_exception(error))
+    try:
+        pickle.loads(pickle.dumps(error))
+    except Exception:                       # noqa: BLE001
+        error = RuntimeError(f"{type(error).__name__}: {error}")
+    replies.send(("error", error, remote))

@@ -1,0 +1,197 @@
+"""Frames written by a writer process: the same files as writing them in place on a scene with
+rigid and FEM bodies, a writer error raised on the stepping side with the frames before it kept,
+an interrupted run keeping its frames, and no child process left once a run has ended."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import multiprocessing
+import numpy as np
+import pytest
+
+from hybrid import Simulation
+from hybrid.app import run as run_module
+from hybrid.app.output import FramePiece, RunWriter, read_run
+from hybrid.app.output_resume import ResumableWriter
+
+SCENE = """
+[simulation]
+name = "mixed"
+duration = 0.06
+dt = 0.002
+output_fps = 100
+
+[[planes]]
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+
+[[bodies]]
+name = "jelly"
+model = "fem"
+shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.1 }}
+young = 1e5
+density = 1000.0
+position = [0.0, 0.0, 0.1005]
+velocity = [0.0, 0.0, -1.0]
+
+[[bodies]]
+name = "brick"
+model = "rigid"
+shape = {{ type = "box", size = [0.1, 0.1, 0.1] }}
+position = [0.0, 0.0, {brick_z}]
+density = 500.0
+"""
+
+
+def scene_file(tmp_path, brick_z=0.3):
+    path = tmp_path / "mixed.toml"
+    path.write_text(SCENE.format(brick_z=brick_z))
+    return path
+
+
+def run_with(tmp_path, monkeypatch, background, name):
+    """Run the scene with the run's writer in the way ``background``; its folder."""
+    out = tmp_path / name
+    monkeypatch.setattr(run_module, "ResumableWriter",
+                        lambda out_dir, scene: ResumableWriter(out_dir, scene, background=background))
+    Simulation.from_toml(scene_file(tmp_path)).run(out=out, progress=False, log=lambda m: None,
+                                                   checkpoint_every=0)
+    return out
+
+
+def children():
+    """Live child processes of this one (multiprocessing's fork server aside)."""
+    return [p for p in multiprocessing.active_children()]
+
+
+def test_a_run_written_by_the_writer_process_equals_the_run_written_in_place(tmp_path, monkeypatch):
+    inline = run_with(tmp_path, monkeypatch, False, "inline")
+    process = run_with(tmp_path, monkeypatch, "process", "process")
+    files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
+    assert len([f for f in files if f.suffix == ".vtu"]) == 7       # 0.06 s at 100 frames/s, and t = 0
+    for name in files:
+        if name.name == "summary.json":           # wall times differ; the rest is the same
+            continue
+        assert (process / name).read_bytes() == (inline / name).read_bytes(), name
+    import meshio
+    mesh = meshio.read(process / "frames" / "frame_00006.vtu")
+    assert {b.type for b in mesh.cells} == {"tetra", "triangle"}
+    assert np.concatenate(mesh.cell_data["principal_stress"]).any()      # computed by the writer
+    assert not children()
+
+
+def piece(t, rng):
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) + [0, 0, t]
+    return FramePiece(body_id=1, points=points, cells=[("tetra", np.array([[0, 1, 2, 3]]))],
+                      cell_data={"von_mises": rng.uniform(size=1)},
+                      point_data={"velocity": rng.normal(size=(4, 3))})
+
+
+def rows(t):
+    return [(t, "jelly", 0.0, 0.0, t, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, "fem")]
+
+
+def test_a_writer_process_error_is_raised_on_the_caller_with_the_frames_before_it_kept(tmp_path):
+    run_dir = tmp_path / "run"
+    rng = np.random.default_rng(2)
+    writer = RunWriter(run_dir, "drop", background="process")
+    with writer:
+        writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
+        pid = writer.writer_pid
+        # a directory where frame 3 goes: the writer process cannot put the file there
+        (run_dir / "frames" / "frame_00003.vtu").mkdir()
+        with pytest.raises(IsADirectoryError) as raised:
+            for k in range(1, 40):
+                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+            writer.flush()
+        assert f"writer process, pid {pid}" in " ".join(raised.value.__notes__)
+        assert "frame_00003" in str(raised.value.__cause__)              # its traceback there
+        assert writer.frames_written == 3
+        writer.close({"status": "failed"})
+    times, paths, summary = read_run(run_dir)
+    assert times == [0.0, 0.01, 0.02] and summary == {"status": "failed"}
+    assert [p.name for p in paths] == [f"frame_0000{k}.vtu" for k in range(3)]
+    lines = (run_dir / "bodies.csv").read_text().splitlines()
+    assert [float(line.split(",")[0]) for line in lines[1:]] == times
+    assert not list((run_dir / "frames").glob(".*.tmp"))
+    assert not children()
+
+
+def test_bad_input_raises_at_once_and_writes_nothing_of_that_frame(tmp_path):
+    rng = np.random.default_rng(4)
+    with RunWriter(tmp_path / "run", "drop", background="process") as writer:
+        writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
+        bad = piece(0.1, rng)
+        bad.cell_data["von_mises"] = np.zeros(5)
+        with pytest.raises(ValueError, match="von_mises"):
+            writer.write_frame(0.1, [bad], rows(0.1))
+        with pytest.raises(ValueError, match="row has 3 values"):
+            writer.write_frame(0.1, [piece(0.1, rng)], [(0.1, "jelly", 1.0)])
+        writer.write_frame(0.2, [piece(0.2, rng)], rows(0.2))
+        writer.close()
+    times, paths, _ = read_run(tmp_path / "run")
+    assert times == [0.0, 0.2] and [p.name for p in paths] == ["frame_00000.vtu", "frame_00001.vtu"]
+
+
+def test_a_run_stopped_by_ctrl_c_keeps_its_frames_and_leaves_no_process(tmp_path):
+    """SIGINT to the whole process group, as Ctrl-C sends it: the writer process ignores it, the
+    run stops after its step and closes its writer, which writes every frame handed over."""
+    scene = tmp_path / "long.toml"
+    scene.write_text(SCENE.format(brick_z=0.3).replace("duration = 0.06", "duration = 30.0"))
+    out = tmp_path / "out"
+    env = dict(os.environ, HYBRID_WRITER="process", OPENBLAS_NUM_THREADS="1")
+    cli = Path(sys.executable).with_name("hybrid")
+    run = subprocess.Popen([str(cli), "run", str(scene), "--out", str(out), "--quiet"], env=env,
+                           start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list((out / "frames").glob("frame_*.vtu"))) < 5:
+            assert run.poll() is None and time.monotonic() < deadline, run.communicate()
+            time.sleep(0.05)
+        writers = _descendants(run.pid)         # the fork server and the writer process
+        os.killpg(run.pid, signal.SIGINT)
+        _, err = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    assert run.returncode == 130, err.decode()
+    times, paths, summary = read_run(out)
+    assert summary["status"] == "stopped" and len(times) == summary["frames"] >= 5
+    assert sorted(p.name for p in (out / "frames").glob("frame_*.vtu")) == [p.name for p in paths]
+    assert len((out / "bodies.csv").read_text().splitlines()) == 1 + 2 * len(times)
+    assert len(writers) >= 2
+    deadline = time.monotonic() + 10
+    while [p for p in writers if _alive(p)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [p for p in writers if _alive(p)]
+
+
+def _parents():
+    """{pid: parent pid} of the processes there are (from /proc)."""
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                out[int(entry.name)] = int(entry.joinpath("stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+def _descendants(pid):
+    parents, found = _parents(), {pid}
+    for _ in range(4):
+        found |= {p for p, parent in parents.items() if parent in found}
+    return sorted(found - {pid})
+
+
+def _alive(pid):
+    """Whether ``pid`` runs (a zombie waiting to be reaped does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
