@@ -13,8 +13,8 @@ ways, interleaved, ``--repeats`` times:
 - ``thread``: the same files written by a writer thread (``background="thread"``);
 - ``process``: written by a writer process (``background="process"``);
 - ``auto``: the default (``background="auto"``): the thread until multiprocessing's fork server
-  is up, then a process. The server is started by the warm-up run before the timed runs, as the
-  first run of a process starts it (docs/performance.md gives what that costs a single run).
+  is up, then a process. The server is started before the timed runs, as a process's first run
+  that writes for a second starts it (a shorter run stays on the thread).
 
 The output share of a way is (median wall with output - median wall of ``none``) / median wall
 with output; its CPU share the same with the process's CPU time (all threads), steadier when
@@ -104,7 +104,13 @@ def main(argv=None):
     from hybrid.app import writer_process
     why = writer_process.unavailable()
     if why is not None:
-        print(f"no writer process here ({why}): 'process' falls back to nothing, 'auto' to the thread")
+        sys.exit(f"no writer process here: {why}")
+    # as in a process whose runs have written for a second: the fork server up
+    start = time.perf_counter()
+    writer_process.fork_server.start()
+    while not writer_process.fork_server.ready() and time.perf_counter() - start < 60:
+        time.sleep(0.01)
+    print(f"multiprocessing's fork server up in {time.perf_counter() - start:.2f} s (once per process)")
     work = Path(tempfile.mkdtemp(prefix="output_share_"))
     try:
         scenes = {"default": "default", "cube_1296": cube_scene(work)}

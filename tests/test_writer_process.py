@@ -195,3 +195,38 @@ def _alive(pid):
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_seam(tmp_path, monkeypatch):
+    """``auto`` writes on the thread until the fork server is up, then moves the files (open
+    tables, index, frame count) to a writer process: the files are those written in place."""
+    from hybrid.app import writer_process
+
+    class Server:                          # up from the fourth frame on
+        calls = 0
+
+        def start(self):
+            pass
+
+        def ready(self):
+            self.calls += 1
+            return self.calls > 6           # two submits (frame, regions) a frame
+
+    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(RunWriter, "auto_after", 0.0)
+    pids = []
+    for way in ("auto", False):
+        rng = np.random.default_rng(9)
+        with RunWriter(tmp_path / str(way), "drop", background=way) as writer:
+            for k in range(7):
+                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+                writer.write_regions([(0.01 * k, "jelly", "anchor0", 1.0, 2.0, 3.0, 0.0, 0.0, k)])
+                pids.append(writer.writer_pid)
+            writer.close({"frames": 7})
+    assert pids[:3] == [None] * 3 and pids[3] is not None and pids[7:] == [None] * 7
+    inline = tmp_path / "False"
+    files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
+    assert len(files) == 7 + 4
+    for name in files:
+        assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
+    assert not children()

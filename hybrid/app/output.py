@@ -25,7 +25,9 @@ goes on (:mod:`hybrid.app.writer_process`; docs/output.md, "Writing off the step
 from __future__ import annotations
 
 import json
+import math
 import re
+import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,9 +105,11 @@ class RunWriter:
     - ``"process"``: by a writer process, a child of this one that ends with the writer;
     - ``True`` or ``"thread"``: by a writer thread (started when there is work, ended when there
       is none, so it never keeps the interpreter alive);
-    - ``"auto"``: by the writer thread until multiprocessing's fork server is up (started by the
-      first such writer of the process, it takes most of a second), then by a writer process;
-      by the thread only in a daemonic process (a Dask worker), which cannot have children;
+    - ``"auto"``: by the writer thread until multiprocessing's fork server is up, then by a writer
+      process; the server is started once per process, by the first run that writes for a
+      second (it takes a second or so: a shorter run would be over first). By the thread only
+      in a daemonic process (a Dask worker, which cannot have children) and under a main script
+      without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
     - ``False`` or ``"inline"``: on the caller's thread.
 
     ``write_frame`` and ``write_regions`` check and copy their input on the caller's thread, raise
@@ -121,6 +125,7 @@ class RunWriter:
 
     queue_frames = 8
     index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
+    auto_after = 1.0        # s of wall time after its first output before "auto" starts the fork server
     _MODES = {False: "inline", True: "thread", "inline": "inline", "thread": "thread",
               "process": "process", "auto": "auto"}
 
@@ -143,8 +148,9 @@ class RunWriter:
         self._process: WriterProcess | None = None
         self._process_error: BaseException | None = None     # why "auto" stayed on the thread
         self._ended_seconds = 0.0           # writing time of the writer process once it ended
+        self._auto_from: float | None = None  # "auto": when the fork server is to be started
         if self.mode == "auto" and writer_process.unavailable() is None:
-            writer_process.fork_server.start()
+            self._auto_from = math.inf
 
     @property
     def writer_seconds(self) -> float:
@@ -252,8 +258,8 @@ class RunWriter:
     # -- the writer: here, on the thread, or in the process ------------------------------
     def _submit(self, job: tuple) -> None:
         """Hand ``job`` (a :class:`hybrid.app.writer_process.FrameFiles` job) to the writer."""
-        if self._process is None and self.mode == "auto" and writer_process.fork_server.ready():
-            self._take_over()
+        if self._process is None and self._auto_from is not None:
+            self._auto(time.monotonic())
         if self._process is None and self.mode == "process":
             self._process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
         if self._process is not None:
@@ -263,6 +269,17 @@ class RunWriter:
             job = _owned(job)            # the caller may change its arrays once this returns
         files, writer = self._frame_files, self._writer
         writer.submit(lambda: files.run(job, idle=not writer.pending()))
+
+    def _auto(self, now: float) -> None:
+        """``auto``: start the fork server once this run has written for ``auto_after`` s (a
+        shorter run would end before it is up), and take over once it is up."""
+        if self._auto_from == math.inf:
+            self._auto_from = now + self.auto_after
+        if now >= self._auto_from:
+            writer_process.fork_server.start()
+        if writer_process.fork_server.ready():
+            self._auto_from = None
+            self._take_over()
 
     def _take_over(self) -> None:
         """Hand the files over from the writer thread to a new writer process (``auto``)."""
