@@ -221,9 +221,12 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
             for k in range(7):
                 writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
                 writer.write_regions([(0.01 * k, "jelly", "anchor0", 1.0, 2.0, 3.0, 0.0, 0.0, k)])
+                if k == 3 and way == "auto":
+                    writer._launch.join()           # started: the next frame's call hands over
                 pids.append(writer.writer_pid)
             writer.close({"frames": 7})
-    assert pids[:3] == [None] * 3 and pids[3] is not None and pids[7:] == [None] * 7
+    # the process is launched at the fourth frame and has taken over by the fifth
+    assert pids[:3] == [None] * 3 and None not in pids[4:7] and pids[7:] == [None] * 7
     inline = tmp_path / "False"
     files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
     assert len(files) == 7 + 4

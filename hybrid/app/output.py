@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import threading
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -149,6 +150,8 @@ class RunWriter:
         self._process_error: BaseException | None = None     # why "auto" stayed on the thread
         self._ended_seconds = 0.0           # writing time of the writer process once it ended
         self._auto_from: float | None = None  # "auto": when the fork server is to be started
+        self._launch: threading.Thread | None = None      # "auto": starting a writer process
+        self._launched: WriterProcess | BaseException | None = None
         if self.mode == "auto" and writer_process.unavailable() is None:
             self._auto_from = math.inf
 
@@ -227,6 +230,10 @@ class RunWriter:
     def _end(self) -> None:
         """Close the tables and end the writer process (its files closed)."""
         self._frame_files.close()
+        if self._launch is not None and self._process is None:      # started, not taken over
+            self._launch.join()
+            if isinstance(self._launched, WriterProcess):
+                self._launched.stop()
         if self._process is not None:
             self._process.stop()
             self._ended_seconds += self._process.seconds
@@ -272,25 +279,37 @@ class RunWriter:
 
     def _auto(self, now: float) -> None:
         """``auto``: start the fork server once this run has written for ``auto_after`` s (a
-        shorter run would end before it is up), and take over once it is up."""
+        shorter run would end before it is up); once it is up, start a writer process on a
+        thread (a few ms of waiting for the server's fork), and take over once it has started."""
         if self._auto_from == math.inf:
             self._auto_from = now + self.auto_after
         if now >= self._auto_from:
             writer_process.fork_server.start()
-        if writer_process.fork_server.ready():
+        if self._launch is None and writer_process.fork_server.ready():
+            self._launch = threading.Thread(target=self._start_process, name="RunWriter launch", daemon=True)
+            self._launch.start()
+        if self._launch is not None and not self._launch.is_alive():
             self._auto_from = None
             self._take_over()
 
+    def _start_process(self) -> None:
+        """The launching thread: a new writer process, or the error that prevented it."""
+        try:
+            self._launched = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+        except (OSError, RuntimeError) as error:
+            self._launched = error
+
     def _take_over(self) -> None:
-        """Hand the files over from the writer thread to a new writer process (``auto``)."""
+        """Hand the files over from the writer thread to the launched writer process (``auto``);
+        stay on the thread if it could not start."""
+        process = self._launched
+        if not isinstance(process, WriterProcess):
+            self.mode, self._process_error = "thread", process
+            return
         self._writer.wait()
         if self._writer.failed():
+            process.stop()
             return                       # a failed thread's error is raised as it is
-        try:
-            process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
-        except (OSError, RuntimeError) as error:          # stay on the thread
-            self.mode, self._process_error = "thread", error
-            return
         state = self._frame_files.state()
         self._frame_files.close()
         process.submit(("restore", state))
