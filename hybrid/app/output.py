@@ -38,7 +38,7 @@ import numpy as np
 
 from . import writer_process
 from .text_files import atomic_write_text as _atomic_write_text, plain as _plain
-from .vtu import Deferred, merge_pieces, pvd_text as _pvd_text, write_vtu
+from .vtu import Deferred, merge_pieces, write_vtu
 from .writer_process import FrameFiles, WriterProcess
 from .writer_thread import WriterThread
 

@@ -10,8 +10,9 @@ folder back to that point: frames written after it are deleted, the tables cut t
 import os
 from pathlib import Path
 
-from .output import (BODIES_CSV, FRAME_PATTERN, FRAMES_DIR, REGIONS_CSV, SUMMARY_JSON, RunWriter,
-                     _atomic_write_text, _pvd_text)
+from .output import BODIES_CSV, FRAME_PATTERN, FRAMES_DIR, REGIONS_CSV, SUMMARY_JSON, RunWriter
+from .text_files import atomic_write_text as _atomic_write_text
+from .vtu import pvd_text as _pvd_text
 
 CHECKPOINT = "checkpoint.npz"
 
