@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .shock import STACK_COS, sweep_levels
-from .solver import arms, contact_basis, normal_velocity, pgs
+from .solver import arms, contact_basis, normal_velocity, pgs_at
 from .step_kernels import contact_targets, impact_kinematics
 
 
@@ -129,11 +129,11 @@ class _Problem:
 
     def solve(self, target, friction, scale_a, scale_b, active, lam, v, w, iterations,
               apply_lam=False):
-        """:func:`rigid.solver.pgs` over these contacts (updates v, w and lam in place)."""
+        """:func:`rigid.solver.pgs_at` over these contacts (updates v, w and lam in place)."""
         c, b = self.contacts, self.bodies
-        return pgs(c.body_a, c.body_b, self.ra, self.rb, c.normal, target, friction, scale_a,
-                   scale_b, active, lam, b.inv_mass, b.inv_inertia, v, w, iterations, *self.groups,
-                   apply_lam)
+        return pgs_at(c.body_a, c.body_b, self.ra, self.rb, c.point, c.normal, target, friction,
+                      scale_a, scale_b, active, lam, b.inv_mass, b.inv_inertia, v, w, iterations,
+                      *self.groups, apply_lam)
 
     def sweep_stack(self, up, selected, target, lam, v, w, iterations, impulse):
         """Shock propagation (Guendelman 2003): the contacts ``selected`` solved again level by
@@ -141,9 +141,9 @@ class _Problem:
         their impulses replace theirs in ``impulse``. Returns the per-contact inverse-mass scales
         (scale_a, scale_b) that freeze the lower sides."""
         c, b = self.contacts, self.bodies
-        return sweep_levels(c.body_a, c.body_b, self.ra, self.rb, c.normal, up, b.static, selected,
-                            target, c.friction, lam, b.inv_mass, b.inv_inertia, v, w, iterations,
-                            *self.groups, impulse)
+        return sweep_levels(c.body_a, c.body_b, self.ra, self.rb, c.point, c.normal, up, b.static,
+                            selected, target, c.friction, lam, b.inv_mass, b.inv_inertia, v, w,
+                            iterations, *self.groups, impulse)
 
 
 def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm=None):

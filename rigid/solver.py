@@ -12,20 +12,10 @@ import math
 import numba as nb
 import numpy as np
 
+from .coarse import _cross3, _rigid_velocity, coarse_space, coarse_step, entities
+from .coarse import COARSE_EVERY
 from .particle_kernels import (_add_pair_block, _apply_particle, _particle_velocity,
                                _rotate_particles)
-
-
-@nb.njit(cache=True)
-def _cross3(a0, a1, a2, b0, b1, b2):
-    """a x b of two vectors given by their components."""
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-
-
-@nb.njit(cache=True)
-def _rigid_velocity(v0, v1, v2, w0, w1, w2, r0, r1, r2):
-    """Velocity v + w x r of a rigid body's point at arm r."""
-    return v0 + w1 * r2 - w2 * r1, v1 + w2 * r0 - w0 * r2, v2 + w0 * r1 - w1 * r0
 
 
 @nb.njit(cache=True)
@@ -150,20 +140,24 @@ def _response(i, r, k, basis, j, scale, inv_m, invI, groups, K):
 @nb.njit(cache=True)
 def _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups):
     """(m, 3, 3) response of each active contact's relative velocity, in its basis, per unit
-    impulse along its basis (the Delassus block of the contact, both sides' scales applied)."""
+    impulse along its basis (the Delassus block of the contact, both sides' scales applied); and
+    (m, 2) each side's own part of the normal response (the share rigid.coarse weighs)."""
     K = np.zeros((len(idx), 3, 3))
+    side = np.zeros((len(idx), 2))
     for j in range(len(idx)):
         k = idx[j]
         a, b = ia[k], ib[k]
         _response(a, ra, k, basis, j, scale_a[k], inv_m, invI, groups, K)
+        side[j, 0] = K[j, 0, 0]
         _response(b, rb, k, basis, j, scale_b[k], inv_m, invI, groups, K)
+        side[j, 1] = K[j, 0, 0] - side[j, 0]
         if groups is not None:
             group_of = groups[0]
             if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
                 # both sides in one deformable body: an impulse on one side moves the other too
                 _add_pair_block(a, b, basis[j], -scale_b[k], groups, K[j])
                 _add_pair_block(b, a, basis[j], -scale_a[k], groups, K[j])
-    return K
+    return K, side
 
 
 @nb.njit(cache=True)
@@ -216,7 +210,7 @@ def _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b
     """Gauss-Seidel sweeps over the active contacts (see pgs), until no impulse changes by more
     than 1e-7 of the largest. Each contact is a block: normal row, then both friction rows with
     the normal row's change seen through the 3x3 response K[j] (inverse: _inverse_responses);
-    the sum is applied once.
+    the sum is applied once. Returns the number of sweeps done.
     (Written flat: a call that passes arrays costs reference counts per contact, and the rigid
     bodies' velocities and impulses are spelt out here; particles go through their helpers.)"""
     for sweep in range(iterations):
@@ -284,16 +278,26 @@ def _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b
                 w[i, 1] += invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
                 w[i, 2] += invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
         if sweep > 0 and largest_change <= 1e-7 * largest:
-            break
+            return sweep + 1
+    return iterations
 
 
 @nb.njit(cache=True)
 def _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
          iterations, groups, apply_lam):
     """:func:`pgs` with the group arrays as one tuple, or None when no solver body is a particle."""
+    return _solve(ia, ib, ra, rb, np.zeros((0, 3)), normal, target, mu, scale_a, scale_b, active,
+                  lam, inv_m, invI, v, w, iterations, groups, apply_lam)
+
+
+@nb.njit(cache=True)
+def _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI,
+           v, w, iterations, groups, apply_lam):
+    """:func:`pgs_at` with the group arrays as one tuple, or None when no solver body is a
+    particle."""
     idx = np.nonzero(active)[0]
     basis = contact_basis(normal[idx])
-    K = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
+    K, side_kn = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
     if groups is not None:      # particle velocities stay in their group's frame during the sweeps
         _rotate_particles(v, groups[0], groups[1], True)
     if apply_lam:       # warm start: the impulses lam holds act first
@@ -304,8 +308,30 @@ def _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_
             else:
                 _apply_pair(j, k, lam[k, 0], lam[k, 1], lam[k, 2], basis, ia, ib, ra, rb, scale_a,
                             scale_b, inv_m, invI, v, w, groups)
-    _sweeps(idx, K, _inverse_responses(K), basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam,
-            inv_m, invI, v, w, iterations, groups)
+    inverse = _inverse_responses(K)
+    # a body that takes too small a share of its rows' corrections converges slowly in the sweeps:
+    # then they alternate with coarse corrections (rigid.coarse)
+    ent, share, slow = entities(idx, side_kn, K, ia, ib, len(inv_m), groups)
+    if not slow:
+        _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m,
+                invI, v, w, iterations, groups)
+    else:
+        done = 0
+        while done < iterations:
+            chunk = min(COARSE_EVERY, iterations - done)
+            swept = _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b,
+                            lam, inv_m, invI, v, w, chunk, groups)
+            if done == 0:       # the coarse space, once the first sweeps have found the load path
+                agg, weight, first, L = coarse_space(idx, K, basis, ia, ib, ra, rb, point, target,
+                                                     scale_a, scale_b, lam, inv_m, invI, v, w,
+                                                     groups, ent, share)
+            done += swept
+            if done >= iterations:      # the sweeps have the last word (friction in its cone)
+                break
+            change = coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m,
+                                 invI, v, w, groups, agg, weight, first, L)
+            if swept < chunk and not change > 1e-7 * _largest_normal(idx, lam):
+                break
     if groups is not None:
         _rotate_particles(v, groups[0], groups[1], False)
     out = np.full((len(ia), 3), np.nan)
@@ -313,6 +339,15 @@ def _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_
         k = idx[j]
         for d in range(3):
             out[k, d] = lam[k, 0] * basis[j, 0, d] + lam[k, 1] * basis[j, 1, d] + lam[k, 2] * basis[j, 2, d]
+    return out
+
+
+@nb.njit(cache=True)
+def _largest_normal(idx, lam):
+    """The largest accumulated normal impulse among the active contacts."""
+    out = 0.0
+    for k in idx:
+        out = max(out, lam[k, 0])
     return out
 
 
@@ -339,8 +374,11 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     every other body).
     Each contact is solved as a block: normal, then the two tangents, each with the exact 3x3
     response of the contact, and the sum is applied to the bodies once.
-    Sweeps stop early once no impulse changes by more than 1e-7 of the largest. Returns the world
-    impulse on side a of each contact, (c, 3) N s (NaN rows for inactive contacts).
+    Sweeps stop early once no impulse changes by more than 1e-7 of the largest. When a body
+    takes too small a share of its contacts' corrections (a heavy body on light ones), coarse
+    corrections (rigid.coarse) alternate with the sweeps; here over uniform modes only (the contact
+    points are not given: :func:`pgs_at` takes them). Returns the world impulse on side a of each
+    contact, (c, 3) N s (NaN rows for inactive contacts).
     """
     for i in range(len(group_of)):
         if group_of[i] >= 0:
@@ -349,3 +387,17 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
                                                  corner_w), apply_lam)
     return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v,
                 w, iterations, None, apply_lam)
+
+
+@nb.njit(cache=True)
+def pgs_at(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI,
+           v, w, iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w, apply_lam):
+    """:func:`pgs` with the contacts' world points ``point`` (c, 3) m, so the coarse corrections
+    also span the moments across each contact patch (rigid.coarse.aggregates)."""
+    for i in range(len(group_of)):
+        if group_of[i] >= 0:
+            return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam,
+                          inv_m, invI, v, w, iterations, (group_of, group_R, w_ptr, w_col, W,
+                                                          corner, corner_w), apply_lam)
+    return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
+                  invI, v, w, iterations, None, apply_lam)

@@ -1,0 +1,455 @@
+"""Two-level contact solve: a coarse correction between the Gauss-Seidel sweeps of rigid.solver.
+
+Gauss-Seidel corrects a body's velocity, per contact row, by the body's share of the row's
+response (its part of K over the whole). A heavy body touched only by light ones (a 1,800 kg box
+on the nodes of a 1.8 kg slab) has a share of ~1e-3 per row, so its velocity converges at that
+rate per sweep, and so does every contact impulse that carries its weight. The coarse correction
+solves for those slow modes at once: the contact rows are gathered into aggregates (the rows
+between one pair of entities, a rigid body, a deformable body's particles, or the static world,
+whose normals point the same way), each aggregate spans three normal-impulse modes (uniform, and
+linear across the patch in its two tangent directions: the net force and the two moments a flat
+patch passes between rigid sides), and the Galerkin system P^T A P y = P^T r (A the normal
+Delassus operator, through the same responses the sweeps use; r the rows' normal velocity
+residuals) is solved directly; the impulses take the correction projected to >= 0, and the sweeps
+go on. This is aggregation-based two-level iteration with the near-null (rigid) modes of each
+aggregate as coarse basis (Vanek, Mandel, Brezina 1996, smoothed aggregation), with the projected
+Gauss-Seidel sweeps as smoother and the coarse step projected onto the non-negative impulses as in
+monotone multigrid for contact (Kornhuber 1994).
+
+It runs only when some entity's share (the sum over its rows of its response over the row's) is
+below SHARE_MIN, and then only over the aggregates connected to such an entity: a mild mass ratio
+costs one pass over the rows.
+"""
+import math
+
+import numba as nb
+import numpy as np
+
+from .particle_kernels import _apply_particle, _particle_velocity
+
+# an entity whose rows give it less than this share of their correction per sweep is slow
+SHARE_MIN = 0.2
+# sweeps between coarse corrections
+COARSE_EVERY = 4
+# a coarse mode whose pivot falls below this share of its diagonal depends on the others: dropped
+PIVOT_DROP = 1e-10
+
+
+@nb.njit(cache=True)
+def _cross3(a0, a1, a2, b0, b1, b2):
+    """a x b of two vectors given by their components."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@nb.njit(cache=True)
+def _rigid_velocity(v0, v1, v2, w0, w1, w2, r0, r1, r2):
+    """Velocity v + w x r of a rigid body's point at arm r."""
+    return v0 + w1 * r2 - w2 * r1, v1 + w2 * r0 - w0 * r2, v2 + w0 * r1 - w1 * r0
+
+
+@nb.njit(cache=True)
+def _push(i, r, k, j0, j1, j2, inv_m, invI, v, w, groups):
+    """Impulse (j0, j1, j2) (world) on solver body i at arm r[k] (particles through their group)."""
+    if groups is not None and groups[0][i] >= 0:
+        _apply_particle(i, j0, j1, j2, v, groups)
+        return
+    m = inv_m[i]
+    v[i, 0] += m * j0
+    v[i, 1] += m * j1
+    v[i, 2] += m * j2
+    c0, c1, c2 = _cross3(r[k, 0], r[k, 1], r[k, 2], j0, j1, j2)
+    w[i, 0] += invI[i, 0, 0] * c0 + invI[i, 0, 1] * c1 + invI[i, 0, 2] * c2
+    w[i, 1] += invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
+    w[i, 2] += invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
+
+
+@nb.njit(cache=True)
+def _velocity(i, r, k, v, w, groups):
+    """World velocity of solver body i at arm r[k] (zero for the static world)."""
+    if i < 0:
+        return 0.0, 0.0, 0.0
+    if groups is not None and groups[0][i] >= 0:
+        return _particle_velocity(i, v, groups)
+    return _rigid_velocity(v[i, 0], v[i, 1], v[i, 2], w[i, 0], w[i, 1], w[i, 2],
+                           r[k, 0], r[k, 1], r[k, 2])
+
+
+@nb.njit(cache=True)
+def _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups):
+    """Relative normal velocity of side a against side b at active contact j (contact k)."""
+    x0, x1, x2 = _velocity(ia[k], ra, k, v, w, groups)
+    y0, y1, y2 = _velocity(ib[k], rb, k, v, w, groups)
+    return (basis[j, 0, 0] * (x0 - y0) + basis[j, 0, 1] * (x1 - y1)
+            + basis[j, 0, 2] * (x2 - y2))
+
+
+@nb.njit(cache=True)
+def _push_normal(j, k, amount, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups):
+    """Normal impulse ``amount`` at active contact j (contact k): on side a, its opposite on b."""
+    J0, J1, J2 = amount * basis[j, 0, 0], amount * basis[j, 0, 1], amount * basis[j, 0, 2]
+    if ia[k] >= 0 and scale_a[k] != 0.0:
+        s = scale_a[k]
+        _push(ia[k], ra, k, s * J0, s * J1, s * J2, inv_m, invI, v, w, groups)
+    if ib[k] >= 0 and scale_b[k] != 0.0:
+        s = -scale_b[k]
+        _push(ib[k], rb, k, s * J0, s * J1, s * J2, inv_m, invI, v, w, groups)
+
+
+@nb.njit(cache=True)
+def entities(idx, side_kn, K, ia, ib, n, groups):
+    """Per active contact j, the entity of each side (m, 2): a rigid body's own index, n + g for
+    the particles and places of group g (one deformable body), -1 for a side that does not move
+    (the static world, a fixed body, a frozen side, a held node: no response); and whether any
+    entity is slow: the sum over its rows of its normal response over the row's (side_kn (m, 2)
+    over K[j, 0, 0]) is below SHARE_MIN. Rows inside one entity are left out (-1, -1)."""
+    m = len(idx)
+    # an entity can only be slow if one of its rows gives it less than SHARE_MIN: without such a
+    # row (mild mass ratios) nothing more is needed
+    low = False
+    for j in range(m):
+        if K[j, 0, 0] > 0.0 and ((side_kn[j, 0] > 0.0 and side_kn[j, 0] < SHARE_MIN * K[j, 0, 0])
+                                 or (side_kn[j, 1] > 0.0 and side_kn[j, 1] < SHARE_MIN * K[j, 0, 0])):
+            low = True
+            break
+    if not low:
+        return np.zeros((0, 2), np.int64), np.zeros(0), False
+    ent = np.full((m, 2), -1, np.int64)
+    count = n
+    if groups is not None:
+        count += len(groups[1])
+    share = np.zeros(count)
+    touched = np.zeros(len(share), np.bool_)
+    for j in range(m):
+        if not K[j, 0, 0] > 0.0:
+            continue
+        k = idx[j]
+        for side in range(2):
+            i = ia[k] if side == 0 else ib[k]
+            if i < 0 or not side_kn[j, side] > 0.0:
+                continue
+            e = i
+            if groups is not None and groups[0][i] >= 0:
+                e = n + groups[0][i]
+            ent[j, side] = e
+        if ent[j, 0] == ent[j, 1]:
+            ent[j, 0] = ent[j, 1] = -1
+            continue
+        for side in range(2):
+            e = ent[j, side]
+            if e >= 0:
+                share[e] += side_kn[j, side] / K[j, 0, 0]
+                touched[e] = True
+    slow = False
+    for e in range(len(share)):
+        if touched[e] and share[e] < SHARE_MIN:
+            slow = True
+    return ent, share, slow
+
+
+@nb.njit(cache=True)
+def _direction_bin(n0, n1, n2):
+    """0..5: the world axis and sign a unit normal is closest to."""
+    a0, a1, a2 = abs(n0), abs(n1), abs(n2)
+    if a0 >= a1 and a0 >= a2:
+        return 0 if n0 > 0 else 1
+    if a1 >= a2:
+        return 2 if n1 > 0 else 3
+    return 4 if n2 > 0 else 5
+
+
+@nb.njit(cache=True)
+def _components(ent, share, count):
+    """Connected components of the entities through the rows (the static world joins nothing);
+    per component whether it holds a slow entity. Returns (component of each entity, slow)."""
+    parent = np.arange(count)
+    for j in range(len(ent)):
+        a, b = ent[j, 0], ent[j, 1]
+        if a < 0 or b < 0:
+            continue
+        while parent[a] != a:
+            a = parent[a]
+        while parent[b] != b:
+            b = parent[b]
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    for e in range(count):
+        r = e
+        while parent[r] != r:
+            r = parent[r]
+        parent[e] = r
+    slow = np.zeros(count, np.bool_)
+    for e in range(count):
+        if share[e] > 0.0 and share[e] < SHARE_MIN:
+            slow[parent[e]] = True
+    return parent, slow
+
+
+@nb.njit(cache=True)
+def aggregates(idx, ent, share, rows, basis, point, lam):
+    """The coarse space over the active contacts ``rows`` (bool (m,)): each row's aggregate
+    (-1: none) and weights (m, 3) on its aggregate's modes, the aggregates' entities (A, 2), and
+    each aggregate's first mode and mode count. Rows join an aggregate when they lie between the
+    same two entities with normals closest to the same world axis (so a box between the ground and
+    a wall has one aggregate per face), in a component holding a slow entity. Modes: uniform, and
+    the two tangential coordinates across the patch from its centroid (scaled by its radius);
+    uniform alone where the contact points are not given (``point`` empty)."""
+    m = len(idx)
+    count = len(share)
+    comp, slow = _components(ent, share, count)
+    keys = np.full(m, -1, np.int64)
+    flip = np.zeros(m, np.bool_)
+    for j in range(m):
+        a, b = ent[j, 0], ent[j, 1]
+        if not rows[j] or (a < 0 and b < 0):
+            continue
+        c = comp[a] if a >= 0 else comp[b]
+        if not slow[c]:
+            continue
+        n0, n1, n2 = basis[j, 0, 0], basis[j, 0, 1], basis[j, 0, 2]
+        if a > b:                   # one orientation per pair: the lower entity on side a
+            a, b = b, a
+            n0, n1, n2 = -n0, -n1, -n2
+            flip[j] = True
+        keys[j] = ((a + 1) * (count + 1) + (b + 1)) * 6 + _direction_bin(n0, n1, n2)
+    order = np.argsort(keys)
+    agg = np.full(m, -1, np.int64)
+    A = 0
+    last = -1
+    for t in range(m):
+        j = order[t]
+        if keys[j] < 0:
+            continue
+        if keys[j] != last:
+            A += 1
+            last = keys[j]
+        agg[j] = A - 1
+    pair = np.full((A, 2), -1, np.int64)
+    centre = np.zeros((A, 3))
+    mean_n = np.zeros((A, 3))
+    size = np.zeros(A, np.int64)
+    for j in range(m):
+        g = agg[j]
+        if g < 0:
+            continue
+        pair[g, 0], pair[g, 1] = ent[j, 0], ent[j, 1]
+        sgn = -1.0 if flip[j] else 1.0
+        k = idx[j]
+        for d in range(3):
+            if len(point):
+                centre[g, d] += point[k, d]
+            mean_n[g, d] += sgn * basis[j, 0, d]
+        size[g] += 1
+    radius = np.zeros(A)
+    for g in range(A):
+        for d in range(3):
+            centre[g, d] /= size[g]
+    for j in range(m):
+        g = agg[j]
+        if g >= 0 and len(point):
+            k = idx[j]
+            for d in range(3):
+                radius[g] += (point[k, d] - centre[g, d]) ** 2
+    first = np.zeros(A + 1, np.int64)
+    tangents = np.zeros((A, 2, 3))
+    for g in range(A):
+        radius[g] = math.sqrt(radius[g] / size[g])
+        nl = math.sqrt(mean_n[g, 0] ** 2 + mean_n[g, 1] ** 2 + mean_n[g, 2] ** 2)
+        modes = 1
+        if size[g] > 1 and radius[g] > 0.0 and nl > 0.0 and len(point):
+            n0, n1, n2 = mean_n[g, 0] / nl, mean_n[g, 1] / nl, mean_n[g, 2] / nl
+            if abs(n0) > 0.57735:
+                t0, t1, t2 = n1, -n0, 0.0
+            else:
+                t0, t1, t2 = 0.0, n2, -n1
+            tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            t0, t1, t2 = t0 / tl, t1 / tl, t2 / tl
+            tangents[g, 0, 0], tangents[g, 0, 1], tangents[g, 0, 2] = t0, t1, t2
+            tangents[g, 1, 0] = n1 * t2 - n2 * t1
+            tangents[g, 1, 1] = n2 * t0 - n0 * t2
+            tangents[g, 1, 2] = n0 * t1 - n1 * t0
+            modes = 3
+        first[g + 1] = first[g] + modes
+    # the modes follow the impulses the rows carry now (the load path: under a box on a slab on
+    # the ground, the ground's rows below the box), scaled to a mean of one over the aggregate
+    carried = np.zeros(A)
+    for j in range(m):
+        if agg[j] >= 0:
+            carried[agg[j]] += lam[idx[j], 0]
+    weight = np.zeros((m, 3))
+    for j in range(m):
+        g = agg[j]
+        if g < 0:
+            continue
+        weight[j, 0] = lam[idx[j], 0] * size[g] / carried[g] if carried[g] > 0.0 else 1.0
+        if first[g + 1] - first[g] == 3:
+            k = idx[j]
+            for t in range(2):
+                acc = 0.0
+                for d in range(3):
+                    acc += (point[k, d] - centre[g, d]) * tangents[g, t, d]
+                weight[j, 1 + t] = weight[j, 0] * acc / radius[g]
+    return agg, weight, pair, first
+
+
+@nb.njit(cache=True)
+def _cholesky(A):
+    """Lower Cholesky factor of the symmetric positive semi-definite A (M, M); a column whose
+    pivot is below PIVOT_DROP of its diagonal (a mode the others already span) is dropped
+    (zero column, its unknown held at 0)."""
+    M = len(A)
+    L = np.zeros((M, M))
+    for c in range(M):
+        d = A[c, c]
+        for p in range(c):
+            d -= L[c, p] * L[c, p]
+        if not d > PIVOT_DROP * A[c, c] or not d > 0.0:
+            continue
+        L[c, c] = math.sqrt(d)
+        for r in range(c + 1, M):
+            s = A[r, c]
+            for p in range(c):
+                s -= L[r, p] * L[c, p]
+            L[r, c] = s / L[c, c]
+    return L
+
+
+@nb.njit(cache=True)
+def _solve_factored(L, b):
+    """y with L L^T y = b over the kept columns (dropped ones 0)."""
+    M = len(L)
+    z = np.zeros(M)
+    for r in range(M):
+        if L[r, r] == 0.0:
+            continue
+        s = b[r]
+        for p in range(r):
+            s -= L[r, p] * z[p]
+        z[r] = s / L[r, r]
+    y = np.zeros(M)
+    for r in range(M - 1, -1, -1):
+        if L[r, r] == 0.0:
+            continue
+        s = z[r]
+        for p in range(r + 1, M):
+            s -= L[p, r] * y[p]
+        y[r] = s / L[r, r]
+    return y
+
+
+@nb.njit(cache=True)
+def coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a, scale_b,
+                  inv_m, invI, groups):
+    """P^T A P (M, M): each mode's impulses applied to zero velocities through the solver
+    bodies' responses, read back as the normal velocities of the rows of every aggregate that
+    shares a moving entity with the mode's."""
+    m, A = len(idx), len(pair)
+    M = first[A]
+    n = len(inv_m)
+    dv, dw = np.zeros((n, 3)), np.zeros((n, 3))
+    members = np.argsort(agg)          # rows grouped by aggregate (unaggregated first)
+    start = np.zeros(A + 1, np.int64)
+    for j in range(m):
+        if agg[j] >= 0:
+            start[agg[j] + 1] += 1
+    for g in range(A):
+        start[g + 1] += start[g]
+    skip = m - start[A]
+    Ac = np.zeros((M, M))
+    for g in range(A):
+        for t in range(first[g + 1] - first[g]):
+            col = first[g] + t
+            dv[:] = 0.0
+            dw[:] = 0.0
+            for s in range(start[g], start[g + 1]):
+                j = members[skip + s]
+                if weight[j, t] == 0.0:
+                    continue
+                _push_normal(j, idx[j], weight[j, t], basis, ia, ib, ra, rb, scale_a, scale_b,
+                             inv_m, invI, dv, dw, groups)
+            for h in range(A):
+                if not _adjacent(pair, g, h):
+                    continue
+                for s in range(start[h], start[h + 1]):
+                    j = members[skip + s]
+                    du = _normal_velocity(j, idx[j], basis, ia, ib, ra, rb, dv, dw, groups)
+                    for u in range(first[h + 1] - first[h]):
+                        Ac[first[h] + u, col] += weight[j, u] * du
+    # symmetric up to round-off: use the mean
+    for r in range(M):
+        for c in range(r + 1, M):
+            s = 0.5 * (Ac[r, c] + Ac[c, r])
+            Ac[r, c] = Ac[c, r] = s
+    return Ac
+
+
+@nb.njit(cache=True)
+def _adjacent(pair, g, h):
+    """Whether aggregates g and h share a moving entity."""
+    for x in range(2):
+        e = pair[g, x]
+        if e >= 0 and (e == pair[h, 0] or e == pair[h, 1]):
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def coarse_space(idx, K, basis, ia, ib, ra, rb, point, target, scale_a, scale_b, lam, inv_m,
+                 invI, v, w, groups, ent, share):
+    """The coarse space of a solve and its factorised Galerkin matrix: (agg, weight, first, L)
+    (see :func:`aggregates`, :func:`coarse_matrix`), over the rows that take part now (pushing,
+    or closing faster than their target), weighted by the impulses they carry now. Built once
+    per solve, after its first sweeps have found the load path; kept while the sweeps refine it
+    (a Galerkin correction over any fixed space only lowers the error's energy norm)."""
+    m = len(idx)
+    rows = np.zeros(m, np.bool_)
+    for j in range(m):
+        if not K[j, 0, 0] > 0.0 or (ent[j, 0] < 0 and ent[j, 1] < 0):
+            continue
+        k = idx[j]
+        un = _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups)
+        rows[j] = lam[k, 0] > 0.0 or un < target[k]
+    agg, weight, pair, first = aggregates(idx, ent, share, rows, basis, point, lam)
+    L = _cholesky(coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a,
+                                scale_b, inv_m, invI, groups))
+    return agg, weight, first, L
+
+
+@nb.njit(cache=True)
+def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m, invI, v, w,
+                groups, agg, weight, first, L):
+    """One coarse correction (see the module docstring) over the space ``coarse_space`` built:
+    the accumulated normal impulses lam and the velocities v, w change in place. Returns the
+    largest change of a normal impulse."""
+    m = len(idx)
+    M = len(L)
+    if M == 0:
+        return 0.0
+    # Galerkin right-hand side: the modes' share of the normal velocity residuals
+    b = np.zeros(M)
+    for j in range(m):
+        g = agg[j]
+        if g < 0:
+            continue
+        k = idx[j]
+        r = target[k] - _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups)
+        for t in range(first[g + 1] - first[g]):
+            b[first[g] + t] += weight[j, t] * r
+    y = _solve_factored(L, b)
+    # the correction, projected onto non-negative impulses, applied once per row
+    largest = 0.0
+    for j in range(m):
+        g = agg[j]
+        if g < 0:
+            continue
+        k = idx[j]
+        d = 0.0
+        for t in range(first[g + 1] - first[g]):
+            d += weight[j, t] * y[first[g] + t]
+        new = max(lam[k, 0] + d, 0.0)
+        d = new - lam[k, 0]
+        if d == 0.0:
+            continue
+        lam[k, 0] = new
+        largest = max(largest, abs(d))
+        _push_normal(j, k, d, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups)
+    return largest
