@@ -77,27 +77,27 @@ def _hard_cases():
     return module
 
 
-def test_heavy_box_on_light_frictionless_slab_keeps_it_under_while_loading():
-    """benchmarks/scenes/hard/heavy_on_light.toml for its first 0.1 s (the weight coming on: the
-    box settles 0.2 mm into the slab): the slab stays under the box (drift < 0.5 mm; the sweeps
-    alone let it slide 1.2 mm, and out from under the box within 0.4 s), the box stays level
-    (tilt < 0.015 degrees; 0.025 with the sweeps alone), nothing sinks in more than 1 mm and no
-    energy is gained."""
+def test_heavy_box_on_light_frictionless_slab_stays_on_it():
+    """benchmarks/scenes/hard/heavy_on_light.toml for its first 0.25 s (the weight coming on: the
+    box settles 0.2 mm into the slab): the slab stays under the box (drift < 1 cm, the hard-case table's bound; the sweeps
+    alone let it slide 8 cm by then, at 1.3 m/s, and out from under the box within 0.4 s), the box
+    stays level (tilt < 0.1 degrees; 0.19 with the sweeps alone), nothing sinks in more than 1 mm
+    and no energy is gained. (The slab does not come to rest: docs/limits.md.)"""
     hard_cases = _hard_cases()
     sim = Simulation.from_toml(ROOT / "benchmarks" / "scenes" / "hard" / "heavy_on_light.toml")
     energy0 = totals(sim.model, sim.state)[0]
     start = sim.body("slab").position[:2].copy()
     drift = tilt = gain = deepest = 0.0
-    for k in range(100):
+    for k in range(250):
         sim.step()
         R = quat.to_matrix(sim.state.rigid.orientation)[0]
         tilt = max(tilt, math.degrees(math.acos(min(1.0, R[2, 2]))))
         drift = max(drift, float(np.linalg.norm(sim.body("slab").position[:2] - start)))
         gain = max(gain, totals(sim.model, sim.state)[0] - energy0)
-        if k % 10 == 9:
+        if k % 25 == 24:
             deepest = max(deepest, hard_cases.penetration(sim.model, sim.state))
     print(f"drift {drift:.3g} m, tilt {tilt:.3g} deg, energy gain {gain:.3g} J, deepest {deepest:.3g} m")
-    assert drift < 5e-4
-    assert tilt < 0.015
+    assert drift < 0.01
+    assert tilt < 0.1
     assert deepest < 1e-3
     assert gain <= 1e-6 * abs(energy0)
