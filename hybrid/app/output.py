@@ -18,7 +18,6 @@ Frames are written off the stepping thread: ``RunWriter.write_frame`` checks its
 the pieces' arrays and the rows over, as plain data, to a writer process (or thread) that merges
 them, writes the ``.vtu``, rewrites the ``.pvd`` and appends the rows, in order, while the stepping
 goes on (:mod:`hybrid.app.writer_process`; docs/output.md, "Writing off the stepping thread").
-
 ``read_run`` is the matching reader used by rendering and tests.
 """
 
@@ -38,8 +37,8 @@ import numpy as np
 
 from . import writer_process
 from .text_files import atomic_write_text as _atomic_write_text, plain as _plain
-from .vtu import Deferred, merge_pieces, write_vtu
-from .writer_process import FrameFiles, WriterProcess
+from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
+from .writer_process import WriterProcess, check_field, check_rows, owned
 from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
@@ -48,7 +47,6 @@ BODY_COLUMNS = (
 )
 REGION_COLUMNS = ("time", "body", "region", "fx", "fy", "fz", "ux", "uy", "uz")
 
-FRAMES_DIR = "frames"
 FRAME_PATTERN = re.compile(r"^frame_\d{5,}\.vtu$")
 BODIES_CSV = "bodies.csv"
 REGIONS_CSV = "regions.csv"
@@ -114,14 +112,12 @@ class RunWriter:
     - ``False`` or ``"inline"``: on the caller's thread.
 
     ``write_frame`` and ``write_regions`` check and copy their input on the caller's thread, raise
-    ValueError for bad input at once (nothing of that call is written), and queue the files' work;
-    beyond ``queue_frames`` frames waiting (a process: and 64 MB) the caller waits for the disk.
-    The files are written in the order of the calls, byte for byte as the caller's thread writes
-    them. An error in the writer (a full disk) stops the writing, keeping the frames written
-    before it and the ``.pvd`` that lists them, and is raised on the caller's thread by the next
-    ``write_frame``, ``write_regions``, ``flush`` or ``close``. ``flush()`` waits until every
-    queued frame is on disk; reading ``frames_written`` does so too, so what is read matches the
-    files. ``close()`` (or leaving the ``with`` block) ends the writer process.
+    ValueError for bad input at once (nothing of that call is written), and queue the files' work
+    (beyond ``queue_frames`` frames waiting, and for a process 64 MB, the caller waits). The files
+    are written in the order of the calls, byte for byte as in place. A writer error (a full
+    disk) stops the writing, keeping the frames before it and a ``.pvd`` listing them, and is
+    raised on the caller's thread by the next call. ``flush()`` waits until every queued frame is
+    on disk, and so does reading ``frames_written``. ``close()`` ends the writer process.
     """
 
     queue_frames = 8
@@ -148,7 +144,7 @@ class RunWriter:
         self._writer = WriterThread(self.mode != "inline", self.queue_frames, "RunWriter")
         self._process: WriterProcess | None = None
         self._process_error: BaseException | None = None     # why "auto" stayed on the thread
-        self._ended_seconds = 0.0           # writing time of the writer process once it ended
+        self._ended_seconds = 0.0           # writing time of the ended writer process (s)
         self._auto_from: float | None = None  # "auto": when the fork server is to be started
         self._launch: threading.Thread | None = None      # "auto": starting a writer process
         self._launched: WriterProcess | BaseException | None = None
@@ -167,7 +163,7 @@ class RunWriter:
 
     # -- file state, as on disk once the queued work is done -----------------------------
     def _file_state(self) -> dict:
-        """:meth:`hybrid.app.writer_process.FrameFiles.state` once the queued work is done."""
+        """:meth:`hybrid.app.vtu.FrameFiles.state` once the queued work is done."""
         if self._process is not None:
             return self._process.state()
         self._writer.wait()
@@ -264,7 +260,7 @@ class RunWriter:
 
     # -- the writer: here, on the thread, or in the process ------------------------------
     def _submit(self, job: tuple) -> None:
-        """Hand ``job`` (a :class:`hybrid.app.writer_process.FrameFiles` job) to the writer."""
+        """Hand ``job`` (a :class:`hybrid.app.vtu.FrameFiles` job) to the writer."""
         if self._process is None and self._auto_from is not None:
             self._auto(time.monotonic())
         if self._process is None and self.mode == "process":
@@ -273,7 +269,7 @@ class RunWriter:
             self._process.submit(job)
             return
         if self.mode == "thread" or self.mode == "auto":
-            job = _owned(job)            # the caller may change its arrays once this returns
+            job = owned(job)            # the caller may change its arrays once this returns
         files, writer = self._frame_files, self._writer
         writer.submit(lambda: files.run(job, idle=not writer.pending()))
 
@@ -316,14 +312,12 @@ class RunWriter:
         self._process = process
 
     def _wait(self) -> None:
-        self._writer.wait()
-        if self._process is not None:
-            self._process.wait()
+        for writer in (self._writer, self._process or self._writer):
+            writer.wait()
 
     def _raise_error(self) -> None:
-        self._writer.raise_error()
-        if self._process is not None:
-            self._process.raise_error()
+        for writer in (self._writer, self._process or self._writer):
+            writer.raise_error()
 
     # -- frames --------------------------------------------------------------------------
     def _check_pieces(self, pieces: Sequence[FramePiece]) -> list[tuple]:
@@ -346,8 +340,8 @@ class RunWriter:
                 blocks.append((str(cell_type), conn))
             cell_count = sum(len(c) for _, c in blocks)
             cell_total += cell_count
-            cdata = {n: _field(n, v, cell_count, f"{owner} cell", cell_fields) for n, v in piece.cell_data.items()}
-            pdata = {n: _field(n, v, len(points), f"{owner} point", point_fields)
+            cdata = {n: check_field(n, v, cell_count, f"{owner} cell", cell_fields) for n, v in piece.cell_data.items()}
+            pdata = {n: check_field(n, v, len(points), f"{owner} point", point_fields)
                      for n, v in piece.point_data.items()}
             checked.append((int(piece.body_id), points, blocks, cdata, pdata))
         if not cell_total:
@@ -371,7 +365,7 @@ class RunWriter:
         """
         self._raise_error()
         checked = self._check_pieces(pieces)
-        rows = _check_rows(body_rows, BODY_COLUMNS)
+        rows = check_rows(body_rows, BODY_COLUMNS)
         self._start()
         path = self.frame_path(self._queued)
         self._submit(("frame", float(time), path.name, checked, dict(self._cell_fields),
@@ -382,59 +376,11 @@ class RunWriter:
     def write_regions(self, rows: Iterable[Any]) -> None:
         """Append region rows (``REGION_COLUMNS`` order, or dicts); creates regions.csv on first rows."""
         self._raise_error()
-        rows = _check_rows(rows, REGION_COLUMNS)
+        rows = check_rows(rows, REGION_COLUMNS)
         if not rows:
             return
         self._start()
         self._submit(("rows", REGIONS_CSV, REGION_COLUMNS, rows))
-
-
-def _field(name: str, value: Any, count: int, owner: str, registry: dict) -> np.ndarray:
-    """A piece's field checked: a 0-d value (the same on every cell or point), (count,) or
-    (count, k), or a :class:`hybrid.app.vtu.Deferred` of ``count`` rows; its row shape registered
-    in ``registry`` (ValueError if it differs from before)."""
-    if isinstance(value, Deferred):
-        array, trailing = value, tuple(value.trailing)
-        if len(value.trailing) > 1 or len(value) != count:
-            raise ValueError(f"{owner} field {name!r} has {len(value)} rows, expected {count}")
-    else:
-        array = np.asarray(value)
-        if array.ndim != 0 and (array.ndim not in (1, 2) or len(array) != count):
-            raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
-        trailing = array.shape[1:]
-    known = registry.setdefault(name, trailing)
-    if known != trailing:
-        kind = owner.rsplit(" ", 1)[-1]
-        raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
-    return array
-
-
-def _check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
-    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
-    out = []
-    for row in rows:
-        if isinstance(row, Mapping):
-            if set(row) != set(columns):
-                missing = sorted(set(columns) - set(row))
-                extra = sorted(set(row) - set(columns))
-                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
-            row = tuple(row[c] for c in columns)
-        else:
-            row = tuple(row)
-            if len(row) != len(columns):
-                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
-        out.append(row)
-    return out
-
-
-def _owned(job: tuple) -> tuple:
-    """``job`` with its frame's arrays copied (a job run later by the writer thread)."""
-    if job[0] != "frame":
-        return job
-    pieces = [(body_id, points.copy(), [(t, c.copy()) for t, c in blocks],
-               {n: v.copy() for n, v in cdata.items()}, {n: v.copy() for n, v in pdata.items()})
-              for body_id, points, blocks, cdata, pdata in job[3]]
-    return job[:3] + (pieces,) + job[4:]
 
 
 def find_pvd(run_dir: Path | str, summary: Mapping[str, Any] | None = None) -> Path:

@@ -1,5 +1,6 @@
-"""VTK XML files of a run: frames (``.vtu`` unstructured grids) and the ``.pvd`` index, and the
-merging of bodies' cells and fields into one frame mesh (:func:`merge_pieces`).
+"""VTK XML files of a run: frames (``.vtu`` unstructured grids) and the ``.pvd`` index, the
+merging of bodies' cells and fields into one frame mesh (:func:`merge_pieces`), and
+:class:`FrameFiles`, which writes a run's frames, index and CSV tables as the writer's jobs come.
 
 The frames' own writer: the file meshio writes (binary, zlib-compressed blocks, UInt32 headers,
 which meshio, VTK and ParaView read), at zlib's fastest level, and with each array's encoding
@@ -9,6 +10,9 @@ per frame. Compressing every array of every frame took most of the writing time.
 """
 from __future__ import annotations
 
+import math
+import os
+import time
 import zlib
 from base64 import b64encode
 from dataclasses import dataclass, field
@@ -17,6 +21,8 @@ from typing import Any, Mapping, Sequence
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
+
+from .text_files import atomic_write_text, csv_rows, temporary_path
 
 # meshio (a quarter of a second to import) is imported only where it is used, so that the writer
 # process (hybrid.app.writer_process) starts without it.
@@ -253,3 +259,108 @@ def pvd_document(lines: Sequence[str]) -> str:
 def pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
     """The ``.pvd`` index listing ``files`` at ``times``."""
     return pvd_document([pvd_line(time, file) for time, file in zip(times, files)])
+
+
+FRAMES_DIR = "frames"
+
+
+class FrameFiles:
+    """The files of one run as written so far, and the jobs that write them.
+
+    A job is a tuple ``(name, *args)`` naming a method: ``frame``, ``rows``, ``index``,
+    ``restore`` or ``state``. ``write_vtu``: the function that writes a frame file (the default
+    :func:`hybrid.app.vtu.write_vtu`). ``index_every``: wall time (s), at least, between rewrites
+    of the ``.pvd`` while frames come (replacing a file waits a few ms for the disk)."""
+
+    def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, write_vtu=None):
+        self.out_dir, self.pvd_path = Path(out_dir), Path(out_dir) / pvd_name
+        self.index_every = index_every
+        self.write_vtu = write_vtu or globals()["write_vtu"]
+        self.count = 0                      # frames on disk
+        self.times: list[float] = []        # their times (s)
+        self.files: list[str] = []          # their .pvd entries (frames/frame_00000.vtu, ...)
+        self.pvd_lines: list[str] = []      # the .pvd's lines of those frames
+        self.pvd_listed = 0                 # frames the .pvd on disk lists
+        self.index_time = -math.inf         # time.monotonic() of its last rewrite
+        self.tables: dict[str, Any] = {}    # CSV file name -> open file
+        self.encoder = VtuEncoder()
+
+    JOBS = ("frame", "rows", "index", "restore", "state")
+
+    def run(self, job: tuple, idle: bool) -> Any:
+        """Run ``job``; then, when ``idle`` (no job waits) and the ``.pvd`` was last written
+        ``index_every`` s ago, bring it up to date. An error writes the ``.pvd`` first, so the
+        index lists every frame on disk, and is raised."""
+        if job[0] not in self.JOBS:
+            raise ValueError(f"unknown writer job {job[0]!r}")
+        try:
+            result = getattr(self, job[0])(*job[1:])
+        except BaseException:
+            self.index()
+            raise
+        if idle and time.monotonic() - self.index_time >= self.index_every:
+            self.index()
+        return result
+
+    def frame(self, t: float, name: str, pieces, cell_fields, point_fields, table, columns, rows) -> None:
+        """Frame file ``frames/<name>`` of the checked ``pieces`` (merged with
+        :func:`hybrid.app.vtu.merge_pieces`), its ``.pvd`` line, and its ``rows`` in ``table``."""
+        mesh = merge_pieces(pieces, cell_fields, point_fields)
+        path = self.out_dir / FRAMES_DIR / name
+        tmp = temporary_path(path)
+        try:
+            self.write_vtu(tmp, mesh, self.encoder)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        self.times.append(float(t))
+        self.files.append(f"{FRAMES_DIR}/{name}")
+        self.pvd_lines.append(pvd_line(t, self.files[-1]))
+        self.count += 1
+        self.rows(table, columns, rows)
+
+    def rows(self, table: str, columns, rows) -> None:
+        """Append ``rows`` (checked tuples in ``columns`` order) to the CSV file ``table``, which
+        gets its header when it is created; one write, flushed, so only whole lines reach disk."""
+        text = csv_rows(rows, columns)
+        f = self.tables.get(table)
+        if f is None:
+            f = self.tables[table] = open(self.out_dir / table, "w", encoding="utf-8", newline="")
+            text = ",".join(columns) + "\n" + text
+        f.write(text)
+        f.flush()
+
+    def index(self) -> None:
+        """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
+        if self.pvd_listed != len(self.pvd_lines):
+            atomic_write_text(self.pvd_path, pvd_document(self.pvd_lines))
+            self.pvd_listed = len(self.pvd_lines)
+        self.index_time = time.monotonic()
+
+    def state(self) -> dict:
+        """Where the files stand: ``count``, ``times``, ``files``, ``tables`` (name -> bytes
+        written, tables flushed), ``index_time``."""
+        for f in self.tables.values():
+            f.flush()
+        return {"count": self.count, "times": list(self.times), "files": list(self.files),
+                "tables": {name: f.tell() for name, f in self.tables.items()},
+                "index_time": self.index_time}
+
+    def restore(self, state: dict) -> None:
+        """Continue files that stand at ``state`` (from :meth:`state`, or a checkpoint's files
+        taken back to it): the ``.pvd`` on disk lists its frames, its tables exist with exactly
+        those lengths and are appended to."""
+        self.close()
+        self.count, self.times, self.files = int(state["count"]), list(state["times"]), list(state["files"])
+        self.pvd_lines = [pvd_line(t, f) for t, f in zip(self.times, self.files)]
+        self.pvd_listed = len(self.pvd_lines)
+        self.index_time = state.get("index_time", -math.inf)
+        for name in state["tables"]:
+            self.tables[name] = open(self.out_dir / name, "a", encoding="utf-8", newline="")
+
+    def close(self) -> None:
+        """Close the tables."""
+        tables, self.tables = self.tables, {}
+        for f in tables.values():
+            f.close()

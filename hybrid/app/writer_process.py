@@ -1,13 +1,14 @@
-"""The files' side of a run's output (:class:`FrameFiles`) and the process that can run it
-(:class:`WriterProcess`).
+"""The writer process of a run's output (:class:`WriterProcess`), and the checks of a frame's
+input before it is handed over.
 
-:class:`hybrid.app.output.RunWriter` checks each frame on the stepping thread and hands it over
-as plain data (numpy arrays, numbers, strings: no simulation objects) in a job. A
-:class:`FrameFiles` runs the jobs in order: it merges the bodies into one mesh, encodes the
-``.vtu``, appends the CSV rows and keeps the ``.pvd`` index. It runs on the caller's thread, on a
-writer thread, or in a writer process: a child process of the run (started through
-multiprocessing's fork server, so it is never forked from a process whose numba or BLAS threads
-are running) that receives the jobs pickled through a pipe. The stepping thread's part is then
+:class:`hybrid.app.output.RunWriter` checks each frame on the stepping thread
+(:func:`check_field`, :func:`check_rows`) and hands it over as plain data (numpy arrays,
+numbers, strings: no simulation objects) in a job. A :class:`hybrid.app.vtu.FrameFiles` runs the
+jobs in order: it merges the bodies into one mesh, encodes the ``.vtu``, appends the CSV rows
+and keeps the ``.pvd`` index. It runs on the caller's thread, on a writer thread, or in a writer
+process: a child process of the run (started through multiprocessing's fork server, so it is
+never forked from a process whose numba or BLAS threads are running) that receives the jobs
+pickled through a pipe. The stepping thread's part is then
 to check and copy; the interpreter lock no longer makes the stepping wait for the encoding.
 
 The process ignores SIGINT (a Ctrl-C reaches every process of the terminal's group; the run
@@ -19,10 +20,8 @@ raised on the stepping thread, naming the process.
 from __future__ import annotations
 
 import atexit
-import math
 import multiprocessing
 import multiprocessing.util
-import os
 import pickle
 import queue
 import re
@@ -34,114 +33,59 @@ import traceback
 import weakref
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable, Mapping, Sequence
 
-from .text_files import atomic_write_text, csv_rows, temporary_path
-from .vtu import VtuEncoder, merge_pieces, pvd_document, pvd_line, write_vtu as _write_vtu
+import numpy as np
 
-FRAMES_DIR = "frames"
+from .vtu import Deferred, FrameFiles
 
 
-class FrameFiles:
-    """The files of one run as written so far, and the jobs that write them.
+def check_field(name: str, value: Any, count: int, owner: str, registry: dict) -> np.ndarray:
+    """A piece's field checked: a 0-d value (the same on every cell or point), (count,) or
+    (count, k), or a :class:`hybrid.app.vtu.Deferred` of ``count`` rows; its row shape registered
+    in ``registry`` (ValueError if it differs from before)."""
+    if isinstance(value, Deferred):
+        array, trailing = value, tuple(value.trailing)
+        if len(value.trailing) > 1 or len(value) != count:
+            raise ValueError(f"{owner} field {name!r} has {len(value)} rows, expected {count}")
+    else:
+        array = np.asarray(value)
+        if array.ndim != 0 and (array.ndim not in (1, 2) or len(array) != count):
+            raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
+        trailing = array.shape[1:]
+    known = registry.setdefault(name, trailing)
+    if known != trailing:
+        kind = owner.rsplit(" ", 1)[-1]
+        raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
+    return array
 
-    A job is a tuple ``(name, *args)`` naming a method: ``frame``, ``rows``, ``index``,
-    ``restore`` or ``state``. ``write_vtu``: the function that writes a frame file (the default
-    :func:`hybrid.app.vtu.write_vtu`). ``index_every``: wall time (s), at least, between rewrites
-    of the ``.pvd`` while frames come (replacing a file waits a few ms for the disk)."""
 
-    def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, write_vtu=None):
-        self.out_dir, self.pvd_path = Path(out_dir), Path(out_dir) / pvd_name
-        self.index_every = index_every
-        self.write_vtu = write_vtu or _write_vtu
-        self.count = 0                      # frames on disk
-        self.times: list[float] = []        # their times (s)
-        self.files: list[str] = []          # their .pvd entries (frames/frame_00000.vtu, ...)
-        self.pvd_lines: list[str] = []      # the .pvd's lines of those frames
-        self.pvd_listed = 0                 # frames the .pvd on disk lists
-        self.index_time = -math.inf         # time.monotonic() of its last rewrite
-        self.tables: dict[str, Any] = {}    # CSV file name -> open file
-        self.encoder = VtuEncoder()
+def check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
+    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
+    out = []
+    for row in rows:
+        if isinstance(row, Mapping):
+            if set(row) != set(columns):
+                missing = sorted(set(columns) - set(row))
+                extra = sorted(set(row) - set(columns))
+                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
+            row = tuple(row[c] for c in columns)
+        else:
+            row = tuple(row)
+            if len(row) != len(columns):
+                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
+        out.append(row)
+    return out
 
-    JOBS = ("frame", "rows", "index", "restore", "state")
 
-    def run(self, job: tuple, idle: bool) -> Any:
-        """Run ``job``; then, when ``idle`` (no job waits) and the ``.pvd`` was last written
-        ``index_every`` s ago, bring it up to date. An error writes the ``.pvd`` first, so the
-        index lists every frame on disk, and is raised."""
-        if job[0] not in self.JOBS:
-            raise ValueError(f"unknown writer job {job[0]!r}")
-        try:
-            result = getattr(self, job[0])(*job[1:])
-        except BaseException:
-            self.index()
-            raise
-        if idle and time.monotonic() - self.index_time >= self.index_every:
-            self.index()
-        return result
-
-    def frame(self, t: float, name: str, pieces, cell_fields, point_fields, table, columns, rows) -> None:
-        """Frame file ``frames/<name>`` of the checked ``pieces`` (merged with
-        :func:`hybrid.app.vtu.merge_pieces`), its ``.pvd`` line, and its ``rows`` in ``table``."""
-        mesh = merge_pieces(pieces, cell_fields, point_fields)
-        path = self.out_dir / FRAMES_DIR / name
-        tmp = temporary_path(path)
-        try:
-            self.write_vtu(tmp, mesh, self.encoder)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        self.times.append(float(t))
-        self.files.append(f"{FRAMES_DIR}/{name}")
-        self.pvd_lines.append(pvd_line(t, self.files[-1]))
-        self.count += 1
-        self.rows(table, columns, rows)
-
-    def rows(self, table: str, columns, rows) -> None:
-        """Append ``rows`` (checked tuples in ``columns`` order) to the CSV file ``table``, which
-        gets its header when it is created; one write, flushed, so only whole lines reach disk."""
-        text = csv_rows(rows, columns)
-        f = self.tables.get(table)
-        if f is None:
-            f = self.tables[table] = open(self.out_dir / table, "w", encoding="utf-8", newline="")
-            text = ",".join(columns) + "\n" + text
-        f.write(text)
-        f.flush()
-
-    def index(self) -> None:
-        """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
-        if self.pvd_listed != len(self.pvd_lines):
-            atomic_write_text(self.pvd_path, pvd_document(self.pvd_lines))
-            self.pvd_listed = len(self.pvd_lines)
-        self.index_time = time.monotonic()
-
-    def state(self) -> dict:
-        """Where the files stand: ``count``, ``times``, ``files``, ``tables`` (name -> bytes
-        written, tables flushed), ``index_time``."""
-        for f in self.tables.values():
-            f.flush()
-        return {"count": self.count, "times": list(self.times), "files": list(self.files),
-                "tables": {name: f.tell() for name, f in self.tables.items()},
-                "index_time": self.index_time}
-
-    def restore(self, state: dict) -> None:
-        """Continue files that stand at ``state`` (from :meth:`state`, or a checkpoint's files
-        taken back to it): the ``.pvd`` on disk lists its frames, its tables exist with exactly
-        those lengths and are appended to."""
-        self.close()
-        self.count, self.times, self.files = int(state["count"]), list(state["times"]), list(state["files"])
-        self.pvd_lines = [pvd_line(t, f) for t, f in zip(self.times, self.files)]
-        self.pvd_listed = len(self.pvd_lines)
-        self.index_time = state.get("index_time", -math.inf)
-        for name in state["tables"]:
-            self.tables[name] = open(self.out_dir / name, "a", encoding="utf-8", newline="")
-
-    def close(self) -> None:
-        """Close the tables."""
-        tables, self.tables = self.tables, {}
-        for f in tables.values():
-            f.close()
+def owned(job: tuple) -> tuple:
+    """``job`` with its frame's arrays copied (a job run later by the writer thread)."""
+    if job[0] != "frame":
+        return job
+    pieces = [(body_id, points.copy(), [(t, c.copy()) for t, c in blocks],
+               {n: v.copy() for n, v in cdata.items()}, {n: v.copy() for n, v in pdata.items()})
+              for body_id, points, blocks, cdata, pdata in job[3]]
+    return job[:3] + (pieces,) + job[4:]
 
 
 class WriterProcessError(RuntimeError):
