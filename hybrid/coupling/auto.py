@@ -131,11 +131,27 @@ def response_time(fem, h):
     return max(extent(fem) / np.sqrt(fem.young / fem.density), h)
 
 
+def wave_speed(fem):
+    """The body's elastic wave speed sqrt(E / rho) (m/s)."""
+    return float(np.sqrt(fem.young / fem.density))
+
+
+def element_time(fem, h):
+    """The time (s) over which one step's velocity change in the body becomes strain: the step
+    ``h``, or the wave's transit across an element (edge of a regular tet of the body's mean
+    element volume) when that is longer. A change of velocity ``dv`` then strains the body by
+    its wave strain ``dv / c`` (the wave it launches spreads over ``max(c h, element)``), which
+    for a load kept on is the strain it settles to; and when the body answers within the step,
+    by the strain the step adds."""
+    size = float(np.cbrt(6.0 * np.sqrt(2.0) * fem.elements.tet_volume.mean()))
+    return max(size / wave_speed(fem), h)
+
+
 def strain_measure(fem, x, v, h, inverse_F=None):
-    """Largest element strain rate of velocities ``v`` at shape ``x`` times the response time
-    (``inverse_F``: see fem.stress.element_strain_rate): how much a load deforms the body
-    anywhere, the elastify test."""
-    return float(element_strain_rate(fem, x, v, inverse_F).max()) * response_time(fem, h)
+    """Largest element strain rate of velocities ``v`` (one step's change) at shape ``x`` times
+    :func:`element_time` (``inverse_F``: see fem.stress.element_strain_rate): how much the change
+    deforms the body anywhere, the elastify test."""
+    return float(element_strain_rate(fem, x, v, inverse_F).max()) * element_time(fem, h)
 
 
 def body_strain_measure(fem, x, v, h):
@@ -241,26 +257,26 @@ def rigid_due(model, state):
 # --- elastify ----------------------------------------------------------------------------------
 
 def impulse_change(before, after, k):
-    """``(points (r, 3), impulses (r, 3))``: how the contact impulses on body ``k`` changed from
-    the touches ``before`` to ``after``. Each partner's rows now scaled by the part of its total
-    that is new (its rows whole for a new partner, none for a steady one: a body resting under a
-    steady load does not change, however the solver shares the load among its points), and the
-    rows of a partner that let go, negated. None when nothing touches it in either."""
+    """``(points (r, 3), impulses (r, 3))``: how the load the contacts put on body ``k`` changed
+    from the touches ``before`` to ``after``: for each partner, the change of its total impulse,
+    shared evenly among the partner's contact points now (those it had, for a partner that let
+    go). How a rigid body's contact points share a load is not determined (the sweeps end in one
+    sharing or another, differently from step to step and from the FEM body's), and a body spreads
+    a contact's load over the patch it touches: a settled box turned rigid, its load the same and
+    shared differently, would otherwise turn back at its first rigid step. None when nothing
+    touches it in either."""
     partner, point, impulse = after.of_body(k)
     old_partner, old_point, old_impulse = (before.of_body(k) if before is not None
                                            else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))))
     if not len(partner) and not len(old_partner):
         return None
     points, changes = [], []
-    for p in np.unique(partner):
-        rows = partner == p
-        total, old_total = impulse[rows].sum(axis=0), old_impulse[old_partner == p].sum(axis=0)
-        scale = 1.0 - float(total @ old_total) / max(float(total @ total), 1e-300)
-        points.append(point[rows])
-        changes.append(scale * impulse[rows])
-    gone = ~np.isin(old_partner, partner)
-    points.append(old_point[gone])
-    changes.append(-old_impulse[gone])
+    for p in np.union1d(partner, old_partner):
+        rows, old_rows = partner == p, old_partner == p
+        at = point[rows] if rows.any() else old_point[old_rows]
+        change = impulse[rows].sum(axis=0) - old_impulse[old_rows].sum(axis=0)
+        points.append(at)
+        changes.append(np.broadcast_to(change / len(at), at.shape))
     return np.concatenate(points), np.concatenate(changes)
 
 

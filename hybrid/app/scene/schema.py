@@ -173,17 +173,20 @@ DAMPING = Section("bodies.damping", "damping = { ... }", "Rayleigh damping `C = 
 
 AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body (or an `auto` "
                "fragment) switches between rigid and FEM (docs/auto.md). Strains are measured as an "
-               "element's strain rate times the body's response time, the longer of its elastic wave "
-               "transit time (largest extent over sqrt(young / density)) and the step: dimensionless, "
-               "so the defaults hold from rubber to steel and centimetres to metres.", (
+               "element's strain rate times a time: for rigidifying, the body's response time (the "
+               "longer of its elastic wave transit time, largest extent over sqrt(young / density), "
+               "and the step); for elastifying, the longer of the step and the wave's transit "
+               "across one element. Dimensionless, so the defaults hold from rubber to steel and "
+               "centimetres to metres.", (
     _positive("rigidify_strain", 1e-4, "", "An FEM auto body becomes rigid once its measured strain "
               "(root mean square over its volume) stays below this for `window` steps (and "
               "nothing yields, its largest principal stress is below `fracture_margin` of "
               "`fracture_stress`, its anchors are still and it has no load unless anchored). At "
               "most a tenth of the elastify threshold in use."),
     _positive("elastify_strain", 1e-3, "", "A rigid auto body becomes FEM again, before the step is "
-              "taken, when the change of its contact impulses in that step would strain it by more "
-              "than this (predicted through its kept FEM factorisation). A plastic or breakable "
+              "taken, when the change of its contact load in that step (each partner's total) would "
+              "strain it by more than this (predicted through its kept FEM factorisation); raise it "
+              "for soft bodies that carry strains of a percent or more under their own weight. A plastic or breakable "
               "body uses at most half its yield strain `yield_stress / young` (and half "
               "`fracture_stress / young`), so it is deformable before anything yields or cracks. "
               "Must exceed `rigidify_strain`."),
