@@ -1,24 +1,19 @@
-"""Two-level contact solve: a coarse correction between the Gauss-Seidel sweeps of rigid.solver.
+"""Two-level contact solve: coarse corrections between the Gauss-Seidel sweeps of rigid.solver.
 
-Gauss-Seidel corrects a body's velocity, per contact row, by the body's share of the row's
-response (its part of K over the whole). A heavy body touched only by light ones (a 1,800 kg box
-on the nodes of a 1.8 kg slab) has a share of ~1e-3 per row, so its velocity converges at that
-rate per sweep, and so does every contact impulse that carries its weight. The coarse correction
-solves for those slow modes at once: the contact rows are gathered into aggregates (the rows
-between one pair of entities, a rigid body, a deformable body's particles, or the static world,
-whose normals point the same way), each aggregate spans three normal-impulse modes (uniform, and
-linear across the patch in its two tangent directions: the net force and the two moments a flat
-patch passes between rigid sides), and the Galerkin system P^T A P y = P^T r (A the normal
-Delassus operator, through the same responses the sweeps use; r the rows' normal velocity
-residuals) is solved directly; the impulses take the correction projected to >= 0, and the sweeps
-go on. This is aggregation-based two-level iteration with the near-null (rigid) modes of each
-aggregate as coarse basis (Vanek, Mandel, Brezina 1996, smoothed aggregation), with the projected
-Gauss-Seidel sweeps as smoother and the coarse step projected onto the non-negative impulses as in
-monotone multigrid for contact (Kornhuber 1994).
-
-It runs only when some entity's share (the sum over its rows of its response over the row's) is
-below SHARE_MIN, and then only over the aggregates connected to such an entity: a mild mass ratio
-costs one pass over the rows.
+A sweep corrects a body's velocity, per contact row, by the body's share of the row's response.
+A heavy body touched only by light ones (1,000 kg on 1 kg) has a share of ~1e-3 per row, so the
+impulses that carry its weight converge at that rate per sweep. The coarse correction solves for
+such modes at once: rows are gathered into aggregates (between one pair of entities: a rigid
+body, a deformable body's particles, the static world; normals along one axis), each spanning
+three normal-impulse modes (the impulses the rows carry, and that times the two coordinates across
+the patch: the net force and the two moments a patch passes), and the Galerkin system
+P^T A P y = P^T r (A the normal Delassus operator through the sweeps' own responses, r the normal
+velocity residuals) is solved directly; the impulses take the correction projected to >= 0 and the
+sweeps go on. Aggregation-based two-level iteration with near-null modes per aggregate (Vanek,
+Mandel, Brezina 1996), projected Gauss-Seidel as smoother and the coarse step projected onto the
+admissible impulses as in monotone multigrid for contact (Kornhuber 1994). It runs only when some
+entity's share (its response over the row's, summed over its rows) is below SHARE_MIN, over the
+components of the contact graph that hold such an entity: mild mass ratios cost one pass.
 """
 import math
 
@@ -29,8 +24,7 @@ from .particle_kernels import _apply_particle, _particle_velocity
 
 # an entity whose rows give it less than this share of their correction per sweep is slow
 SHARE_MIN = 0.2
-# sweeps between coarse corrections
-COARSE_EVERY = 4
+COARSE_EVERY = 4        # sweeps between coarse corrections
 # a coarse mode whose pivot falls below this share of its diagonal depends on the others: dropped
 PIVOT_DROP = 1e-10
 
@@ -187,94 +181,69 @@ def _components(ent, share, count):
 @nb.njit(cache=True)
 def aggregates(idx, ent, share, rows, basis, point, lam):
     """The coarse space over the active contacts ``rows`` (bool (m,)): each row's aggregate
-    (-1: none) and weights (m, 3) on its aggregate's modes, the aggregates' entities (A, 2), and
-    each aggregate's first mode and mode count. Rows join an aggregate when they lie between the
-    same two entities with normals closest to the same world axis (so a box between the ground and
-    a wall has one aggregate per face), in a component holding a slow entity. Modes: uniform, and
-    the two tangential coordinates across the patch from its centroid (scaled by its radius);
-    uniform alone where the contact points are not given (``point`` empty)."""
+    (-1: none) and weights (m, 3) on its aggregate's modes (:func:`_mode_weights`), the
+    aggregates' entities (A, 2), and each aggregate's first mode (A + 1,). Rows join an aggregate
+    when they lie between the same two entities with normals closest to the same world axis (a
+    box between the ground and a wall has one aggregate per face), in a component holding a slow
+    entity."""
     m = len(idx)
     count = len(share)
     comp, slow = _components(ent, share, count)
     keys = np.full(m, -1, np.int64)
-    flip = np.zeros(m, np.bool_)
     for j in range(m):
         a, b = ent[j, 0], ent[j, 1]
-        if not rows[j] or (a < 0 and b < 0):
-            continue
-        c = comp[a] if a >= 0 else comp[b]
-        if not slow[c]:
+        if not rows[j] or (a < 0 and b < 0) or not slow[comp[a] if a >= 0 else comp[b]]:
             continue
         n0, n1, n2 = basis[j, 0, 0], basis[j, 0, 1], basis[j, 0, 2]
         if a > b:                   # one orientation per pair: the lower entity on side a
-            a, b = b, a
-            n0, n1, n2 = -n0, -n1, -n2
-            flip[j] = True
+            a, b, n0, n1, n2 = b, a, -n0, -n1, -n2
         keys[j] = ((a + 1) * (count + 1) + (b + 1)) * 6 + _direction_bin(n0, n1, n2)
     order = np.argsort(keys)
     agg = np.full(m, -1, np.int64)
     A = 0
-    last = -1
     for t in range(m):
         j = order[t]
-        if keys[j] < 0:
-            continue
-        if keys[j] != last:
-            A += 1
-            last = keys[j]
-        agg[j] = A - 1
+        if keys[j] >= 0:
+            if t == 0 or keys[j] != keys[order[t - 1]]:
+                A += 1
+            agg[j] = A - 1
     pair = np.full((A, 2), -1, np.int64)
-    centre = np.zeros((A, 3))
-    mean_n = np.zeros((A, 3))
-    size = np.zeros(A, np.int64)
+    for j in range(m):
+        if agg[j] >= 0:
+            pair[agg[j], 0], pair[agg[j], 1] = ent[j, 0], ent[j, 1]
+    weight, first = _mode_weights(idx, agg, A, basis, point, lam)
+    return agg, weight, pair, first
+
+
+@nb.njit(cache=True)
+def _mode_weights(idx, agg, A, basis, point, lam):
+    """Each row's weights (m, 3) on its aggregate's modes and each aggregate's first mode. The
+    modes follow the impulses the rows carry now (the load path: under a box on a slab on the
+    ground, the ground's rows below the box), scaled to a mean of one: that distribution, and it
+    times the two coordinates across the patch from its centroid along the tangents of one of its
+    rows, over the patch's radius (the moments a flat patch passes between rigid sides). The
+    distribution alone for a single row or where the points are not given (``point`` empty)."""
+    m = len(idx)
+    size, carried, radius = np.zeros(A), np.zeros(A), np.zeros(A)
+    centre, tangent = np.zeros((A, 3)), np.zeros((A, 2, 3))
     for j in range(m):
         g = agg[j]
-        if g < 0:
-            continue
-        pair[g, 0], pair[g, 1] = ent[j, 0], ent[j, 1]
-        sgn = -1.0 if flip[j] else 1.0
-        k = idx[j]
-        for d in range(3):
-            if len(point):
-                centre[g, d] += point[k, d]
-            mean_n[g, d] += sgn * basis[j, 0, d]
-        size[g] += 1
-    radius = np.zeros(A)
-    for g in range(A):
-        for d in range(3):
-            centre[g, d] /= size[g]
+        if g >= 0:
+            size[g] += 1.0
+            carried[g] += lam[idx[j], 0]
+            for d in range(3):
+                tangent[g, 0, d], tangent[g, 1, d] = basis[j, 1, d], basis[j, 2, d]
+                if len(point):
+                    centre[g, d] += point[idx[j], d]
     for j in range(m):
         g = agg[j]
         if g >= 0 and len(point):
-            k = idx[j]
             for d in range(3):
-                radius[g] += (point[k, d] - centre[g, d]) ** 2
+                radius[g] += (point[idx[j], d] - centre[g, d] / size[g]) ** 2
     first = np.zeros(A + 1, np.int64)
-    tangents = np.zeros((A, 2, 3))
     for g in range(A):
         radius[g] = math.sqrt(radius[g] / size[g])
-        nl = math.sqrt(mean_n[g, 0] ** 2 + mean_n[g, 1] ** 2 + mean_n[g, 2] ** 2)
-        modes = 1
-        if size[g] > 1 and radius[g] > 0.0 and nl > 0.0 and len(point):
-            n0, n1, n2 = mean_n[g, 0] / nl, mean_n[g, 1] / nl, mean_n[g, 2] / nl
-            if abs(n0) > 0.57735:
-                t0, t1, t2 = n1, -n0, 0.0
-            else:
-                t0, t1, t2 = 0.0, n2, -n1
-            tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-            t0, t1, t2 = t0 / tl, t1 / tl, t2 / tl
-            tangents[g, 0, 0], tangents[g, 0, 1], tangents[g, 0, 2] = t0, t1, t2
-            tangents[g, 1, 0] = n1 * t2 - n2 * t1
-            tangents[g, 1, 1] = n2 * t0 - n0 * t2
-            tangents[g, 1, 2] = n0 * t1 - n1 * t0
-            modes = 3
-        first[g + 1] = first[g] + modes
-    # the modes follow the impulses the rows carry now (the load path: under a box on a slab on
-    # the ground, the ground's rows below the box), scaled to a mean of one over the aggregate
-    carried = np.zeros(A)
-    for j in range(m):
-        if agg[j] >= 0:
-            carried[agg[j]] += lam[idx[j], 0]
+        first[g + 1] = first[g] + (3 if size[g] > 1 and radius[g] > 0.0 else 1)
     weight = np.zeros((m, 3))
     for j in range(m):
         g = agg[j]
@@ -282,13 +251,12 @@ def aggregates(idx, ent, share, rows, basis, point, lam):
             continue
         weight[j, 0] = lam[idx[j], 0] * size[g] / carried[g] if carried[g] > 0.0 else 1.0
         if first[g + 1] - first[g] == 3:
-            k = idx[j]
             for t in range(2):
                 acc = 0.0
                 for d in range(3):
-                    acc += (point[k, d] - centre[g, d]) * tangents[g, t, d]
+                    acc += (point[idx[j], d] - centre[g, d] / size[g]) * tangent[g, t, d]
                 weight[j, 1 + t] = weight[j, 0] * acc / radius[g]
-    return agg, weight, pair, first
+    return weight, first
 
 
 @nb.njit(cache=True)
@@ -374,8 +342,7 @@ def coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a,
                     du = _normal_velocity(j, idx[j], basis, ia, ib, ra, rb, dv, dw, groups)
                     for u in range(first[h + 1] - first[h]):
                         Ac[first[h] + u, col] += weight[j, u] * du
-    # symmetric up to round-off: use the mean
-    for r in range(M):
+    for r in range(M):             # symmetric up to round-off
         for c in range(r + 1, M):
             s = 0.5 * (Ac[r, c] + Ac[c, r])
             Ac[r, c] = Ac[c, r] = s
@@ -395,11 +362,10 @@ def _adjacent(pair, g, h):
 @nb.njit(cache=True)
 def coarse_space(idx, K, basis, ia, ib, ra, rb, point, target, scale_a, scale_b, lam, inv_m,
                  invI, v, w, groups, ent, share):
-    """The coarse space of a solve and its factorised Galerkin matrix: (agg, weight, first, L)
-    (see :func:`aggregates`, :func:`coarse_matrix`), over the rows that take part now (pushing,
-    or closing faster than their target), weighted by the impulses they carry now. Built once
-    per solve, after its first sweeps have found the load path; kept while the sweeps refine it
-    (a Galerkin correction over any fixed space only lowers the error's energy norm)."""
+    """The coarse space of a solve and its factorised Galerkin matrix (agg, weight, first, L), over
+    the rows that push or close faster than their target. Built once per solve, after its first
+    sweeps have found the load path (a Galerkin correction over a fixed space only lowers the
+    error's energy norm)."""
     m = len(idx)
     rows = np.zeros(m, np.bool_)
     for j in range(m):
@@ -417,9 +383,8 @@ def coarse_space(idx, K, basis, ia, ib, ra, rb, point, target, scale_a, scale_b,
 @nb.njit(cache=True)
 def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m, invI, v, w,
                 groups, agg, weight, first, L):
-    """One coarse correction (see the module docstring) over the space ``coarse_space`` built:
-    the accumulated normal impulses lam and the velocities v, w change in place. Returns the
-    largest change of a normal impulse."""
+    """One coarse correction over the space :func:`coarse_space` built: lam (normal impulses), v
+    and w change in place. Returns the largest change of a normal impulse."""
     m = len(idx)
     M = len(L)
     if M == 0:
