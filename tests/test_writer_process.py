@@ -233,3 +233,23 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
     for name in files:
         assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
     assert not children()
+
+
+def test_auto_stays_on_the_thread_in_a_daemonic_process_such_as_a_dask_worker(tmp_path, monkeypatch):
+    """A daemonic process (Dask's workers) cannot have children: ``auto`` writes on its thread."""
+    from hybrid.app import writer_process
+
+    class Daemonic:
+        daemon = True
+
+    monkeypatch.setattr(writer_process.multiprocessing, "current_process", lambda: Daemonic())
+    monkeypatch.setattr(RunWriter, "auto_after", 0.0)
+    rng = np.random.default_rng(6)
+    with RunWriter(tmp_path / "run", "drop", background="auto") as writer:
+        for k in range(3):
+            writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+            assert writer.writer_pid is None
+        writer.close()
+    assert read_run(tmp_path / "run")[0] == [0.0, 0.01, 0.02]
+    with pytest.raises(RuntimeError, match="daemonic"):
+        RunWriter(tmp_path / "other", "drop", background="process").write_frame(0.0, [piece(0.0, rng)])
