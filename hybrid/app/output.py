@@ -113,8 +113,8 @@ class RunWriter:
 
     ``write_frame`` and ``write_regions`` check and copy their input on the caller's thread, raise
     ValueError for bad input at once (nothing of that call is written), and queue the files' work
-    (beyond ``queue_frames`` frames waiting, and for a process 64 MB, the caller waits). The files
-    are written in the order of the calls, byte for byte as in place. A writer error (a full
+    (beyond ``queue_frames`` frames waiting, for a process 64 MB and 8 frames, the caller waits).
+    The files are written in the order of the calls, byte for byte as in place. A writer error (a full
     disk) stops the writing, keeping the frames before it and a ``.pvd`` listing them, and is
     raised on the caller's thread by the next call. ``flush()`` waits until every queued frame is
     on disk, and so does reading ``frames_written``. ``close()`` ends the writer process.
