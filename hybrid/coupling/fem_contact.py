@@ -157,7 +157,11 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     grid = _grid(mb)
     phi, n_rest = kernels.grid_query(grid.origin, grid.cell_size, grid.shape, grid.values, X)
     phi = phi - radius
-    near = np.nonzero((phi < reach + largest) & np.any(n_rest != 0, axis=1))[0]
+    # (a point exactly on an edge or a corner may find the grid's gradient zero, its neighbouring
+    # samples cancelling: one within a cell of the surface stays, to be met along the faces
+    # there, kernels.places; a place left without a unit normal is dropped, detect._movable)
+    near = np.nonzero((phi < reach + largest)
+                      & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
     close = _nearest_nodes(mb, Y) if len(near) else np.zeros((0, 1), np.int64)
     if off_nodes is not None and len(near):
@@ -173,9 +177,16 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     # triangle around it, averaged (with the first triangle found alone, mirror-image corners
     # turned differently, and a soft cube hit face on by a rigid one left spinning about the
     # impact axis)
+    # Within a grid cell of the surface the triangle is searched from the point itself (less its
+    # radius), not from Y: there the grid's interpolated distance and gradient put Y off the
+    # closest place (by 2% of an edge beside a cube's corner), and mirror-image nodes met
+    # mirror-image places at different gaps. Deeper in, from Y (the point itself may be nearer
+    # another face of a thin body).
     _, tri, around = _surface_index(mb)
+    start = np.where((np.abs(phi[near]) <= grid.cell_size)[:, None],
+                     X[near] - radius[near, None] * n_rest[near], Y)
     corners, weights, n, gap = kernels.places(
-        Y, close, around, tri, mb.rest_points[mb.surface_nodes], moved, n_rest[near],
+        start, close, around, tri, mb.rest_points[mb.surface_nodes], moved, n_rest[near],
         X[near] + local[near], radius[near])
     hit = gap < reach[near]
     rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], close[hit, 0], gap[hit]

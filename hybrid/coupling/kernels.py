@@ -214,6 +214,13 @@ def turned(v, rest, now):
     return out
 
 
+# a point outside a place on a sharp edge or vertex by more than this fraction of the triangle's
+# edge is met along the line to it (kernels.places); nearer, along the faces' normals there
+CLEAR = 1e-3
+# faces meeting at an edge or vertex whose normals' cosine is below this make it sharp
+SHARP_COS = np.cos(np.radians(30.0))
+
+
 @nb.njit(cache=True)
 def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
@@ -236,6 +243,7 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
     dist = np.empty(kc * d)
     rest = np.empty((3, 3))
     now = np.empty((3, 3))
+    seen_n = np.empty((kc * d, 3))
     for k in range(p):
         count = 0
         best = -1
@@ -266,32 +274,70 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
         n = turned(n_rest[k], rest, now)
         e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
         size = e0 * e0 + e1 * e1 + e2 * e2
+        # A place on a sharp edge or vertex (held as closely by triangles of faces turned more than
+        # 30 degrees apart): there the grid's gradient is any blend of the faces around, decided
+        # by round-off (two soft cubes meeting face on with coinciding edges parted spinning at
+        # 5 rad/s). A point clearly outside is met along the line from the place to it (the
+        # closest-point direction: the normal of the face it lies in front of); one on the edge
+        # or in the body (a node on the edge line pressing into the body lies nearer the side
+        # face than the face it presses on) along the sum of the distinct faces' own normals
+        # there, each once however many triangles of one face hold it. Elsewhere (a place on an
+        # edge between triangles of one face, bent or not) the rest normal is turned with each
+        # triangle holding it and averaged: the rest place under a bent face is not the closest
+        # place now, and the line to it would not follow the bend.
+        distinct = 0
         tied = False
         for t in range(count):
             g = faces[t]
-            if g == f or not dist[t] <= dist[best] + 1e-12 * size:
+            if not dist[t] <= dist[best] + 1e-12 * size:
+                continue
+            for i in range(3):
+                for a in range(3):
+                    rest[i, a] = P[triangles[g, i], a]
+                    now[i, a] = rest[i, a] + moved[triangles[g, i], a]
+            m0, m1, m2 = _unit_normal(now[0], now[1], now[2])     # outward (surface triangles are)
+            seen = False
+            for u in range(distinct):
+                if seen_n[u, 0] * m0 + seen_n[u, 1] * m1 + seen_n[u, 2] * m2 > 1.0 - 1e-9:
+                    seen = True
+                    break
+            if not seen and distinct < len(seen_n):
+                seen_n[distinct, 0], seen_n[distinct, 1], seen_n[distinct, 2] = m0, m1, m2
+                distinct += 1
+            if g == f:
                 continue
             seen = False
             for u in range(t):
                 if faces[u] == g:
                     seen = True
                     break
-            if seen:
-                continue
-            tied = True
+            if not seen:
+                tied = True
+                n += turned(n_rest[k], rest, now)
+        place = np.zeros(3)
+        for a in range(3):
             for i in range(3):
-                for a in range(3):
-                    rest[i, a] = P[triangles[g, i], a]
-                    now[i, a] = rest[i, a] + moved[triangles[g, i], a]
-            n += turned(n_rest[k], rest, now)
-        if tied:
+                place[a] += weights[k, i] * (P[corners[k, i], a] + moved[corners[k, i], a])
+        sharp = False
+        for u in range(1, distinct):
+            if seen_n[u, 0] * seen_n[0, 0] + seen_n[u, 1] * seen_n[0, 1] + seen_n[u, 2] * seen_n[0, 2] < SHARP_COS:
+                sharp = True
+        if sharp:
+            faces_n = np.zeros(3)
+            for u in range(distinct):
+                faces_n += seen_n[u]
+            faces_n /= np.sqrt(faces_n[0] * faces_n[0] + faces_n[1] * faces_n[1] + faces_n[2] * faces_n[2])
+            line = X_now[k] - place
+            out = line[0] * faces_n[0] + line[1] * faces_n[1] + line[2] * faces_n[2]
+            if out > CLEAR * np.sqrt(size):
+                n[:] = line / np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
+            else:
+                n[:] = faces_n
+        elif tied:
             n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         normal[k] = n
         s = 0.0
         for a in range(3):
-            place = 0.0
-            for i in range(3):
-                place += weights[k, i] * (P[corners[k, i], a] + moved[corners[k, i], a])
-            s += (X_now[k, a] - place) * n[a]
+            s += (X_now[k, a] - place[a]) * n[a]
         gap[k] = s - radius[k]
     return corners, weights, normal, gap
