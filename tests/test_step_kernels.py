@@ -85,9 +85,25 @@ def places_reference(P, tri, around, moved, Y, close, n_near, X_now, radius):
         tie_now = tie_rest + moved[tie_corners]
         np.add.at(n, tie_row, turn_reference(n_near[tie_row], unit_normals_reference(tie_rest),
                                              unit_normals_reference(tie_now)))
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n[np.unique(tie_row)] /= np.linalg.norm(n[np.unique(tie_row)], axis=1, keepdims=True)
     place = np.einsum("pi,pij->pj", weights, now)
-    gap = np.einsum("ij,ij->i", X_now - place, n) - radius
+    line = X_now - place
+    # a sharp edge or vertex (faces more than 30 degrees apart): outside by more than CLEAR of the
+    # triangle's edge along the line to the point, else along the faces' normals summed
+    edge = np.linalg.norm(rest[:, 1] - rest[:, 0], axis=1)
+    for k in np.unique(tie_row):
+        faces = unit_normals_reference(np.concatenate([now[k:k + 1], tie_now[tie_row == k]]))
+        distinct = [faces[0]]
+        for f in faces[1:]:
+            if all(f @ g <= 1.0 - 1e-9 for g in distinct):
+                distinct.append(f)
+        if min(f @ distinct[0] for f in distinct) >= kernels.SHARP_COS:
+            continue
+        total = np.sum(distinct, axis=0)
+        total /= np.linalg.norm(total)
+        clear = line[k] @ total > kernels.CLEAR * edge[k]
+        n[k] = line[k] / np.linalg.norm(line[k]) if clear else total
+    gap = np.einsum("ij,ij->i", line, n) - radius
     return corners, weights, n, gap, len(tie_row)
 
 

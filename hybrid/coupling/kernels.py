@@ -222,122 +222,120 @@ SHARP_COS = np.cos(np.radians(30.0))
 
 
 @nb.njit(cache=True)
+def _candidates(k, Y, close, around, triangles, P, faces, dist):
+    """The triangles around point ``k``'s nearest surface nodes (into ``faces``, with the squared
+    distance of ``Y[k]`` to each into ``dist``): ``(count, best, v, w)``, the closest first found
+    and the barycentric weights of the closest point in it."""
+    count, best, best_v, best_w = 0, -1, 0.0, 0.0
+    for j in range(close.shape[1]):
+        for slot in range(around.shape[1]):
+            f = around[close[k, j], slot]
+            if f < 0:
+                continue
+            a, b, c = P[triangles[f, 0]], P[triangles[f, 1]], P[triangles[f, 2]]
+            v, w = closest_weights(Y[k, 0], Y[k, 1], Y[k, 2], a, b, c)
+            o0 = Y[k, 0] - a[0] - v * (b[0] - a[0]) - w * (c[0] - a[0])
+            o1 = Y[k, 1] - a[1] - v * (b[1] - a[1]) - w * (c[1] - a[1])
+            o2 = Y[k, 2] - a[2] - v * (b[2] - a[2]) - w * (c[2] - a[2])
+            faces[count] = f
+            dist[count] = o0 * o0 + o1 * o1 + o2 * o2
+            if best < 0 or dist[count] < dist[best]:
+                best, best_v, best_w = count, v, w
+            count += 1
+    return count, best, best_v, best_w
+
+
+@nb.njit(cache=True)
+def _tied_normal(n, n_rest, line, faces, dist, count, best, size, triangles, P, moved, seen_n,
+                 rest, now):
+    """The normal at a place held as closely (to 1e-12 of ``size``, the triangle's squared edge)
+    by several of the ``faces`` (``n``: the rest normal ``n_rest`` turned with the closest;
+    ``line`` (3,): from the place to the point now). Such a place lies on an edge or a vertex.
+
+    On a sharp one (faces turned more than 30 degrees apart) the grid's gradient is any blend of
+    the faces around, decided by round-off (two soft cubes meeting face on with coinciding edges
+    parted spinning at 5 rad/s): a point clearly outside is met along ``line`` (the closest-point
+    direction, the normal of the face it lies in front of); one on the edge or in the body (a node
+    on the edge line pressing into the body lies nearer the side face than the face it presses
+    on) along the sum of the distinct faces' own normals there, each once however many triangles
+    of one face hold it. Elsewhere (an edge between triangles of one face, bent or not) the rest
+    normal turned with each triangle holding it, averaged: the rest place under a bent face is not
+    the closest place now, and ``line`` would not follow the bend."""
+    distinct, tied = 0, False
+    for t in range(count):
+        g = faces[t]
+        if not dist[t] <= dist[best] + 1e-12 * size:
+            continue
+        for i in range(3):
+            for a in range(3):
+                rest[i, a] = P[triangles[g, i], a]
+                now[i, a] = rest[i, a] + moved[triangles[g, i], a]
+        m0, m1, m2 = _unit_normal(now[0], now[1], now[2])     # outward (surface triangles are)
+        seen = False
+        for u in range(distinct):
+            seen = seen or seen_n[u, 0] * m0 + seen_n[u, 1] * m1 + seen_n[u, 2] * m2 > 1.0 - 1e-9
+        if not seen:
+            seen_n[distinct, 0], seen_n[distinct, 1], seen_n[distinct, 2] = m0, m1, m2
+            distinct += 1
+        seen = g == faces[best]
+        for u in range(t):
+            seen = seen or faces[u] == g
+        if not seen:
+            tied = True
+            n += turned(n_rest, rest, now)
+    sharp = False
+    for u in range(1, distinct):
+        sharp = sharp or seen_n[u, 0] * seen_n[0, 0] + seen_n[u, 1] * seen_n[0, 1] + seen_n[u, 2] * seen_n[0, 2] < SHARP_COS
+    if sharp:
+        faces_n = np.zeros(3)
+        for u in range(distinct):
+            faces_n += seen_n[u]
+        faces_n /= np.sqrt(faces_n[0] * faces_n[0] + faces_n[1] * faces_n[1] + faces_n[2] * faces_n[2])
+        if line[0] * faces_n[0] + line[1] * faces_n[1] + line[2] * faces_n[2] > CLEAR * np.sqrt(size):
+            return line / np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
+        return faces_n
+    if tied:
+        n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    return n
+
+
+@nb.njit(cache=True)
 def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
     ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
     rest positions are ``P`` (s, 3) and moves ``moved`` (s, 3)); the point's triangle is the
     closest among the ``triangles`` (f, 3) ``around`` (s, d) them (the first found among equally
-    close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (and, for a
-    point on an edge or vertex, with every triangle holding it as closely, to 1e-6 of the
-    triangle's size, averaged); ``X_now`` (p, 3) the points moved as the surface moved, ``radius``
-    (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
+    close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (a point on
+    an edge or vertex: :func:`_tied_normal`); ``X_now`` (p, 3) the points moved as the surface
+    moved, ``radius`` (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
     the barycentric weights, the turned normal and the gap along it to the place as it is now."""
     p = len(Y)
     corners = np.zeros((p, 3), dtype=np.int64)
     weights = np.zeros((p, 3))
     normal = np.zeros((p, 3))
     gap = np.zeros(p)
-    kc, d = close.shape[1], around.shape[1]
-    faces = np.empty(kc * d, dtype=np.int64)
-    dist = np.empty(kc * d)
+    faces = np.empty(close.shape[1] * around.shape[1], dtype=np.int64)
+    dist = np.empty(len(faces))
+    seen_n = np.empty((len(faces), 3))
     rest = np.empty((3, 3))
     now = np.empty((3, 3))
-    seen_n = np.empty((kc * d, 3))
     for k in range(p):
-        count = 0
-        best = -1
-        best_v = 0.0
-        best_w = 0.0
-        for j in range(kc):
-            for slot in range(d):
-                f = around[close[k, j], slot]
-                if f < 0:
-                    continue
-                a, b, c = P[triangles[f, 0]], P[triangles[f, 1]], P[triangles[f, 2]]
-                v, w = closest_weights(Y[k, 0], Y[k, 1], Y[k, 2], a, b, c)
-                o0 = Y[k, 0] - a[0] - v * (b[0] - a[0]) - w * (c[0] - a[0])
-                o1 = Y[k, 1] - a[1] - v * (b[1] - a[1]) - w * (c[1] - a[1])
-                o2 = Y[k, 2] - a[2] - v * (b[2] - a[2]) - w * (c[2] - a[2])
-                faces[count] = f
-                dist[count] = o0 * o0 + o1 * o1 + o2 * o2
-                if best < 0 or dist[count] < dist[best]:
-                    best, best_v, best_w = count, v, w
-                count += 1
+        count, best, v, w = _candidates(k, Y, close, around, triangles, P, faces, dist)
         f = faces[best]
+        place = np.zeros(3)
+        weights[k, 0], weights[k, 1], weights[k, 2] = 1.0 - v - w, v, w
         for i in range(3):
             corners[k, i] = triangles[f, i]
             for a in range(3):
                 rest[i, a] = P[triangles[f, i], a]
                 now[i, a] = rest[i, a] + moved[triangles[f, i], a]
-        weights[k, 0], weights[k, 1], weights[k, 2] = 1.0 - best_v - best_w, best_v, best_w
+                place[a] += weights[k, i] * now[i, a]
         n = turned(n_rest[k], rest, now)
         e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
-        size = e0 * e0 + e1 * e1 + e2 * e2
-        # A place on a sharp edge or vertex (held as closely by triangles of faces turned more than
-        # 30 degrees apart): there the grid's gradient is any blend of the faces around, decided
-        # by round-off (two soft cubes meeting face on with coinciding edges parted spinning at
-        # 5 rad/s). A point clearly outside is met along the line from the place to it (the
-        # closest-point direction: the normal of the face it lies in front of); one on the edge
-        # or in the body (a node on the edge line pressing into the body lies nearer the side
-        # face than the face it presses on) along the sum of the distinct faces' own normals
-        # there, each once however many triangles of one face hold it. Elsewhere (a place on an
-        # edge between triangles of one face, bent or not) the rest normal is turned with each
-        # triangle holding it and averaged: the rest place under a bent face is not the closest
-        # place now, and the line to it would not follow the bend.
-        distinct = 0
-        tied = False
-        for t in range(count):
-            g = faces[t]
-            if not dist[t] <= dist[best] + 1e-12 * size:
-                continue
-            for i in range(3):
-                for a in range(3):
-                    rest[i, a] = P[triangles[g, i], a]
-                    now[i, a] = rest[i, a] + moved[triangles[g, i], a]
-            m0, m1, m2 = _unit_normal(now[0], now[1], now[2])     # outward (surface triangles are)
-            seen = False
-            for u in range(distinct):
-                if seen_n[u, 0] * m0 + seen_n[u, 1] * m1 + seen_n[u, 2] * m2 > 1.0 - 1e-9:
-                    seen = True
-                    break
-            if not seen and distinct < len(seen_n):
-                seen_n[distinct, 0], seen_n[distinct, 1], seen_n[distinct, 2] = m0, m1, m2
-                distinct += 1
-            if g == f:
-                continue
-            seen = False
-            for u in range(t):
-                if faces[u] == g:
-                    seen = True
-                    break
-            if not seen:
-                tied = True
-                n += turned(n_rest[k], rest, now)
-        place = np.zeros(3)
-        for a in range(3):
-            for i in range(3):
-                place[a] += weights[k, i] * (P[corners[k, i], a] + moved[corners[k, i], a])
-        sharp = False
-        for u in range(1, distinct):
-            if seen_n[u, 0] * seen_n[0, 0] + seen_n[u, 1] * seen_n[0, 1] + seen_n[u, 2] * seen_n[0, 2] < SHARP_COS:
-                sharp = True
-        if sharp:
-            faces_n = np.zeros(3)
-            for u in range(distinct):
-                faces_n += seen_n[u]
-            faces_n /= np.sqrt(faces_n[0] * faces_n[0] + faces_n[1] * faces_n[1] + faces_n[2] * faces_n[2])
-            line = X_now[k] - place
-            out = line[0] * faces_n[0] + line[1] * faces_n[1] + line[2] * faces_n[2]
-            if out > CLEAR * np.sqrt(size):
-                n[:] = line / np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
-            else:
-                n[:] = faces_n
-        elif tied:
-            n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        line = X_now[k] - place
+        n = _tied_normal(n, n_rest[k], line, faces, dist, count, best, e0 * e0 + e1 * e1 + e2 * e2,
+                         triangles, P, moved, seen_n, rest, now)
         normal[k] = n
-        s = 0.0
-        for a in range(3):
-            s += (X_now[k, a] - place[a]) * n[a]
-        gap[k] = s - radius[k]
+        gap[k] = line[0] * n[0] + line[1] * n[1] + line[2] * n[2] - radius[k]
     return corners, weights, normal, gap
