@@ -101,10 +101,9 @@ def entities(idx, side_kn, K, ia, ib, n, groups):
     # row (mild mass ratios) nothing more is needed
     low = False
     for j in range(m):
-        if K[j, 0, 0] > 0.0 and ((side_kn[j, 0] > 0.0 and side_kn[j, 0] < SHARE_MIN * K[j, 0, 0])
-                                 or (side_kn[j, 1] > 0.0 and side_kn[j, 1] < SHARE_MIN * K[j, 0, 0])):
-            low = True
-            break
+        for side in range(2):
+            if 0.0 < side_kn[j, side] < SHARE_MIN * K[j, 0, 0]:
+                low = True
     if not low:
         return np.zeros((0, 2), np.int64), np.zeros(0), False
     ent = np.full((m, 2), -1, np.int64)
@@ -383,12 +382,12 @@ def coarse_space(idx, K, basis, ia, ib, ra, rb, point, target, scale_a, scale_b,
 @nb.njit(cache=True)
 def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m, invI, v, w,
                 groups, agg, weight, first, L):
-    """One coarse correction over the space :func:`coarse_space` built: lam (normal impulses), v
-    and w change in place. Returns the largest change of a normal impulse."""
+    """One coarse correction over the space :func:`coarse_space` built (lam, v, w change in place).
+    Returns whether it mattered: it changed an impulse by more than 1e-5 of the largest."""
     m = len(idx)
     M = len(L)
     if M == 0:
-        return 0.0
+        return False
     # Galerkin right-hand side: the modes' share of the normal velocity residuals
     b = np.zeros(M)
     for j in range(m):
@@ -401,7 +400,7 @@ def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m
             b[first[g] + t] += weight[j, t] * r
     y = _solve_factored(L, b)
     # the correction, projected onto non-negative impulses, applied once per row
-    largest = 0.0
+    largest = change = 0.0
     for j in range(m):
         g = agg[j]
         if g < 0:
@@ -412,9 +411,10 @@ def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m
             d += weight[j, t] * y[first[g] + t]
         new = max(lam[k, 0] + d, 0.0)
         d = new - lam[k, 0]
+        largest = max(largest, new)
         if d == 0.0:
             continue
         lam[k, 0] = new
-        largest = max(largest, abs(d))
+        change = max(change, abs(d))
         _push_normal(j, k, d, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups)
-    return largest
+    return change > 1e-5 * largest

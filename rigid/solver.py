@@ -316,22 +316,30 @@ def _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, 
         _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b, lam, inv_m,
                 invI, v, w, iterations, groups)
     else:
+        agg, weight = np.zeros(0, np.int64), np.zeros((0, 3))
+        first, L = np.zeros(1, np.int64), np.zeros((0, 0))
         done = 0
+        coarse = True
         while done < iterations:
-            chunk = min(COARSE_EVERY, iterations - done)
+            # sweeps in chunks between coarse corrections (the first longer: a warm-started solve
+            # often converges without any)
+            chunk = iterations - done
+            if coarse:
+                chunk = min(chunk, COARSE_EVERY * (3 if done == 0 else 1))
             swept = _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b,
                             lam, inv_m, invI, v, w, chunk, groups)
-            if done == 0:       # the coarse space, once the first sweeps have found the load path
+            done += swept
+            # converged (a warm-started resting solve often is), or the sweeps have had their
+            # number and the last word (friction in its cone)
+            if swept < chunk or done >= iterations:
+                break
+            if len(agg) == 0:       # the coarse space, once sweeps have found the load path
                 agg, weight, first, L = coarse_space(idx, K, basis, ia, ib, ra, rb, point, target,
                                                      scale_a, scale_b, lam, inv_m, invI, v, w,
                                                      groups, ent, share)
-            done += swept
-            if done >= iterations:      # the sweeps have the last word (friction in its cone)
-                break
-            change = coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m,
+            # once a correction changes nothing that counts, the sweeps go on alone
+            coarse = coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m,
                                  invI, v, w, groups, agg, weight, first, L)
-            if swept < chunk and not change > 1e-7 * _largest_normal(idx, lam):
-                break
     if groups is not None:
         _rotate_particles(v, groups[0], groups[1], False)
     out = np.full((len(ia), 3), np.nan)
@@ -339,15 +347,6 @@ def _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, 
         k = idx[j]
         for d in range(3):
             out[k, d] = lam[k, 0] * basis[j, 0, d] + lam[k, 1] * basis[j, 1, d] + lam[k, 2] * basis[j, 2, d]
-    return out
-
-
-@nb.njit(cache=True)
-def _largest_normal(idx, lam):
-    """The largest accumulated normal impulse among the active contacts."""
-    out = 0.0
-    for k in idx:
-        out = max(out, lam[k, 0])
     return out
 
 
