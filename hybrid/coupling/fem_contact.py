@@ -177,17 +177,24 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     # triangle around it, averaged (with the first triangle found alone, mirror-image corners
     # turned differently, and a soft cube hit face on by a rigid one left spinning about the
     # impact axis)
-    # Within a grid cell of the surface the triangle is searched from the point itself (less its
-    # radius), not from Y: there the grid's interpolated distance and gradient put Y off the
-    # closest place (by 2% of an edge beside a cube's corner), and mirror-image nodes met
-    # mirror-image places at different gaps. Deeper in, from Y (the point itself may be nearer
-    # another face of a thin body).
+    # A point without a radius (a node, a rigid sample point) within a grid cell of the surface
+    # is placed from itself as well as from Y, and keeps the place from itself where the two
+    # gaps agree to half a cell: near the surface the grid's interpolated distance and gradient
+    # put Y off the closest place (by 2% of an edge beside a cube's corner), and mirror-image
+    # nodes met mirror-image places at different gaps; pressed into a thin fragment, the point
+    # itself may lie nearer another face (a glass pane's pieces flew apart at 1e7 m/s).
     _, tri, around = _surface_index(mb)
-    start = np.where((np.abs(phi[near]) <= grid.cell_size)[:, None],
-                     X[near] - radius[near, None] * n_rest[near], Y)
-    corners, weights, n, gap = kernels.places(
-        start, close, around, tri, mb.rest_points[mb.surface_nodes], moved, n_rest[near],
-        X[near] + local[near], radius[near])
+    P = mb.rest_points[mb.surface_nodes]
+    X_now = X[near] + local[near]
+    corners, weights, n, gap = kernels.places(Y, close, around, tri, P, moved, n_rest[near], X_now,
+                                              radius[near])
+    own = np.nonzero((radius[near] == 0.0) & (np.abs(phi[near]) <= grid.cell_size))[0]
+    if len(own):
+        mine = kernels.places(X[near[own]], close[own], around, tri, P, moved, n_rest[near[own]],
+                              X_now[own], radius[near[own]])
+        keep = np.abs(mine[3] - gap[own]) <= 0.5 * grid.cell_size
+        for whole, part in zip((corners, weights, n, gap), mine):
+            whole[own[keep]] = part[keep]
     hit = gap < reach[near]
     rows, corners, weights, nearest, gap = near[hit], corners[hit], weights[hit], close[hit, 0], gap[hit]
     normal = n[hit] @ sb.R.T
