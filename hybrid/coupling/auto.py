@@ -257,27 +257,27 @@ def rigid_due(model, state):
 # --- elastify ----------------------------------------------------------------------------------
 
 def impulse_change(before, after, k):
-    """``(points (r, 3), impulses (r, 3))``: how the load the contacts put on body ``k`` changed
-    from the touches ``before`` to ``after``: for each partner, the change of its total impulse,
-    shared evenly among the partner's contact points now (those it had, for a partner that let
-    go). How a rigid body's contact points share a load is not determined (the sweeps end in one
-    sharing or another, differently from step to step and from the FEM body's), and a body spreads
-    a contact's load over the patch it touches: a settled box turned rigid, its load the same and
-    shared differently, would otherwise turn back at its first rigid step. None when nothing
-    touches it in either."""
+    """``(points (r, 3), changes (g, 3), group (r,))``: how the load the contacts put on body
+    ``k`` changed from the touches ``before`` to ``after``: for each partner, the change of its
+    total impulse ``changes[g]``, and the partner's contact points now (those it had, for a
+    partner that let go) with their partner's index ``g``. Only totals are compared: how a rigid
+    body's contact points share a load is not determined (the sweeps end in one sharing or
+    another, differently from step to step and from the FEM body's), and a settled box turned
+    rigid, its load the same and shared differently, would otherwise turn back at its first
+    rigid step. None when nothing touches it in either."""
     partner, point, impulse = after.of_body(k)
     old_partner, old_point, old_impulse = (before.of_body(k) if before is not None
                                            else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))))
     if not len(partner) and not len(old_partner):
         return None
-    points, changes = [], []
-    for p in np.union1d(partner, old_partner):
+    points, changes, group = [], [], []
+    for g, p in enumerate(np.union1d(partner, old_partner)):
         rows, old_rows = partner == p, old_partner == p
         at = point[rows] if rows.any() else old_point[old_rows]
-        change = impulse[rows].sum(axis=0) - old_impulse[old_rows].sum(axis=0)
         points.append(at)
-        changes.append(np.broadcast_to(change / len(at), at.shape))
-    return np.concatenate(points), np.concatenate(changes)
+        changes.append(impulse[rows].sum(axis=0) - old_impulse[old_rows].sum(axis=0))
+        group.append(np.full(len(at), g))
+    return np.concatenate(points), np.array(changes), np.concatenate(group)
 
 
 # surface nodes (the lightest, which answer an impulse most) whose unit impulses along each axis
@@ -310,17 +310,23 @@ def unit_strain(fem, rest, inverse_F, h):
     return largest
 
 
-def predicted_strain(parked, position, rotation, points, impulses, h):
-    """The strain measure of the velocity change the impulses ``(r, 3)`` N s (world) at
-    ``points`` (r, 3) m would give the parked body's FEM system (each at its nearest surface
-    node), the body's rigid pose now being ``position`` (3,), ``rotation`` (3, 3)."""
+def predicted_strain(parked, position, rotation, points, changes, group, h):
+    """The strain measure of the velocity change that the impulses ``changes`` (g, 3) N s (world),
+    each shared among the surface nodes nearest its group of ``points`` (r, 3) m (``group``
+    (r,)) in proportion to their masses, would give the parked body's FEM system, the body's
+    rigid pose now being ``position`` (3,), ``rotation`` (3, 3). Shared so, a change of load
+    moves the nodes it acts on alike, as a change of pressure over the patch would, not its
+    lightest nodes at the patch's rim more."""
     fem, rest = parked.fem, parked.state
     local = (points - position) @ rotation               # body frame, as parked.local
     nodes = parked.surface_nodes[parked.tree.query(local)[1]]
     node_impulse = np.zeros((fem.node_count, 3))
     # world now -> world when parked (turn back by the rotation since), -> the FEM body's frame
     turn = rotation @ parked.rotation.T
-    np.add.at(node_impulse, nodes, impulses @ turn)
+    for g in range(len(changes)):
+        touched = np.unique(nodes[group == g])
+        share = fem.node_mass[touched] / fem.node_mass[touched].sum()
+        node_impulse[touched] += share[:, None] * (changes[g] @ turn)
     return strain_measure(fem, rest.x, _velocity_change(fem, rest, node_impulse, h), h,
                           parked.inverse_F)
 
