@@ -128,7 +128,7 @@ def extent(fem):
 
 def response_time(fem, h):
     """The body's response time (s): its elastic wave transit time or the step ``h``, the longer."""
-    return max(extent(fem) / np.sqrt(fem.young / fem.density), h)
+    return max(extent(fem) / wave_speed(fem), h)
 
 
 def wave_speed(fem):
