@@ -292,7 +292,7 @@ def detect(model, position, rotation, sweep, margin):
 
 
 @nb.njit(cache=True)
-def _points_narrow_phase(points, sweep, body_sweep, position, rotation, body_radius, shape_kind, shape_params,
+def _points_narrow_phase(points, toward, sweep, body_sweep, position, rotation, body_radius, shape_kind, shape_params,
                          shape_rotation, shape_offset, grid_index, grid_values, grid_start,
                          grid_shape, grid_origin, grid_cell, plane_point, plane_normal, margin,
                          out_a, out_b, out_p, out_n, out_gap):
@@ -319,14 +319,16 @@ def _points_narrow_phase(points, sweep, body_sweep, position, rotation, body_rad
                 continue
             Rb, Sb = rotation[b], shape_rotation[b]
             sx, sy, sz = _to_shape(Rb, Sb, position[b], shape_offset[b], px, py, pz)
-            # a lone point has no centre of its own: break edge ties towards the point itself
+            # edge ties break towards ``toward`` (a point on the side the point comes from)
+            cx, cy, cz = _to_shape(Rb, Sb, position[b], shape_offset[b], toward[k, 0], toward[k, 1],
+                                   toward[k, 2])
             if shape_kind[b] == SHAPE_BOX:  # (shape_sdf's box, without passing it the arrays)
                 phi, gx, gy, gz = box_sdf(sx, sy, sz, shape_params[b, 0], shape_params[b, 1],
-                                          shape_params[b, 2], sx, sy, sz)
+                                          shape_params[b, 2], cx, cy, cz)
             else:
                 phi, gx, gy, gz = shape_sdf(shape_kind[b], shape_params[b], grid_index[b],
                                             grid_values, grid_start, grid_shape, grid_origin,
-                                            grid_cell, sx, sy, sz, sx, sy, sz)
+                                            grid_cell, sx, sy, sz, cx, cy, cz)
             if phi >= ahead:
                 continue
             nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
@@ -339,7 +341,8 @@ def _points_narrow_phase(points, sweep, body_sweep, position, rotation, body_rad
     return c
 
 
-def detect_points(model, position, rotation, points, sweep, body_sweep, margin, friction, restitution):
+def detect_points(model, position, rotation, points, sweep, body_sweep, margin, friction, restitution,
+                  toward=None):
     """Contacts of free points (FEM surface nodes) with planes and rigid bodies: gap below
     ``margin`` plus how far the point (``sweep`` (k,) m) and the body (``body_sweep`` (b,) m) may
     move this step, so a fast body is met before it passes the points (a ball at 30 m/s, met only
@@ -347,7 +350,11 @@ def detect_points(model, position, rotation, points, sweep, body_sweep, margin, 
 
     body_a is the point's index; body_b a rigid body index or -1 for a plane. ``friction`` and
     ``restitution`` (k,) are the points' own coefficients, combined with the other side's.
+    ``toward`` (k, 3): for a point at a shape's edge or corner, the face taken is the one whose
+    side this point lies on (as the other body's centre for a rigid pair); default the points
+    themselves.
     """
+    toward = points if toward is None else toward
     capacity = max(64, 2 * len(points))
     while True:
         out_a = np.empty(capacity, np.int64)
@@ -355,7 +362,7 @@ def detect_points(model, position, rotation, points, sweep, body_sweep, margin, 
         out_p = np.empty((capacity, 3))
         out_n = np.empty((capacity, 3))
         out_gap = np.empty(capacity)
-        count = _points_narrow_phase(points, sweep, body_sweep, position, rotation, model.body_radius,
+        count = _points_narrow_phase(points, toward, sweep, body_sweep, position, rotation, model.body_radius,
                                      model.shape_kind, model.shape_params, model.shape_rotation,
                                      model.shape_offset, model.grid_index, model.grid_values,
                                      model.grid_start, model.grid_shape, model.grid_origin,

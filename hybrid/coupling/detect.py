@@ -9,7 +9,8 @@ from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, detect, detect_points
 
-from .fem_contact import SurfaceContacts, detect_fem_pairs, detect_rigid_points, edge_normals
+from .fem_contact import (EDGE_COS, SurfaceContacts, _node_normals, detect_fem_pairs,
+                          detect_rigid_points, edge_normals)
 
 
 @dataclass
@@ -52,6 +53,9 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     e = np.array([b.restitution for b in bodies])[nodes.body]
     sweep = np.linalg.norm(nodes.v, axis=1) * h
     c_nodes = detect_points(rm, rs.position, R, nodes.x, sweep, rigid_sweep, margin, mu, e)
+    c_nodes = _facing_faces(model, state, nodes, c_nodes,
+                            lambda k, toward: detect_points(rm, rs.position, R, nodes.x[k], sweep[k],
+                                                            rigid_sweep, margin, mu[k], e[k], toward))
     c_nodes = _edge_normals(model, state, nodes, c_nodes)
     anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)])
     c_nodes = c_nodes.take(~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))
@@ -68,6 +72,36 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     return Found(rigid=c_rigid, nodes=c_nodes, nodes_static=static_side(rm, c_nodes.body_b),
                  pairs=pairs, on_faces=on_faces, corners=corners, weights=weights,
                  in_others=np.concatenate([pairs.a, corners[weights > 0]]))
+
+
+def _facing_faces(model, state, nodes, c_nodes, detect_again):
+    """The node contacts with rigid shapes, those at a shape's edge or corner that took a face
+    turned away from the node's own face met instead on the face facing it. The shape's edge ties
+    break towards the node itself, and a soft cube's front edge nodes, bulging a micrometre past
+    a rigid cube's side faces, took those faces and were dropped as met from behind
+    (edge_normals): the cubes, face on, parted turning. ``detect_again(k, toward)`` detects
+    stacked nodes ``k`` again with ties broken towards the points ``toward`` (far behind each
+    node along its own inward normal)."""
+    at = np.nonzero(c_nodes.body_b >= 0)[0]
+    if not len(at):
+        return c_nodes
+    node = c_nodes.body_a[at]
+    own = np.zeros((len(at), 3))
+    for j in np.unique(nodes.body[node]):
+        mine = nodes.body[node] == j
+        own[mine] = _node_normals(model.fem[j], state.fem[j], node[mine] - nodes.offset[j])
+    away = np.einsum("ij,ij->i", c_nodes.normal[at], -own) < -EDGE_COS
+    if not away.any():
+        return c_nodes
+    k, first = np.unique(node[away], return_index=True)
+    far = 1e3 * float(model.rigid.body_radius.max()) + 1.0
+    again = detect_again(k, nodes.x[k] - far * own[away][first])
+    found = {(int(k[a]), int(b)): i for i, (a, b) in enumerate(zip(again.body_a, again.body_b))}
+    for i in at[away]:
+        j = found.get((int(c_nodes.body_a[i]), int(c_nodes.body_b[i])))
+        if j is not None:
+            c_nodes.normal[i], c_nodes.gap[i], c_nodes.point[i] = again.normal[j], again.gap[j], again.point[j]
+    return c_nodes
 
 
 def _edge_normals(model, state, nodes, c_nodes):
