@@ -430,10 +430,8 @@ CASES = [
     Case("rigid and soft cubes face on, mu=0.5", "rigid_soft_face_on",
          "a rigid cube's corners and edges lie exactly on the soft cube's edges; mirror symmetry",
          watch=cubes_watch, checks=cubes_checks, short=0.1,
-         cause="at the first touch only the middle node of the soft cube's face meets the rigid "
-               "cube; the rigid cube's corner and edge points, pressed past the soft cube's "
-               "deformed front edges, meet its side faces, one corner along another line than "
-               "its mirror images (0.13 rad/s after that one step, frictionless)"),
+         cause="(stable since a node at a rigid edge that took a face turned away from its own "
+               "is met on the face facing it: hybrid.coupling.detect._facing_faces)"),
 ]
 
 
