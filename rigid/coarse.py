@@ -20,6 +20,7 @@ import math
 import numba as nb
 import numpy as np
 
+from .cholesky import cholesky, solve_factored
 from .particle_kernels import _apply_particle, _particle_velocity
 
 # an entity whose rows give it less than this share of their correction per sweep is slow
@@ -259,51 +260,6 @@ def _mode_weights(idx, agg, A, basis, point, lam):
 
 
 @nb.njit(cache=True)
-def _cholesky(A):
-    """Lower Cholesky factor of the symmetric positive semi-definite A (M, M); a column whose
-    pivot is below PIVOT_DROP of its diagonal (a mode the others already span) is dropped
-    (zero column, its unknown held at 0)."""
-    M = len(A)
-    L = np.zeros((M, M))
-    for c in range(M):
-        d = A[c, c]
-        for p in range(c):
-            d -= L[c, p] * L[c, p]
-        if not d > PIVOT_DROP * A[c, c] or not d > 0.0:
-            continue
-        L[c, c] = math.sqrt(d)
-        for r in range(c + 1, M):
-            s = A[r, c]
-            for p in range(c):
-                s -= L[r, p] * L[c, p]
-            L[r, c] = s / L[c, c]
-    return L
-
-
-@nb.njit(cache=True)
-def _solve_factored(L, b):
-    """y with L L^T y = b over the kept columns (dropped ones 0)."""
-    M = len(L)
-    z = np.zeros(M)
-    for r in range(M):
-        if L[r, r] == 0.0:
-            continue
-        s = b[r]
-        for p in range(r):
-            s -= L[r, p] * z[p]
-        z[r] = s / L[r, r]
-    y = np.zeros(M)
-    for r in range(M - 1, -1, -1):
-        if L[r, r] == 0.0:
-            continue
-        s = z[r]
-        for p in range(r + 1, M):
-            s -= L[p, r] * y[p]
-        y[r] = s / L[r, r]
-    return y
-
-
-@nb.njit(cache=True)
 def coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a, scale_b,
                   inv_m, invI, groups):
     """P^T A P (M, M): each mode's impulses applied to zero velocities through the solver
@@ -374,8 +330,8 @@ def coarse_space(idx, K, basis, ia, ib, ra, rb, point, target, scale_a, scale_b,
         un = _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups)
         rows[j] = lam[k, 0] > 0.0 or un < target[k]
     agg, weight, pair, first = aggregates(idx, ent, share, rows, basis, point, lam)
-    L = _cholesky(coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a,
-                                scale_b, inv_m, invI, groups))
+    L = cholesky(coarse_matrix(idx, agg, weight, pair, first, basis, ia, ib, ra, rb, scale_a,
+                               scale_b, inv_m, invI, groups), PIVOT_DROP)
     return agg, weight, first, L
 
 
@@ -398,9 +354,11 @@ def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m
         r = target[k] - _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups)
         for t in range(first[g + 1] - first[g]):
             b[first[g] + t] += weight[j, t] * r
-    y = _solve_factored(L, b)
+    y = solve_factored(L, b)
     # the correction, projected onto non-negative impulses, applied once per row
     largest = change = 0.0
+    step = np.zeros(m)
+    residual = np.zeros(m)
     for j in range(m):
         g = agg[j]
         if g < 0:
@@ -414,7 +372,30 @@ def coarse_step(idx, basis, ia, ib, ra, rb, target, scale_a, scale_b, lam, inv_m
         largest = max(largest, new)
         if d == 0.0:
             continue
-        lam[k, 0] = new
+        residual[j] = target[k] - _normal_velocity(j, k, basis, ia, ib, ra, rb, v, w, groups)
+        step[j] = d
         change = max(change, abs(d))
-        _push_normal(j, k, d, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, v, w, groups)
+    for j in range(m):
+        if step[j] != 0.0:
+            lam[idx[j], 0] += step[j]
+            _push_normal(j, idx[j], step[j], basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI,
+                         v, w, groups)
+    # the projection keeps the correction a descent only where the modes are well apart: nearly
+    # dependent ones (rows between different pairs of bodies at one point along nearly one normal,
+    # the corners that a pane's pieces share at its grips) cancel in huge opposite amounts, of
+    # which the projection keeps one (impulses of 1e99 N s). A correction that raises the
+    # energy 1/2 l.A l - l.target of the normal rows (its change -d.(r0 + r1)/2 over the rows it
+    # changed, r the residuals before and after) is taken back
+    gain = 0.0
+    for j in range(m):
+        if step[j] != 0.0:
+            after = target[idx[j]] - _normal_velocity(j, idx[j], basis, ia, ib, ra, rb, v, w, groups)
+            gain -= 0.5 * step[j] * (residual[j] + after)
+    if gain > 0.0:
+        for j in range(m):
+            if step[j] != 0.0:
+                lam[idx[j], 0] -= step[j]
+                _push_normal(j, idx[j], -step[j], basis, ia, ib, ra, rb, scale_a, scale_b, inv_m,
+                             invI, v, w, groups)
+        return False
     return change > 1e-5 * largest
