@@ -12,7 +12,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .coarse import _cross3, _rigid_velocity, coarse_space, coarse_step, entities
+from .coarse import _cross3, _push, _rigid_velocity, coarse_space, coarse_step, entities
 from .coarse import COARSE_EVERY
 from .particle_kernels import (_add_pair_block, _apply_particle, _particle_velocity,
                                _rotate_particles)
@@ -89,19 +89,7 @@ def _apply(i, r, k, j0, j1, j2, scale, inv_m, invI, v, w, groups):
     sweeps spell the same out)."""
     if i < 0 or scale == 0.0:
         return
-    j0, j1, j2 = scale * j0, scale * j1, scale * j2
-    if groups is not None:
-        if groups[0][i] >= 0:
-            _apply_particle(i, j0, j1, j2, v, groups)
-            return
-    m = inv_m[i]
-    v[i, 0] += m * j0
-    v[i, 1] += m * j1
-    v[i, 2] += m * j2
-    c0, c1, c2 = _cross3(r[k, 0], r[k, 1], r[k, 2], j0, j1, j2)
-    w[i, 0] += invI[i, 0, 0] * c0 + invI[i, 0, 1] * c1 + invI[i, 0, 2] * c2
-    w[i, 1] += invI[i, 1, 0] * c0 + invI[i, 1, 1] * c1 + invI[i, 1, 2] * c2
-    w[i, 2] += invI[i, 2, 0] * c0 + invI[i, 2, 1] * c1 + invI[i, 2, 2] * c2
+    _push(i, r, k, scale * j0, scale * j1, scale * j2, inv_m, invI, v, w, groups)
 
 
 @nb.njit(cache=True)
