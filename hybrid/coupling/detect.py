@@ -9,7 +9,7 @@ from rigid import quaternion as quat
 from rigid import step as rigid_step
 from rigid.contacts import Contacts, detect, detect_points
 
-from .fem_contact import (EDGE_COS, SurfaceContacts, _node_normals, detect_fem_pairs,
+from .fem_contact import (EDGE_COS, SurfaceContacts, contact_node_normals, detect_fem_pairs,
                           detect_rigid_points, edge_normals)
 
 
@@ -53,10 +53,11 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     e = np.array([b.restitution for b in bodies])[nodes.body]
     sweep = np.linalg.norm(nodes.v, axis=1) * h
     c_nodes = detect_points(rm, rs.position, R, nodes.x, sweep, rigid_sweep, margin, mu, e)
-    c_nodes = _facing_faces(model, state, nodes, c_nodes,
+    own = contact_node_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
+    c_nodes = _facing_faces(model, nodes, c_nodes, own,
                             lambda k, toward: detect_points(rm, rs.position, R, nodes.x[k], sweep[k],
                                                             rigid_sweep, margin, mu[k], e[k], toward))
-    c_nodes = _edge_normals(model, state, nodes, c_nodes)
+    c_nodes = _edge_normals(model, state, nodes, c_nodes, own)
     anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)])
     c_nodes = c_nodes.take(~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
@@ -74,22 +75,19 @@ def detect_all(model, state, nodes, rigid_bodies, h):
                  in_others=np.concatenate([pairs.a, corners[weights > 0]]))
 
 
-def _facing_faces(model, state, nodes, c_nodes, detect_again):
+def _facing_faces(model, nodes, c_nodes, own, detect_again):
     """The node contacts with rigid shapes, those at a shape's edge or corner that took a face
     turned away from the node's own face met instead on the face facing it. The shape's edge ties
     break towards the node itself, and a soft cube's front edge nodes, bulging a micrometre past
     a rigid cube's side faces, took those faces and were dropped as met from behind
     (edge_normals): the cubes, face on, parted turning. ``detect_again(k, toward)`` detects
     stacked nodes ``k`` again with ties broken towards the points ``toward`` (far behind each
-    node along its own inward normal)."""
+    node along its own inward normal); ``own``: the contacts' nodes' own normals
+    (fem_contact.contact_node_normals)."""
     at = np.nonzero(c_nodes.body_b >= 0)[0]
     if not len(at):
         return c_nodes
     node = c_nodes.body_a[at]
-    own = np.zeros((len(at), 3))
-    for j in np.unique(nodes.body[node]):
-        mine = nodes.body[node] == j
-        own[mine] = _node_normals(model.fem[j], state.fem[j], node[mine] - nodes.offset[j])
     away = np.einsum("ij,ij->i", c_nodes.normal[at], -own) < -EDGE_COS
     if not away.any():
         return c_nodes
@@ -104,14 +102,15 @@ def _facing_faces(model, state, nodes, c_nodes, detect_again):
     return c_nodes
 
 
-def _edge_normals(model, state, nodes, c_nodes):
+def _edge_normals(model, state, nodes, c_nodes, own_normals):
     """The node contacts met from the front, with the normals and gaps of
     :func:`hybrid.coupling.fem_contact.edge_normals` where the node has a face normal of its own:
     a node whose surface triangles cancel (an edge node or a vertex on the front of a crack that
     has not crossed the body, between its two opened faces) has none, and there the rigid
     body's normal and gap stay (its own, zero, made the contact's normal zero, and the contact
     solver divided by the length of the tangent built from it)."""
-    normal, gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
+    normal, gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes,
+                                      own_normals)
     own = np.abs(np.einsum("ij,ij->i", normal, normal) - 1.0) < 1e-6
     c_nodes.normal = np.where(own[:, None], normal, c_nodes.normal)
     c_nodes.gap = np.where(own, gap, c_nodes.gap)

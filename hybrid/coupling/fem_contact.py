@@ -72,7 +72,18 @@ def _nearest_nodes(m, Y):
 EDGE_COS = np.cos(np.radians(70.0))
 
 
-def edge_normals(models, states, node_offset, node_body, contacts):
+def contact_node_normals(models, states, node_offset, node_body, contacts):
+    """Own outward unit normals ``(r, 3)`` of the surface nodes (side a) of the ``contacts`` with
+    rigid bodies (side b >= 0), in their order (:func:`_node_normals`; zero where a node has none)."""
+    node = contacts.body_a[contacts.body_b >= 0]
+    own = np.zeros((len(node), 3))
+    for j in np.unique(node_body[node]):
+        mine = node_body[node] == j
+        own[mine] = _node_normals(models[j], states[j], node[mine] - node_offset[j])
+    return own
+
+
+def edge_normals(models, states, node_offset, node_body, contacts, own=None):
     """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` bool,
     for surface nodes' ``contacts`` (stacked node a, rigid body b >= 0 or a plane).
 
@@ -89,17 +100,15 @@ def edge_normals(models, states, node_offset, node_body, contacts):
     the edge onto the node under its middle, balanced there and tipped over, and a 5-box stack on
     the slab toppled. Nodes a little ahead of a sliding box, level with its bottom face, were met on
     its front face like a wall (a box sliding at 2 m/s lost 0.41 m/s in one step and stopped 36%
-    short) while only those within a tenth of the contact margin of the edge were turned."""
+    short) while only those within a tenth of the contact margin of the edge were turned.
+    ``own``: :func:`contact_node_normals` of ``contacts``, if known."""
     normal, gap = contacts.normal.copy(), contacts.gap.copy()
     front = np.ones(contacts.count, dtype=bool)
     at = np.nonzero(contacts.body_b >= 0)[0]
     if not len(at):
         return normal, gap, front
-    node = contacts.body_a[at]
-    own = np.zeros((len(at), 3))
-    for j in np.unique(node_body[node]):
-        mine = node_body[node] == j
-        own[mine] = _node_normals(models[j], states[j], node[mine] - node_offset[j])
+    if own is None:
+        own = contact_node_normals(models, states, node_offset, node_body, contacts)
     along = np.einsum("ij,ij->i", normal[at], -own)
     turned = along < EDGE_COS
     normal[at[turned]] = -own[turned]
