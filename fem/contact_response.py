@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from .dynamics import apply_impulse, system_factorisation
-from .step_kernels import block_rows, rotate_back
+from .step_kernels import add_free_response, block_rows
 
 # memory the response columns of one model may keep for applying impulses as a product (each node
 # keeps 3 x 3n floats); nodes beyond it apply their impulses by back-substitution instead
@@ -46,8 +46,9 @@ class ResponseCache:
     that creeps by a few nodes costs a few solves. ``columns`` keeps full response columns
     ``(3n, 3)`` per node while they fit in MAX_COLUMN_BYTES. ``block`` is the last
     :func:`delassus_block` asked for, ``(nodes, scale, rows)``, and ``block_columns`` the last
-    nodes' columns side by side, ``(nodes, (3n, 3k))`` (:func:`impulse_response`): resting contact
-    asks for the same nodes step after step.
+    nodes' columns side by side on the body's free DOFs, ``(nodes, (f, 3k))`` (the prescribed DOFs'
+    rows are zero; :func:`impulse_response`): resting contact asks for the same nodes step after
+    step.
     """
 
     def __init__(self, dt, node_count):
@@ -227,13 +228,42 @@ def apply_contact_impulses(model, state, step, dt, nodes, impulse):
     """The body takes contact impulses ``(k, 3)`` N s (world) on its ``nodes`` during ``step``
     (:func:`fem.dynamics.apply_impulse`): through the cached response columns when that is cheaper
     than a back-substitution (floating and anchored bodies), else by one solve."""
-    node_impulse = np.zeros((model.node_count, 3))
-    node_impulse[nodes] = impulse
-    dv = None if model.frame == "corotated" else impulse_response(model, dt, nodes, impulse @ step.R)
+    nodes = np.asarray(nodes, dtype=np.int64)
+    impulse = np.asarray(impulse, dtype=float)
+    R = np.asarray(step.R, float)
+    dv = None if model.frame == "corotated" else _free_response(model, dt, nodes, impulse @ R)
     if dv is None:
+        node_impulse = np.zeros((model.node_count, 3))
+        node_impulse[nodes] = impulse
         return apply_impulse(model, state, step, node_impulse)
-    return replace(step, v=step.v + rotate_back(dv, np.asarray(step.R, float)),
-                   impulse=step.impulse + node_impulse)
+    # (fem.step_kernels.add_free_response: step.v + rotate_back(dv, R), dv zero off the free DOFs)
+    total = step.impulse.copy()
+    total[nodes] += impulse                 # (nodes are distinct: a contact set)
+    return replace(step, v=add_free_response(step.v, dv, _response_rows(model), R), impulse=total)
+
+
+def _response_rows(model):
+    """The DOFs the rows of a body's kept response columns stand for: its free ones (every DOF of
+    a body without prescribed nodes)."""
+    return model.free_dofs
+
+
+def _free_response(model, dt, nodes, impulse):
+    """Velocity change (body frame) on the DOFs of :func:`_response_rows` for impulses ``(k, 3)``
+    N s (body frame) on ``nodes``, as one product with their response columns on those rows (the
+    prescribed DOFs' rows are zero: left out of the product); None as for
+    :func:`impulse_response`."""
+    cache = response_cache(model, dt)
+    rows = _response_rows(model)
+    last = cache.block_columns      # (a checkpoint written before it kept free rows only: rebuilt)
+    if last is None or not np.array_equal(last[0], nodes) or last[1].shape[0] != len(rows):
+        if 9 * model.node_count * len(nodes) > system_factorisation(model, dt).solve_cost:
+            return None
+        if any(int(i) not in cache.columns for i in nodes):
+            return None
+        columns = np.concatenate([cache.columns[int(i)] for i in nodes], axis=1)
+        cache.block_columns = (nodes.copy(), np.ascontiguousarray(columns[rows]))
+    return cache.block_columns[1] @ impulse.ravel()
 
 
 def impulse_response(model, dt, nodes, impulse):
@@ -242,12 +272,10 @@ def impulse_response(model, dt, nodes, impulse):
     :func:`delassus_block`); None when that would read more numbers than one back-substitution or
     some node's columns are not kept (then solve instead). Exact for the same system the blocks
     describe (floating and anchored bodies)."""
-    cache = response_cache(model, dt)
     nodes = np.asarray(nodes, dtype=np.int64)
-    if cache.block_columns is None or not np.array_equal(cache.block_columns[0], nodes):
-        if 9 * model.node_count * len(nodes) > system_factorisation(model, dt).solve_cost:
-            return None
-        if any(int(i) not in cache.columns for i in nodes):
-            return None
-        cache.block_columns = (nodes.copy(), np.concatenate([cache.columns[int(i)] for i in nodes], axis=1))
-    return cache.block_columns[1] @ np.asarray(impulse, dtype=float).ravel()
+    dv_free = _free_response(model, dt, nodes, np.asarray(impulse, dtype=float))
+    if dv_free is None:
+        return None
+    dv = np.zeros(3 * model.node_count)
+    dv[_response_rows(model)] = dv_free
+    return dv

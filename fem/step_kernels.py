@@ -113,3 +113,43 @@ def block_rows(W, slots, scale, tol):
             col[p] = c
             p += 1
     return ptr, col, blocks
+
+
+@nb.njit(cache=True)
+def add_free_response(v, dv_free, free_dofs, R):
+    """``v + rotate_back(dv, R)`` ``(n, 3)``: node velocities ``v`` (n, 3) (world) plus a velocity
+    change ``dv`` (3n,) in the frame turned by ``R`` (3, 3) that is ``dv_free`` on the DOFs
+    ``free_dofs`` and zero on the others (prescribed DOFs do not respond), in one pass."""
+    n = len(v)
+    dv = np.zeros(3 * n)
+    for p in range(len(free_dofs)):
+        dv[free_dofs[p]] = dv_free[p]
+    out = np.empty((n, 3))
+    for i in range(n):
+        b0, b1, b2 = dv[3 * i], dv[3 * i + 1], dv[3 * i + 2]
+        for a in range(3):
+            out[i, a] = v[i, a] + (R[a, 0] * b0 + R[a, 1] * b1 + R[a, 2] * b2)
+    return out
+
+
+@nb.njit(cache=True)
+def frame_elastic_force(ptr, col, blocks, x, c, R, rest_offsets):
+    """Elastic node forces ``-(K u) R^T`` ``(n, 3)`` N (world) of a linear body in the frame of
+    rotation ``R`` (3, 3) and centre ``c`` (3,): ``u = (x - c) R - rest_offsets`` (n, 3) m
+    (:func:`frame_offsets`) and K (3n, 3n) N/m given by 3x3 block rows (``ptr`` (n + 1,), block
+    columns ``col``, ``blocks`` (nnz, 3, 3), as scipy's BSR format), in one pass: the blocks'
+    indices take a ninth of CSR's, and the step reads K every time."""
+    n = len(x)
+    u = frame_offsets(x, c, R, rest_offsets)
+    out = np.empty((n, 3))
+    for i in range(n):
+        s0 = s1 = s2 = 0.0
+        for p in range(ptr[i], ptr[i + 1]):
+            j = col[p]
+            u0, u1, u2 = u[j, 0], u[j, 1], u[j, 2]
+            s0 += blocks[p, 0, 0] * u0 + blocks[p, 0, 1] * u1 + blocks[p, 0, 2] * u2
+            s1 += blocks[p, 1, 0] * u0 + blocks[p, 1, 1] * u1 + blocks[p, 1, 2] * u2
+            s2 += blocks[p, 2, 0] * u0 + blocks[p, 2, 1] * u1 + blocks[p, 2, 2] * u2
+        for a in range(3):
+            out[i, a] = -(R[a, 0] * s0 + R[a, 1] * s1 + R[a, 2] * s2)
+    return out

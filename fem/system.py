@@ -15,7 +15,7 @@ from fem.assembly import warped_assembly, warped_forces
 from fem.plastic_flow import plastic_force
 from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
-from fem.step_kernels import frame_offsets, lumped_rhs, rotate_back
+from fem.step_kernels import frame_elastic_force, lumped_rhs
 
 
 @dataclass(frozen=True)
@@ -94,8 +94,23 @@ def elastic_force(model, state, tet_R=None):
     if model.frame == "corotated":
         tet_R = element_rotations(model, state.x) if tet_R is None else tet_R
         return warped_forces(model.elements, tet_R, state.x, model.rest_points, model.node_count)
-    u = frame_offsets(state.x, np.asarray(state.c, float), np.asarray(state.R, float), model.rest_offsets)
-    return rotate_back(-(model.K @ u.ravel()), np.asarray(state.R, float))
+    # (fem.step_kernels.frame_elastic_force: frame_offsets, K u and rotate_back in one pass)
+    ptr, col, blocks = stiffness_blocks(model)
+    return frame_elastic_force(ptr, col, blocks, state.x, np.asarray(state.c, float),
+                               np.asarray(state.R, float), model.rest_offsets)
+
+
+def stiffness_blocks(model):
+    """The rest stiffness K as 3x3 block rows ``(ptr, col, blocks)`` (scipy's BSR arrays), built
+    once and kept with the model's system (``model.cache.factor``; keyed by the K it was built
+    from, which the memo holds on to, so a model with another K builds its own)."""
+    return model.cache.factor.derived(("stiffness_blocks", id(model.K)), lambda: _blocks(model.K))[1]
+
+
+def _blocks(K):
+    B = sp.bsr_matrix(K, blocksize=(3, 3))
+    B.sort_indices()
+    return K, (B.indptr.astype(np.int64), B.indices.astype(np.int64), np.ascontiguousarray(B.data))
 
 
 def gravity_force(model, gravity):

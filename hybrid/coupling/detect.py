@@ -11,6 +11,7 @@ from rigid.contacts import Contacts, detect, detect_points
 
 from .fem_contact import (EDGE_COS, SurfaceContacts, contact_node_normals, detect_fem_pairs,
                           detect_rigid_points, edge_normals)
+from .kernels import row_norms
 
 
 @dataclass
@@ -51,7 +52,7 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     bodies = fem_bodies(model)
     mu = np.array([b.friction for b in bodies])[nodes.body]
     e = np.array([b.restitution for b in bodies])[nodes.body]
-    sweep = np.linalg.norm(nodes.v, axis=1) * h
+    sweep = row_norms(nodes.v, float(h))      # how far each node may move this step
     c_nodes = detect_points(rm, rs.position, R, nodes.x, sweep, rigid_sweep, margin, mu, e)
     own = contact_node_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes)
     c_nodes = _facing_faces(model, nodes, c_nodes, own,

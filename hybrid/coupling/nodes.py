@@ -4,6 +4,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import stack_moving
+
 
 @dataclass
 class SurfaceNodes:
@@ -26,12 +28,15 @@ class SurfaceNodes:
     def of(cls, model, state, predicted, h):
         """The surface nodes of every FEM body of ``model``, with the predicted steps' velocities."""
         nodes = [m.surface_nodes for m in model.fem]
+        offset = np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64)
+        x, v = np.empty((offset[-1], 3)), np.empty((offset[-1], 3))
+        for j, (p, s, n) in enumerate(zip(predicted, state.fem, nodes)):
+            # (hybrid.coupling.kernels.stack_moving: :func:`moving` written into its rows)
+            stack_moving(s.x, p.x_base, p.v, float(p.x_rate), n, float(h), x, v, offset[j])
         return cls(per_body=nodes,
-                   body=np.concatenate([np.full(len(n), j) for j, n in enumerate(nodes)]),
-                   local=np.concatenate(nodes),
-                   offset=np.concatenate([[0], np.cumsum([len(n) for n in nodes])]).astype(np.int64),
-                   x=np.concatenate([s.x[n] for s, n in zip(state.fem, nodes)]),
-                   v=np.concatenate([moving(p, s, n, h) for p, s, n in zip(predicted, state.fem, nodes)]))
+                   body=np.repeat(np.arange(len(nodes)), np.diff(offset)),
+                   local=np.concatenate(nodes) if len(nodes) != 1 else nodes[0],
+                   offset=offset, x=x, v=v)
 
     @property
     def count(self):

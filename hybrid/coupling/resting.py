@@ -32,6 +32,8 @@ import numpy as np
 
 from fem.dynamics import implicitness
 
+from .kernels import median_of, normal_and_slide, sorted_isin
+
 ENTER_AFTER = 10        # steps a set must rest unchanged before it is held
 RETRY_AFTER = 50        # steps after a release before a set may be held again
 # a candidate's friction impulse is within this fraction of mu * normal, per integrator
@@ -81,8 +83,7 @@ def held_velocity(model, state, rest, h):
 def violations(rest, impulse):
     """``(k,)`` bool: held nodes whose impulse ``(k, 3)`` N s (world, on the node) pulls or lies
     outside the friction cone."""
-    normal = np.einsum("kd,kd->k", impulse, rest.normal)
-    tangent = np.linalg.norm(impulse - normal[:, None] * rest.normal, axis=1)
+    normal, tangent = normal_and_slide(impulse, rest.normal)
     size = np.abs(impulse).max(initial=0.0)
     tol = 1e-9 * size
     return (normal < -tol) | (tangent > rest.friction * normal * (1.0 + 1e-9) + tol)
@@ -110,14 +111,13 @@ def observe(last, nodes, others, normal, gap, x, friction, impulse, static, anch
     or grows by the nodes that have come to rest beside it.
     """
     count = np.bincount(np.concatenate([nodes, others]).astype(np.int64), minlength=len(x))
-    lam = np.einsum("cd,cd->c", impulse, normal)
-    slide = np.linalg.norm(impulse - lam[:, None] * normal, axis=1)
+    lam, slide = normal_and_slide(impulse, normal)
     ok = static & (count[nodes] == 1) & ~anchored[nodes] & (friction > 0) & (lam > 0) \
         & (slide <= margin * friction * lam)
     if ok.any():
-        ok &= lam >= MIN_SHARE * np.median(lam[ok])
+        ok &= lam >= MIN_SHARE * median_of(lam, ok)
     if last is not None and last.held:
-        joining = _narrowed(last.joining, nodes, ok & ~np.isin(nodes, last.nodes), normal, gap, x,
+        joining = _narrowed(last.joining, nodes, ok & ~sorted_isin(nodes, last.nodes), normal, gap, x,
                             friction, 0)
         if joining is not None and joining.held and len(joining.nodes) >= GROW_SHARE * len(last.nodes):
             return _joined(last, joining)
@@ -148,7 +148,7 @@ def _narrowed(last, nodes, ok, normal, gap, x, friction, wait):
     if last is not None and len(last.nodes):
         # the set narrows to the nodes that stay candidates (flickering ones drop out) and is
         # watched anew when it would lose more than half the candidates of the step
-        keep = last.nodes[np.isin(last.nodes, chosen)]
+        keep = last.nodes[sorted_isin(last.nodes, chosen)]
         if len(keep) and 2 * len(keep) >= len(chosen):
             at = np.searchsorted(chosen, keep)
             return Resting(keep, normal[pick][at], point[at], friction[pick][at], steps=last.steps + 1,

@@ -1,0 +1,101 @@
+"""The coupled step's fused kernels (issue 24: the step's fixed work in one pass each) against the
+numpy code they replaced, on random inputs. Each reference below is that numpy code, kept here
+only as the oracle; the kernels must agree with it to round-off, and exactly where they pick."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fem import step_kernels
+from fem.system import _blocks
+from hybrid.coupling import kernels
+
+SEEDS = range(4)
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.standard_normal((3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def random_stiffness(rng, n):
+    """A random symmetric (3n, 3n) CSR matrix with the sparsity of a mesh (node pairs), some
+    entries of its 3x3 blocks zero (as K's are on a structured mesh)."""
+    pairs = rng.integers(0, n, size=(4 * n, 2))
+    rows = (3 * pairs[:, :1] + np.arange(3)).repeat(3, axis=1).ravel()
+    cols = np.tile(3 * pairs[:, 1:] + np.arange(3), (1, 3)).ravel()
+    values = rng.standard_normal(len(rows)) * (rng.random(len(rows)) < 0.7)
+    K = sp.coo_matrix((values, (rows, cols)), shape=(3 * n, 3 * n)).tocsr()
+    K = (K + K.T + sp.eye(3 * n) * 10).tocsr()
+    K.eliminate_zeros()
+    return K
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_elastic_force_from_blocks_matches_the_csr_product(seed):
+    rng = np.random.default_rng(seed)
+    n = 50
+    K = random_stiffness(rng, n)
+    x, rest = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    c, R = rng.standard_normal(3), random_rotation(rng)
+    reference = (-(K @ (((x - c) @ R - rest).ravel()))).reshape(-1, 3) @ R.T
+    _, (ptr, col, blocks) = _blocks(K)
+    force = step_kernels.frame_elastic_force(ptr, col, blocks, x, c, R, rest)
+    np.testing.assert_allclose(force, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_free_response_added_as_rotate_back_of_the_scattered_change(seed):
+    rng = np.random.default_rng(seed)
+    n = 40
+    v, R = rng.standard_normal((n, 3)), random_rotation(rng)
+    free = np.sort(rng.choice(3 * n, size=2 * n, replace=False))
+    dv_free = rng.standard_normal(len(free))
+    dv = np.zeros(3 * n)
+    dv[free] = dv_free
+    reference = v + dv.reshape(-1, 3) @ R.T
+    out = step_kernels.add_free_response(v, dv_free, free, R)
+    np.testing.assert_allclose(out, reference, rtol=1e-14, atol=1e-14)
+    assert np.array_equal(out[np.setdiff1d(np.arange(n), free // 3)],
+                          v[np.setdiff1d(np.arange(n), free // 3)])      # nodes with no free DOF
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_stacked_moving_nodes_match_gathers_and_the_mean_velocity(seed):
+    rng = np.random.default_rng(seed)
+    n, h, rate = 60, 1e-3, 0.5e-3
+    x, x_base, v = rng.standard_normal((n, 3)), rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    nodes = np.sort(rng.choice(n, size=25, replace=False))
+    out_x, out_v = np.full((30, 3), np.nan), np.full((30, 3), np.nan)
+    kernels.stack_moving(x, x_base, v, rate, nodes, h, out_x, out_v, 5)
+    assert np.array_equal(out_x[5:], x[nodes])
+    np.testing.assert_allclose(out_v[5:], (x_base[nodes] - x[nodes] + rate * v[nodes]) / h, rtol=1e-14)
+    assert np.isnan(out_x[:5]).all() and np.isnan(out_v[:5]).all()         # other bodies' rows untouched
+    sweep = kernels.row_norms(out_v[5:], h)
+    np.testing.assert_allclose(sweep, np.linalg.norm(out_v[5:], axis=1) * h, rtol=1e-14)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_normal_part_and_slide_match_einsum_and_norm(seed):
+    rng = np.random.default_rng(seed)
+    impulse = rng.standard_normal((30, 3))
+    normal = rng.standard_normal((30, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    lam, slide = kernels.normal_and_slide(impulse, normal)
+    ref_lam = np.einsum("cd,cd->c", impulse, normal)
+    np.testing.assert_allclose(lam, ref_lam, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(slide, np.linalg.norm(impulse - ref_lam[:, None] * normal, axis=1),
+                               rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_median_and_sorted_membership_match_numpy(seed):
+    rng = np.random.default_rng(seed)
+    values = rng.standard_normal(31 + seed)
+    mask = rng.random(len(values)) < 0.6
+    mask[0] = True
+    assert kernels.median_of(values, mask) == np.median(values[mask])
+    pool = np.sort(rng.choice(100, size=20, replace=False))
+    queries = rng.integers(-5, 110, size=50)
+    assert np.array_equal(kernels.sorted_isin(queries, pool), np.isin(queries, pool))
+    assert not kernels.sorted_isin(queries, pool[:0]).any()
