@@ -32,7 +32,7 @@ from fem.plastic_flow import elastic_energy as plastic_elastic_energy
 from fem.plastic_flow import plastic_update
 from fem.rotations import element_rotations
 from fem.spin_frame import predict_spin_frame
-from fem.step_kernels import fit_moment, rotate_back
+from fem.step_kernels import anchor_reaction, fit_moment, rotate_back
 from fem.system import (LazyMatrix, StepData, elastic_force, gravity_force, implicitness,
                         internal_forces_and_solver, right_hand_side, system_coefficients, system_factorisation,
                         system_matrix, warped_stiffness)
@@ -81,6 +81,23 @@ def _fixed_rows(model, A, v):
     if A is model.cache.factor.matrix:
         return model.cache.factor.derived("fixed_rows", lambda: sp.csr_matrix(A)[model.fixed_dofs]) @ v
     return (A @ v)[model.fixed_dofs]
+
+
+def _anchor_reaction(model, step, dt):
+    """The anchors' forces ``(n, 3)`` N (world) over the step: ``(A v+ - rhs - impulse)`` on the
+    prescribed DOFs over dt, in the solve frame turned back to world; the rest system's fixed rows
+    in one pass (fem.step_kernels.anchor_reaction)."""
+    R = np.asarray(step.R, float)
+    if step.matrix is model.cache.factor.matrix:
+        rows = model.cache.factor.derived("fixed_rows", lambda: sp.csr_matrix(step.matrix)[model.fixed_dofs])
+        return anchor_reaction(rows.indptr, rows.indices, rows.data, model.fixed_dofs, step.v,
+                               step.impulse, step.rhs, R, dt)
+    fixed = model.fixed_dofs
+    residual = (_fixed_rows(model, step.matrix, (step.v @ R).ravel())
+                - step.rhs[fixed] - (step.impulse @ R).ravel()[fixed])
+    r = np.zeros(3 * model.node_count)
+    r[fixed] = residual / dt
+    return r.reshape(-1, 3) @ R.T
 
 
 def predict(model, state, dt, gravity=(0.0, 0.0, 0.0), held_velocity=None):
@@ -157,15 +174,11 @@ def finish(model, state, step, dt, shift=None):
     late = shift is not None and (step.allowance is not None or model.plastic)
     if shift is not None and not late:      # nothing below reads the positions: move them now
         x[shift[0]] += shift[1]
-    reaction = np.zeros_like(x)
     if model.anchored:
         # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied
-        fixed = model.fixed_dofs
-        residual = (_fixed_rows(model, step.matrix, (step.v @ step.R).ravel())
-                    - step.rhs[fixed] - (step.impulse @ step.R).ravel()[fixed])
-        r = np.zeros(3 * model.node_count)
-        r[fixed] = residual / dt
-        reaction = r.reshape(-1, 3) @ step.R.T
+        reaction = _anchor_reaction(model, step, dt)
+    else:
+        reaction = np.zeros_like(x)
     R, c = body_frame(model, x)
     new = state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
     if step.allowance is not None:

@@ -153,3 +153,34 @@ def frame_elastic_force(ptr, col, blocks, x, c, R, rest_offsets):
         for a in range(3):
             out[i, a] = -(R[a, 0] * s0 + R[a, 1] * s1 + R[a, 2] * s2)
     return out
+
+
+@nb.njit(cache=True)
+def anchor_reaction(ptr, col, data, fixed, v, impulse, rhs, R, dt):
+    """Node forces ``(n, 3)`` N (world) the prescribed DOFs ``fixed`` (f,) took over a step:
+    ``(A (v R) - rhs - impulse R)[fixed] / dt`` turned back by ``R`` (3, 3), zero on the free
+    DOFs; A's rows ``fixed`` given as CSR (``ptr`` (f + 1,), ``col``, ``data``), end velocities
+    ``v`` and impulses ``impulse`` (n, 3) world, ``rhs`` (3n,) the step's right-hand side in the
+    frame turned by R (fem.dynamics.finish, in one pass)."""
+    n = len(v)
+    vb = np.empty(3 * n)
+    for i in range(n):
+        for a in range(3):
+            vb[3 * i + a] = v[i, 0] * R[0, a] + v[i, 1] * R[1, a] + v[i, 2] * R[2, a]
+    r = np.zeros(3 * n)
+    for p in range(len(fixed)):
+        s = 0.0
+        for q in range(ptr[p], ptr[p + 1]):
+            s += data[q] * vb[col[q]]
+        d = fixed[p]
+        i, a = d // 3, d % 3
+        ib = impulse[i, 0] * R[0, a] + impulse[i, 1] * R[1, a] + impulse[i, 2] * R[2, a]
+        r[d] = (s - rhs[d] - ib) / dt
+    out = np.zeros((n, 3))
+    for i in range(n):
+        b0, b1, b2 = r[3 * i], r[3 * i + 1], r[3 * i + 2]
+        if b0 == 0.0 and b1 == 0.0 and b2 == 0.0:
+            continue
+        for a in range(3):
+            out[i, a] = R[a, 0] * b0 + R[a, 1] * b1 + R[a, 2] * b2
+    return out

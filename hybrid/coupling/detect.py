@@ -41,12 +41,12 @@ def fem_bodies(model):
     return [model.scene.bodies[i] for i in model.fem_ids]
 
 
-def detect_all(model, state, nodes, rigid_bodies, h):
+def detect_all(model, state, nodes, rigid_bodies, h, rotation=None):
     """Every contact of the step (:class:`Found`): ``nodes`` are the stacked surface nodes
     (:class:`hybrid.coupling.nodes.SurfaceNodes`), ``rigid_bodies`` the rigid solver bodies after
-    the kick."""
+    the kick; ``rotation`` (b, 3, 3) the rigid bodies' rotations, if already at hand."""
     rm, rs, margin = model.rigid, state.rigid, model.settings.margin
-    R = quat.to_matrix(rs.orientation)
+    R = quat.to_matrix(rs.orientation) if rotation is None else rotation
     rigid_sweep = rigid_step.reach(rm, rigid_bodies, h)
     c_rigid = detect(rm, rs.position, R, rigid_sweep, margin)
     bodies = fem_bodies(model)
@@ -58,9 +58,12 @@ def detect_all(model, state, nodes, rigid_bodies, h):
     c_nodes = _facing_faces(model, nodes, c_nodes, own,
                             lambda k, toward: detect_points(rm, rs.position, R, nodes.x[k], sweep[k],
                                                             rigid_sweep, margin, mu[k], e[k], toward))
-    c_nodes = _edge_normals(model, state, nodes, c_nodes, own)
-    anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)])
-    c_nodes = c_nodes.take(~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))
+    # at rigid edges along the node's own face normal (fem_contact.edge_normals); kept: met from
+    # the front, and not an anchored node against static ground (nothing moves there)
+    c_nodes.normal, c_nodes.gap, front = edge_normals(c_nodes, own)
+    anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)]) \
+        if len(model.fem) != 1 else model.fem[0].node_anchor[nodes.per_body[0]] >= 0
+    c_nodes = c_nodes.take(np.nonzero(front & ~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))[0])
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
@@ -103,27 +106,14 @@ def _facing_faces(model, nodes, c_nodes, own, detect_again):
     return c_nodes
 
 
-def _edge_normals(model, state, nodes, c_nodes, own_normals):
-    """The node contacts met from the front, with the normals and gaps of
-    :func:`hybrid.coupling.fem_contact.edge_normals` where the node has a face normal of its own:
-    a node whose surface triangles cancel (an edge node or a vertex on the front of a crack that
-    has not crossed the body, between its two opened faces) has none, and there the rigid
-    body's normal and gap stay (its own, zero, made the contact's normal zero, and the contact
-    solver divided by the length of the tangent built from it)."""
-    normal, gap, front = edge_normals(model.fem, state.fem, nodes.offset, nodes.body, c_nodes,
-                                      own_normals)
-    own = np.abs(np.einsum("ij,ij->i", normal, normal) - 1.0) < 1e-6
-    c_nodes.normal = np.where(own[:, None], normal, c_nodes.normal)
-    c_nodes.gap = np.where(own, gap, c_nodes.gap)
-    return c_nodes.take(front)
-
-
 def _movable(found, a_immovable, anchored):
     """The contacts of ``found`` (:class:`SurfaceContacts` with places on side b) that can move:
     not those whose side a (``a_immovable`` (c,) bool: an anchored node, a fixed rigid body) and
     whose place (every corner it has weight on anchored, stacked nodes ``anchored``) are both
     held, which no impulse can move (no effective mass); nor those without a unit normal (a
     place on an edge between two faces turned opposite ways)."""
+    if found.count == 0:
+        return found
     held_place = np.all(anchored[found.corners] | (found.weights <= 0.0), axis=1)
     unit = np.abs(np.einsum("ij,ij->i", found.normal, found.normal) - 1.0) < 1e-6
     keep = unit & ~(a_immovable & held_place)

@@ -83,7 +83,7 @@ def contact_node_normals(models, states, node_offset, node_body, contacts):
     return own
 
 
-def edge_normals(models, states, node_offset, node_body, contacts, own=None):
+def edge_normals(contacts, own):
     """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` bool,
     for surface nodes' ``contacts`` (stacked node a, rigid body b >= 0 or a plane).
 
@@ -101,20 +101,12 @@ def edge_normals(models, states, node_offset, node_body, contacts, own=None):
     the slab toppled. Nodes a little ahead of a sliding box, level with its bottom face, were met on
     its front face like a wall (a box sliding at 2 m/s lost 0.41 m/s in one step and stopped 36%
     short) while only those within a tenth of the contact margin of the edge were turned.
-    ``own``: :func:`contact_node_normals` of ``contacts``, if known."""
-    normal, gap = contacts.normal.copy(), contacts.gap.copy()
-    front = np.ones(contacts.count, dtype=bool)
-    at = np.nonzero(contacts.body_b >= 0)[0]
-    if not len(at):
-        return normal, gap, front
-    if own is None:
-        own = contact_node_normals(models, states, node_offset, node_body, contacts)
-    along = np.einsum("ij,ij->i", normal[at], -own)
-    turned = along < EDGE_COS
-    normal[at[turned]] = -own[turned]
-    gap[at[turned]] *= along[turned]            # the offset to the rigid surface, along the new normal
-    front[at[along < -EDGE_COS]] = False
-    return normal, gap, front
+    A node without a face normal of its own (``own`` not a unit vector: its surface triangles
+    cancel, an edge node or a vertex on the front of a crack that has not crossed the body) keeps
+    the rigid body's normal and gap (its own, zero, made the contact's normal zero, and the
+    contact solver divided by the length of the tangent built from it).
+    ``own``: :func:`contact_node_normals` of ``contacts``. One pass (kernels.edge_turns)."""
+    return kernels.edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS))
 
 
 def _node_normals(m, s, local):
@@ -139,9 +131,9 @@ def _current_nearest(m, s, x):
     in its current shape ``s.x``. The k-d tree of the current surface is kept in
     ``m.cache.current_tree`` for the positions it was built from (its ``data``; a step's detection
     asks about the same positions more than once)."""
-    surface = s.x[m.surface_nodes]
     if len(x) <= BRUTE_NEAREST:
-        return kernels.nearest_rows(surface, np.asarray(x, float))
+        return kernels.nearest_rows_of(s.x, m.surface_nodes, np.asarray(x, float))
+    surface = s.x[m.surface_nodes]
     tree = m.cache.current_tree
     if tree is None or not np.array_equal(tree.data, surface):
         tree = m.cache.current_tree = cKDTree(surface, balanced_tree=False, compact_nodes=False)
@@ -192,8 +184,8 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     # put Y off the closest place (by 2% of an edge beside a cube's corner), and mirror-image
     # nodes met mirror-image places at different gaps; pressed into a thin fragment, the point
     # itself may lie nearer another face (a glass pane's pieces flew apart at 1e7 m/s).
-    _, tri, around = _surface_index(mb)
-    P = mb.rest_points[mb.surface_nodes]
+    tree, tri, around = _surface_index(mb)
+    P = tree.data                  # the surface nodes' rest positions (the tree keeps them)
     X_now = X[near] + local[near]
     corners, weights, n, gap = kernels.places(Y, close, around, tri, P, moved, n_rest[near], X_now,
                                               radius[near])

@@ -394,3 +394,50 @@ def sorted_isin(values, sorted_set):
         return np.zeros(len(values), dtype=bool)
     at = np.minimum(np.searchsorted(sorted_set, values), len(sorted_set) - 1)
     return sorted_set[at] == values
+
+
+@nb.njit(cache=True)
+def nearest_rows_of(x, rows, queries):
+    """:func:`nearest_rows` of the points ``x[rows]`` (rows (s,) into x (n, 3)) without gathering
+    them first: the index into ``rows`` of the one nearest each query (the lowest among equally
+    near ones)."""
+    out = np.zeros(len(queries), dtype=np.int64)
+    for k in range(len(queries)):
+        q0, q1, q2 = queries[k, 0], queries[k, 1], queries[k, 2]
+        best = np.inf
+        for i in range(len(rows)):
+            r = rows[i]
+            d0 = x[r, 0] - q0
+            d1 = x[r, 1] - q1
+            d2 = x[r, 2] - q2
+            d = d0 * d0 + d1 * d1 + d2 * d2
+            if d < best:
+                best = d
+                out[k] = i
+    return out
+
+
+@nb.njit(cache=True)
+def edge_turns(normal, gap, body_b, own, edge_cos):
+    """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` of
+    surface nodes' contacts (stacked node a, rigid body ``body_b`` >= 0 or a plane) whose nodes
+    have their own outward normals ``own`` (r, 3), one per contact with a rigid body in order
+    (hybrid.coupling.fem_contact.edge_normals; a node whose own normal is not a unit vector keeps
+    the contact's normal and gap)."""
+    c = len(gap)
+    out_n = normal.copy()
+    out_gap = gap.copy()
+    front = np.ones(c, dtype=np.bool_)
+    r = 0
+    for k in range(c):
+        if body_b[k] < 0:
+            continue
+        m0, m1, m2 = -own[r, 0], -own[r, 1], -own[r, 2]
+        r += 1
+        along = normal[k, 0] * m0 + normal[k, 1] * m1 + normal[k, 2] * m2
+        if along < -edge_cos:
+            front[k] = False
+        if along < edge_cos and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
+            out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
+            out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
+    return out_n, out_gap, front

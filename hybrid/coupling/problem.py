@@ -12,7 +12,7 @@ import numpy as np
 
 from fem.contact_response import contact_set, delassus_block
 from rigid import step as rigid_step
-from rigid.contacts import Contacts, concatenate
+from rigid.contacts import Contacts, concatenate_all
 
 from .memory import contact_keys, point_keys
 
@@ -58,17 +58,18 @@ def build_problem(model, state, fems, predicted, nodes, found, held_rows, rigid_
                              report=_reporter(model.names[model.fem_ids[j]])) for j in touched_bodies]
     bodies = parts.solver_bodies(rigid_bodies, _stacked_rows(model.cache, blocks, nb),
                                  [state.fem[j].R for j in touched_bodies], nodes.x, nodes.v)
-    keys = np.concatenate([np.full(found.rigid.count, -1, np.int64),
-                           contact_keys(c_nodes.body_a, c_nodes.body_b, nodes.count, nb, False),
-                           contact_keys(pairs.a, pairs.nearest, nodes.count, nb, True),
-                           point_keys(on_faces.sample, on_faces.nearest, nodes.count, nb)])
+    keys = contact_keys(c_nodes.body_a, c_nodes.body_b, nodes.count, nb, False)
+    if found.rigid.count or pairs.count or on_faces.count:
+        keys = np.concatenate([np.full(found.rigid.count, -1, np.int64), keys,
+                               contact_keys(pairs.a, pairs.nearest, nodes.count, nb, True),
+                               point_keys(on_faces.sample, on_faces.nearest, nodes.count, nb)])
     c_nodes.body_a = nb + parts.node_particle[c_nodes.body_a]
     place = nb + len(touched) + np.arange(len(corners))
     c_pairs = Contacts(nb + parts.node_particle[pairs.a], place[:pairs.count], pairs.point, pairs.normal,
                        pairs.gap, pairs.friction, pairs.restitution)
     c_points = Contacts(on_faces.a, place[pairs.count:], on_faces.point, on_faces.normal, on_faces.gap,
                         on_faces.friction, on_faces.restitution)
-    contacts = concatenate(concatenate(concatenate(found.rigid, c_nodes, 0, 0), c_pairs, 0, 0), c_points, 0, 0)
+    contacts = concatenate_all([(found.rigid, 0, 0), (c_nodes, 0, 0), (c_pairs, 0, 0), (c_points, 0, 0)])
     return Problem(parts, touched_bodies, bodies, contacts, keys, c_nodes.count, sets)
 
 
@@ -134,12 +135,13 @@ class Particles:
         group = np.concatenate([[0], np.cumsum(self.body[1:] != self.body[:-1])]).astype(np.int64) \
             if len(self.body) else np.zeros(0, np.int64)
         weights, place_held = self._held_places(held)
+        moving = self.mean(node_v)
         return rigid_step.SolverBodies(
             inv_mass=np.concatenate([rigid.inv_mass, np.zeros(k + q)]),
             inv_inertia=np.concatenate([rigid.inv_inertia, np.zeros((k + q, 3, 3))]),
             position=np.concatenate([rigid.position, self.mean(node_x)]),
-            velocity=np.concatenate([rigid.velocity, self.mean(node_v)]),
-            velocity_at_t=np.concatenate([rigid.velocity_at_t, self.mean(node_v)]),
+            velocity=np.concatenate([rigid.velocity, moving]),
+            velocity_at_t=np.concatenate([rigid.velocity_at_t, moving]),
             angular=np.concatenate([rigid.angular, np.zeros((k + q, 3))]),
             accel=np.concatenate([rigid.accel, np.zeros((k + q, 3))]),
             static=np.concatenate([rigid.static, held, place_held]),
@@ -153,6 +155,8 @@ class Particles:
         A place that moves with held corners for all but PLACE_HELD_SHARE of its weight is held, on
         those corners alone: an anchored node meeting a place that lay on another anchored node
         (crack faces at a grip) met a response of round-off size from the place's free corners."""
+        if not len(self.corners):
+            return self.weights.copy(), np.zeros(0, dtype=bool)
         corner_held = held[self.node_particle[self.corners]]
         weights = self.weights.copy()
         place_held = np.where(corner_held, 0.0, weights).sum(axis=1) < PLACE_HELD_SHARE
@@ -162,6 +166,8 @@ class Particles:
 
     def mean(self, node_values):
         """Each particle's and place's value ``(count, 3)`` from stacked node values ``(nodes, 3)``."""
+        if not len(self.corners):
+            return node_values[self.nodes]
         return np.concatenate([node_values[self.nodes],
                                np.einsum("pi,pij->pj", self.weights, node_values[self.corners])])
 

@@ -83,12 +83,13 @@ def coupled_step(model, state, h):
                                  None if r is None else resting.held_velocity(m, s, r, h))
                  for m, s, r in zip(fems, state.fem, hold)]
     v, v_at_t, gvec = rigid_step.kick(model.rigid, state.rigid, h, model.gravity)
-    rigid_bodies = rigid_step.solver_bodies(model.rigid, state.rigid, v, v_at_t, gvec)
+    frames = rigid_step.frames(model.rigid, state.rigid)
+    rigid_bodies = rigid_step.solver_bodies(model.rigid, state.rigid, v, v_at_t, gvec, frames)
 
     # 2. contacts of every kind; held nodes leave the solver (their contacts with static ground
     #    are the hold's)
     nodes = SurfaceNodes.of(model, state, predicted, h)
-    found = detect_all(model, state, nodes, rigid_bodies, h)
+    found = detect_all(model, state, nodes, rigid_bodies, h, frames[0])
     rows, let_go = held.held_rows(hold, nodes, found)
     if let_go is not None:
         return let_go
