@@ -99,3 +99,65 @@ def test_median_and_sorted_membership_match_numpy(seed):
     queries = rng.integers(-5, 110, size=50)
     assert np.array_equal(kernels.sorted_isin(queries, pool), np.isin(queries, pool))
     assert not kernels.sorted_isin(queries, pool[:0]).any()
+
+
+def edge_normals_reference(normal, gap, body_b, own, edge_cos):
+    """fem_contact.edge_normals and detect._edge_normals as numpy code, before the kernel."""
+    normal, gap = normal.copy(), gap.copy()
+    front = np.ones(len(gap), dtype=bool)
+    at = np.nonzero(body_b >= 0)[0]
+    along = np.einsum("ij,ij->i", normal[at], -own)
+    turned = along < edge_cos
+    out_n, out_g = normal.copy(), gap.copy()
+    out_n[at[turned]] = -own[turned]
+    out_g[at[turned]] *= along[turned]
+    front[at[along < -edge_cos]] = False
+    unit = np.abs(np.einsum("ij,ij->i", out_n, out_n) - 1.0) < 1e-6
+    return np.where(unit[:, None], out_n, normal), np.where(unit, out_g, gap), front
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_edge_turns_match_the_numpy_edge_normals(seed):
+    rng = np.random.default_rng(seed)
+    c = 60
+    normal = rng.standard_normal((c, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    gap = rng.standard_normal(c) * 1e-3
+    body_b = rng.integers(-1, 3, size=c)
+    own = rng.standard_normal(((body_b >= 0).sum(), 3))
+    own /= np.linalg.norm(own, axis=1, keepdims=True)
+    own[::7] = 0.0                      # nodes without a face normal of their own
+    reference = edge_normals_reference(normal, gap, body_b, own, float(np.cos(np.radians(70.0))))
+    out = kernels.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))))
+    np.testing.assert_allclose(out[0], reference[0], rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(out[1], reference[1], rtol=1e-14, atol=1e-18)
+    assert np.array_equal(out[2], reference[2])
+    assert not out[2].all() and (out[0] != normal).any()     # the sample turns and drops some
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_nearest_of_indexed_points_matches_the_gathered_search(seed):
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((80, 3))
+    rows = np.sort(rng.choice(80, size=40, replace=False))
+    queries = np.concatenate([rng.standard_normal((10, 3)), x[rows[:3]]])
+    assert np.array_equal(kernels.nearest_rows_of(x, rows, queries), kernels.nearest_rows(x[rows], queries))
+    assert np.array_equal(kernels.nearest_rows_of(x, rows, queries)[-3:], np.arange(3))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_anchor_reaction_matches_the_sparse_rows_product(seed):
+    rng = np.random.default_rng(seed)
+    n, dt = 30, 1e-3
+    A = random_stiffness(rng, n)
+    fixed = np.sort(rng.choice(3 * n, size=12, replace=False))
+    v, impulse, R = rng.standard_normal((n, 3)), rng.standard_normal((n, 3)), random_rotation(rng)
+    rhs = rng.standard_normal(3 * n)
+    rows = A[fixed]
+    r = np.zeros(3 * n)
+    r[fixed] = (rows @ (v @ R).ravel() - rhs[fixed] - (impulse @ R).ravel()[fixed]) / dt
+    reference = r.reshape(-1, 3) @ R.T
+    out = step_kernels.anchor_reaction(rows.indptr, rows.indices, rows.data, fixed, v, impulse, rhs, R, dt)
+    np.testing.assert_allclose(out, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+    free_nodes = np.setdiff1d(np.arange(n), fixed // 3)
+    assert not out[free_nodes].any()
