@@ -161,3 +161,79 @@ def test_anchor_reaction_matches_the_sparse_rows_product(seed):
     np.testing.assert_allclose(out, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
     free_nodes = np.setdiff1d(np.arange(n), fixed // 3)
     assert not out[free_nodes].any()
+
+
+def box_grid():
+    """The signed-distance grid of a 0.4 x 0.3 x 0.2 m box's surface (rigid.sdf)."""
+    from rigid import shapes
+    from rigid.sdf import SignedDistanceGrid
+    points, triangles = shapes.box_surface([0.4, 0.3, 0.2])
+    return SignedDistanceGrid.build(points, triangles)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_rest_query_matches_the_numpy_steps_of_against(seed):
+    rng = np.random.default_rng(seed)
+    grid = box_grid()
+    p, s = 40, 30
+    x = rng.uniform(-0.3, 0.3, size=(p, 3))
+    moved = rng.standard_normal((s, 3)) * 1e-3
+    nearest = rng.integers(0, s, size=p)
+    c, R, rest_center = rng.standard_normal(3) * 0.01, random_rotation(rng), rng.standard_normal(3) * 0.01
+    radius = np.where(rng.random(p) < 0.5, 0.0, 0.01)
+    reach = rng.uniform(0.0, 0.05, size=p)
+    largest = float(np.linalg.norm(moved, axis=1).max())
+    # the numpy code of fem_contact._against the kernel replaced
+    X = (x - c) @ R + rest_center - moved[nearest]
+    phi, n_rest = grid.query(X)
+    phi = phi - radius
+    near = np.nonzero((phi < reach + largest)
+                      & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]
+    out = kernels.rest_query(x, nearest, moved, c, R, rest_center, grid.origin, grid.cell_size,
+                             grid.shape, grid.values, radius, reach, largest)
+    assert np.array_equal(out[0], near) and 0 < len(near) < p
+    np.testing.assert_allclose(out[1], X, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(out[2], phi, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(out[3], n_rest, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_points_off_their_nodes_match_the_numpy_filter(seed):
+    rng = np.random.default_rng(seed)
+    n, q = 50, 30
+    x = rng.standard_normal((n, 3))
+    surface_nodes = np.sort(rng.choice(n, size=20, replace=False))
+    close = rng.integers(0, 20, size=q)
+    points = x[surface_nodes[close]] + rng.standard_normal((q, 3)) * 0.1
+    n_rest = rng.standard_normal((q, 3))
+    n_rest /= np.linalg.norm(n_rest, axis=1, keepdims=True)
+    R, off = random_rotation(rng), 0.1
+    across = x[surface_nodes[close]] - points
+    normal = n_rest @ R.T
+    across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
+    reference = np.einsum("ij,ij->i", across, across) > off ** 2
+    keep = kernels.off_nodes_kept(x, surface_nodes, close, points, n_rest, R, off)
+    assert np.array_equal(keep, reference) and keep.any() and not keep.all()
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_sample_points_match_the_numpy_gather(seed):
+    rng = np.random.default_rng(seed)
+    b = 6
+    count = rng.integers(0, 8, size=b)
+    point_start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+    point_local = rng.standard_normal((point_start[-1], 3))
+    point_kind = rng.integers(0, 3, size=point_start[-1])
+    position = rng.standard_normal((b, 3))
+    rotation = np.array([random_rotation(rng) for _ in range(b)])
+    near = np.sort(rng.choice(b, size=4, replace=False))
+    # the numpy code of fem_contact.detect_rigid_points the kernel replaced
+    c = point_start[near + 1] - point_start[near]
+    owner = np.repeat(near, c)
+    at = np.repeat(point_start[near] - np.cumsum(c) + c, c) + np.arange(c.sum())
+    plain = point_kind[at] != 1
+    owner, at = owner[plain], at[plain]
+    x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], point_local[at])
+    out = kernels.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
+    assert np.array_equal(out[0], owner) and np.array_equal(out[1], at)
+    np.testing.assert_allclose(out[2], x, rtol=1e-13, atol=1e-15)

@@ -153,24 +153,28 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     # into b's rest frame, less the deformation there: the displacement of b's surface node now
     # nearest each point (bent by more than its half thickness, b's rest surface would put a
     # point pressing on its top face nearer the bottom face, or off b's grid)
-    local = moved[_current_nearest(mb, sb, x)]
-    X = (x - sb.c) @ sb.R + mb.rest_center - local
-    grid = _grid(mb)
-    phi, n_rest = kernels.grid_query(grid.origin, grid.cell_size, grid.shape, grid.values, X)
-    phi = phi - radius
     # (a point exactly on an edge or a corner may find the grid's gradient zero, its neighbouring
     # samples cancelling: one within a cell of the surface stays, to be met along the faces
     # there, kernels.places; a place left without a unit normal is dropped, detect._movable)
-    near = np.nonzero((phi < reach + largest)
-                      & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]
+    grid = _grid(mb)
+    R = np.asarray(sb.R, float)
+    nearest = _current_nearest(mb, sb, x)
+    near, X, phi, n_rest = kernels.rest_query(
+        x, nearest, moved, np.asarray(sb.c, float), R, mb.rest_center, grid.origin, grid.cell_size,
+        grid.shape, grid.values, radius, reach, largest)
+    if not len(near):
+        return near, np.zeros((0, 3), np.int64), np.zeros((0, 3)), near, np.zeros((0, 3)), \
+            np.zeros((0, 3)), np.zeros(0)
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
-    close = _nearest_nodes(mb, Y) if len(near) else np.zeros((0, 1), np.int64)
-    if off_nodes is not None and len(near):
-        across = sb.x[mb.surface_nodes[close[:, 0]]] - x[near]
-        normal = n_rest[near] @ sb.R.T
-        across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
-        keep = np.einsum("ij,ij->i", across, across) > off_nodes ** 2
+    close = _nearest_nodes(mb, Y)
+    if off_nodes is not None:
+        keep = np.nonzero(kernels.off_nodes_kept(sb.x, mb.surface_nodes, close[:, 0], x[near],
+                                                 n_rest[near], R, off_nodes))[0]
         near, Y, close = near[keep], Y[keep], close[keep]
+        if not len(near):
+            return near, np.zeros((0, 3), np.int64), np.zeros((0, 3)), near, np.zeros((0, 3)), \
+                np.zeros((0, 3)), np.zeros(0)
+    local = moved[nearest]
     # its triangle; the normal turns with that triangle (a bent body's face is sloped where its
     # rest face was level: on the rest normal a frictionless ball stayed put on an 11 degree slope
     # of a sagging bridge), and the gap is measured along it to the place as it is now (a dent
@@ -287,7 +291,7 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         return SurfaceContacts.stacked(parts)
     for j, (mb, sb) in enumerate(zip(models, states)):
         ib = node_offset[j] + np.arange(len(mb.surface_nodes))
-        slack = margin + node_sweep[ib].max(initial=0.0)
+        slack = margin + node_sweep[node_offset[j]:node_offset[j + 1]].max(initial=0.0)
         motion = _motion(mb, sb)
         centre, radius = motion[0], motion[1]
         # every sample point of the rigid bodies whose bounding spheres reach this body, at once
@@ -295,13 +299,9 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
                           <= rigid.body_radius + rigid_sweep + radius + slack)[0]
         if not len(near):
             continue
-        count = rigid.point_start[near + 1] - rigid.point_start[near]
-        owner = np.repeat(near, count)
-        at = np.repeat(rigid.point_start[near] - np.cumsum(count) + count, count) + np.arange(count.sum())
         # a cylinder meets deformable faces with its side's vertices, not the rings they lie on
-        plain = rigid.point_kind[at] != POINT_RING
-        owner, at = owner[plain], at[plain]
-        x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], rigid.point_local[at])
+        owner, at, x = kernels.sample_points(near, rigid.point_start, rigid.point_local, rigid.point_kind,
+                                             POINT_RING, position, np.asarray(rotation, float))
         # a point right over a node (within a tenth of the margin across the normal) is that
         # node's own contact with the rigid body; a second one there only slows the solver
         # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)

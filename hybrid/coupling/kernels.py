@@ -398,21 +398,27 @@ def sorted_isin(values, sorted_set):
 
 @nb.njit(cache=True)
 def nearest_rows_of(x, rows, queries):
-    """:func:`nearest_rows` of the points ``x[rows]`` (rows (s,) into x (n, 3)) without gathering
-    them first: the index into ``rows`` of the one nearest each query (the lowest among equally
-    near ones)."""
+    """:func:`nearest_rows` of the points ``x[rows]`` (rows (s,) into x (n, 3)): the index into
+    ``rows`` of the one nearest each query (the lowest among equally near ones). The points are
+    gathered once into columns, so the distances of one query to all of them form a loop the
+    compiler vectorises."""
+    s = len(rows)
+    px, py, pz = np.empty(s), np.empty(s), np.empty(s)
+    for i in range(s):
+        px[i], py[i], pz[i] = x[rows[i], 0], x[rows[i], 1], x[rows[i], 2]
+    d = np.empty(s)
     out = np.zeros(len(queries), dtype=np.int64)
     for k in range(len(queries)):
         q0, q1, q2 = queries[k, 0], queries[k, 1], queries[k, 2]
+        for i in range(s):
+            d0 = px[i] - q0
+            d1 = py[i] - q1
+            d2 = pz[i] - q2
+            d[i] = d0 * d0 + d1 * d1 + d2 * d2
         best = np.inf
-        for i in range(len(rows)):
-            r = rows[i]
-            d0 = x[r, 0] - q0
-            d1 = x[r, 1] - q1
-            d2 = x[r, 2] - q2
-            d = d0 * d0 + d1 * d1 + d2 * d2
-            if d < best:
-                best = d
+        for i in range(s):
+            if d[i] < best:
+                best = d[i]
                 out[k] = i
     return out
 
@@ -441,3 +447,78 @@ def edge_turns(normal, gap, body_b, own, edge_cos):
             out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
             out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
     return out_n, out_gap, front
+
+
+@nb.njit(cache=True)
+def rest_query(x, nearest, moved, c, R, rest_center, origin, h, shape, values, radius, reach,
+               largest):
+    """World points ``x`` (p, 3) against a deformable body's rest surface grid (``origin``, cell
+    ``h``, ``shape``, ``values``: grid_query's), each first moved back by the deformation ``moved``
+    (s, 3) at its ``nearest`` current surface node (p,) into the rest frame (rotation ``R``, centre
+    ``c``, rest centre ``rest_center``): ``X = (x - c) R + rest_center - moved[nearest]``.
+    Returns ``(near, X, phi, n_rest)``: the points that may touch (distance less ``radius`` below
+    ``reach + largest``, with a normal or within a cell of the surface), their rest points X
+    (p, 3), signed distances less their radius (p,) and rest normals (p, 3)
+    (hybrid.coupling.fem_contact._against, in one pass)."""
+    p = len(x)
+    X = np.empty((p, 3))
+    for k in range(p):
+        y0, y1, y2 = x[k, 0] - c[0], x[k, 1] - c[1], x[k, 2] - c[2]
+        for a in range(3):
+            X[k, a] = (y0 * R[0, a] + y1 * R[1, a] + y2 * R[2, a]) + rest_center[a] - moved[nearest[k], a]
+    phi, n_rest = grid_query(origin, h, shape, values, X)
+    near = np.empty(p, dtype=np.int64)
+    count = 0
+    for k in range(p):
+        phi[k] -= radius[k]
+        has_normal = n_rest[k, 0] != 0 or n_rest[k, 1] != 0 or n_rest[k, 2] != 0
+        if phi[k] < reach[k] + largest and (has_normal or abs(phi[k] + radius[k]) <= h):
+            near[count] = k
+            count += 1
+    return near[:count], X, phi, n_rest
+
+
+@nb.njit(cache=True)
+def off_nodes_kept(x, surface_nodes, close, points, n_rest, R, distance):
+    """Which ``points`` (q, 3) world lie farther than ``distance`` (m) across their normal
+    (``n_rest`` (q, 3) turned by ``R``) from the current position ``x`` of their nearest surface
+    node ``surface_nodes[close]`` (q,): ``(q,)`` bool (hybrid.coupling.fem_contact._against)."""
+    q = len(points)
+    keep = np.empty(q, dtype=np.bool_)
+    for k in range(q):
+        i = surface_nodes[close[k]]
+        a0, a1, a2 = x[i, 0] - points[k, 0], x[i, 1] - points[k, 1], x[i, 2] - points[k, 2]
+        m0 = n_rest[k, 0] * R[0, 0] + n_rest[k, 1] * R[0, 1] + n_rest[k, 2] * R[0, 2]
+        m1 = n_rest[k, 0] * R[1, 0] + n_rest[k, 1] * R[1, 1] + n_rest[k, 2] * R[1, 2]
+        m2 = n_rest[k, 0] * R[2, 0] + n_rest[k, 1] * R[2, 1] + n_rest[k, 2] * R[2, 2]
+        along = a0 * m0 + a1 * m1 + a2 * m2
+        a0, a1, a2 = a0 - along * m0, a1 - along * m1, a2 - along * m2
+        keep[k] = a0 * a0 + a1 * a1 + a2 * a2 > distance * distance
+    return keep
+
+
+@nb.njit(cache=True)
+def sample_points(near, point_start, point_local, point_kind, skip_kind, position, rotation):
+    """The sample points of rigid bodies ``near`` (b,) other than those of kind ``skip_kind``:
+    their bodies ``owner`` (p,), indices ``at`` (p,) into ``point_local`` and world positions
+    (p, 3), ``position[owner] + rotation[owner] point_local[at]``, body by body in order
+    (hybrid.coupling.fem_contact.detect_rigid_points, in one pass)."""
+    total = 0
+    for j in range(len(near)):
+        total += point_start[near[j] + 1] - point_start[near[j]]
+    owner = np.empty(total, dtype=np.int64)
+    at = np.empty(total, dtype=np.int64)
+    x = np.empty((total, 3))
+    p = 0
+    for j in range(len(near)):
+        b = near[j]
+        for i in range(point_start[b], point_start[b + 1]):
+            if point_kind[i] == skip_kind:
+                continue
+            owner[p], at[p] = b, i
+            l0, l1, l2 = point_local[i, 0], point_local[i, 1], point_local[i, 2]
+            for a in range(3):
+                x[p, a] = position[b, a] + (rotation[b, a, 0] * l0 + rotation[b, a, 1] * l1
+                                            + rotation[b, a, 2] * l2)
+            p += 1
+    return owner[:p], at[:p], x[:p]
