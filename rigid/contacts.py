@@ -276,13 +276,16 @@ def detect(model, position, rotation, sweep, margin):
         points = (model.point_start, model.point_local, model.point_radius, model.point_kind,
                   model.point_ring, model.point_axis)
         out = (out_a, out_b, out_p, out_n, out_gap)
-        count = _plane_contacts(position, rotation, sweep, fixed, *points, model.plane_point,
-                                model.plane_normal, margin, *out)
-        count = _pair_contacts(pairs, position, rotation, sweep, fixed, model.body_radius, *points,
-                               model.shape_kind, model.shape_params, model.shape_rotation,
-                               model.shape_offset, model.grid_index, model.grid_values,
-                               model.grid_start, model.grid_shape, model.grid_origin,
-                               model.grid_cell, margin, *out, count)
+        count = 0
+        if len(model.plane_point):
+            count = _plane_contacts(position, rotation, sweep, fixed, *points, model.plane_point,
+                                    model.plane_normal, margin, *out)
+        if len(pairs):
+            count = _pair_contacts(pairs, position, rotation, sweep, fixed, model.body_radius, *points,
+                                   model.shape_kind, model.shape_params, model.shape_rotation,
+                                   model.shape_offset, model.grid_index, model.grid_values,
+                                   model.grid_start, model.grid_shape, model.grid_origin,
+                                   model.grid_cell, margin, *out, count)
         if count <= capacity:
             break
         capacity = count

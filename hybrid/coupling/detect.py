@@ -92,7 +92,7 @@ def _facing_faces(model, nodes, c_nodes, own, detect_again):
     if not len(at):
         return c_nodes
     node = c_nodes.body_a[at]
-    away = np.einsum("ij,ij->i", c_nodes.normal[at], -own) < -EDGE_COS
+    away = np.einsum("ij,ij->i", c_nodes.normal[at], own) > EDGE_COS       # (n . -own < -EDGE_COS)
     if not away.any():
         return c_nodes
     k, first = np.unique(node[away], return_index=True)

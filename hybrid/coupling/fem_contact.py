@@ -76,6 +76,8 @@ def contact_node_normals(models, states, node_offset, node_body, contacts):
     """Own outward unit normals ``(r, 3)`` of the surface nodes (side a) of the ``contacts`` with
     rigid bodies (side b >= 0), in their order (:func:`_node_normals`; zero where a node has none)."""
     node = contacts.body_a[contacts.body_b >= 0]
+    if len(models) == 1:
+        return _node_normals(models[0], states[0], node - node_offset[0])
     own = np.zeros((len(node), 3))
     for j in np.unique(node_body[node]):
         mine = node_body[node] == j
