@@ -539,6 +539,7 @@ def test_warm_start_and_dropped_blocks_leave_the_contact_answer_unchanged(sim, m
     from hybrid.coupling.step import step
 
     monkeypatch.setattr(resting, "ENTER_AFTER", 10 ** 9)     # the patch stays with the solver
+    monkeypatch.setattr(resting, "FIRST_SIGHT", 10 ** 9)
 
     s = sim("""
 [simulation]

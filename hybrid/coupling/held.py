@@ -9,13 +9,26 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from fem.contact_response import response_cache
+
 from . import resting
 
 
 @dataclass(frozen=True)
 class LetGo:
-    """The resting nodes held in deformable body ``body`` (an index into model.fem) let go."""
+    """The resting nodes held in deformable body ``body`` (an index into model.fem) let go;
+    ``failed``: those whose impulses would not push or stick (sorted; None: not so found)."""
     body: int
+    failed: np.ndarray = None
+
+
+@dataclass(frozen=True)
+class HoldNow:
+    """Deformable body ``body`` (an index into model.fem) meets static ground with a large patch
+    of new nodes: the step is taken again with them held at once (``record``,
+    hybrid.coupling.resting.first_sight)."""
+    body: int
+    record: resting.Resting
 
 
 def records(model, state):
@@ -45,7 +58,35 @@ def held_rows(hold, nodes, found):
     return rows, None
 
 
-def hold_impulses(hold, nodes, found, rows, new_fem, solved_impulse, h):
+def first_sight(model, state, hold, nodes, found, h):
+    """The :class:`HoldNow` of the first free, eligible body whose node contacts with static
+    ground make a large new resting patch (hybrid.coupling.resting.first_sight), else None."""
+    if not model.settings.hold_resting:
+        return None
+    contacts, others = found.nodes, found.in_others
+    body = nodes.body[contacts.body_a]
+    for j, (m, s, last) in enumerate(zip(model.fem, state.fem, records(model, state))):
+        on = np.nonzero((body == j) & found.nodes_static)[0]
+        if hold[j] is not None or len(on) < resting.FIRST_SIGHT or not resting.eligible(m):
+            continue
+        local = nodes.local[contacts.body_a[on]]
+        record = resting.first_sight(
+            last, local, nodes.local[others[nodes.body[others] == j]], contacts.normal[on],
+            contacts.gap[on], nodes.v[contacts.body_a[on]], s.x, contacts.friction[on],
+            found.nodes_static[on], m.node_anchor >= 0, response_cache(m, h).slot[local] < 0, h)
+        if record is not None:
+            return HoldNow(j, record)
+    return None
+
+
+def held_now(model, state, hold_now):
+    """The state with the record of :class:`HoldNow` ``hold_now`` as its body's (held)."""
+    out = list(records(model, state))
+    out[hold_now.body] = hold_now.record
+    return replace(state, resting=tuple(out))
+
+
+def hold_impulses(model, hold, nodes, found, rows, new_fem, solved_impulse, h):
     """The impulse (N s, on side a) each node contact took: ``solved_impulse`` for the rows the
     solver had, the hold's push (the held nodes' reactions, shared among a node's rows) for held
     rows; ``new_fem`` loses those reactions (the ground's push is a contact's, not an anchor's).
@@ -58,7 +99,9 @@ def hold_impulses(hold, nodes, found, rows, new_fem, solved_impulse, h):
             continue
         impulse = h * new_fem[j].node_reaction[r.nodes]
         if resting.violations(r, impulse).any():
-            return row_impulse, LetGo(j)
+            # those that fail and those near failing (as a watched node must be to join)
+            failed = resting.violations(r, impulse, resting.stick_margin(model.fem[j]))
+            return row_impulse, LetGo(j, r.nodes[failed])
         mine = np.nonzero(rows & (nodes.body[contacts.body_a] == j))[0]
         at = np.searchsorted(r.nodes, nodes.local[contacts.body_a[mine]])
         share = np.bincount(at, minlength=len(r.nodes))[at]
@@ -88,8 +131,8 @@ def watch(model, state, nodes, found, row_impulse):
     return tuple(out)
 
 
-def released(model, state, body):
-    """The state with deformable body ``body``'s held resting nodes let go."""
+def released(model, state, let_go):
+    """The state after :class:`LetGo` ``let_go``: its body's held resting nodes let go."""
     out = list(records(model, state))
-    out[body] = resting.released(out[body])
+    out[let_go.body] = resting.released(out[let_go.body], let_go.failed)
     return replace(state, resting=tuple(out))

@@ -10,10 +10,15 @@ ground: 441 nodes, about 11 sweeps over 200k blocks).
 
 The held step checks its answer: the impulse each held node needed (its reaction) must push, not
 pull, and lie within the friction cone. Then it is a solution of the contact problem, the one
-the solver's sweeps converge to. Otherwise the step is taken again with the nodes free, and the
-set must rest anew (and ``RETRY_AFTER`` steps pass) before it is held again.
+the solver's sweeps converge to. Otherwise the step is taken again: without the nodes that
+failed or came near failing when they are few (``DROP_SHARE`` of the set: the rim of a slab
+spreading under a load), else with every node free, and the set must rest anew (and
+``RETRY_AFTER`` steps pass) before it is held again.
 
-A set is held once it has rested for ``ENTER_AFTER`` steps: the nodes that were in each of those
+A body that meets static ground with a patch of ``FIRST_SIGHT`` or more nodes new to its contact
+response (a slab laid on the ground) holds them from that step (:func:`first_sight`): solving
+their response columns for the solver would cost far more than the held system's factorisation.
+Otherwise a set is held once it has rested for ``ENTER_AFTER`` steps: the nodes that were in each of those
 steps in exactly one contact, with a static surface, pushing (at least ``MIN_SHARE`` of the
 median push) and inside ``STICK_MARGIN`` of their friction cone (nodes that flicker in and out
 drop from the set; it is watched anew when it would lose half of the step's candidates). The
@@ -40,6 +45,13 @@ RETRY_AFTER = 50        # steps after a release before a set may be held again
 STICK_MARGIN = {"backward_euler": 0.95, "newmark": 0.7}
 MIN_SHARE = 0.25        # a candidate pushes at least this fraction of the set's median push
 GROW_SHARE = 0.05       # newly resting nodes join a held set once they are this share of it
+# a body meeting static ground with at least this many nodes new to its contact response holds
+# them at once (:func:`first_sight`): their response columns would cost three back-substitutions
+# each, while holding them costs one factorisation, about as much as 150-300 batched columns
+# (slabs of 1k to 50k tets), and the set would be held after ENTER_AFTER steps anyway
+FIRST_SIGHT = 100
+# a held set whose failing nodes are at most this share of it lets only them go (:func:`released`)
+DROP_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -80,17 +92,24 @@ def held_velocity(model, state, rest, h):
     return (mean - (1.0 - theta) * state.v[rest.nodes]) / theta
 
 
-def violations(rest, impulse):
+def violations(rest, impulse, margin=1.0):
     """``(k,)`` bool: held nodes whose impulse ``(k, 3)`` N s (world, on the node) pulls or lies
-    outside the friction cone."""
+    outside ``margin`` of the friction cone (1: the cone itself)."""
     normal, tangent = normal_and_slide(impulse, rest.normal)
     size = np.abs(impulse).max(initial=0.0)
     tol = 1e-9 * size
-    return (normal < -tol) | (tangent > rest.friction * normal * (1.0 + 1e-9) + tol)
+    return (normal < -tol) | (tangent > margin * rest.friction * normal * (1.0 + 1e-9) + tol)
 
 
-def released(rest):
-    """The record after its set let go: watched anew, held again no sooner than RETRY_AFTER steps."""
+def released(rest, failed=None):
+    """The record after its set let go: watched anew, held again no sooner than RETRY_AFTER steps.
+    When its ``failed`` nodes (sorted: those that would not push or stick, or came near it; None:
+    the whole set) are at most DROP_SHARE of it, only they let go and the rest stays held (the
+    corners and rim of a slab spreading under a load slide outwards while its middle rests)."""
+    if failed is not None and len(failed) <= DROP_SHARE * len(rest.nodes):
+        keep = ~sorted_isin(rest.nodes, failed)
+        return replace(rest, nodes=rest.nodes[keep], normal=rest.normal[keep],
+                       point=rest.point[keep], friction=rest.friction[keep], joining=None)
     return replace(rest, steps=0, wait=RETRY_AFTER, joining=None)
 
 
@@ -124,6 +143,29 @@ def observe(last, nodes, others, normal, gap, x, friction, impulse, static, anch
         return replace(last, joining=joining)
     wait = max(last.wait - 1, 0) if last is not None else 0
     return _narrowed(last, nodes, ok, normal, gap, x, friction, wait)
+
+
+def first_sight(last, nodes, others, normal, gap, v, x, friction, static, anchored, new, h):
+    """A record to hold at once (already :attr:`Resting.held`) when a body meets static ground
+    with a large patch of nodes new to its contact response (FIRST_SIGHT or more), else None: a
+    slab laid on the ground, a large face landing. Its candidates are the contacts of ``nodes``
+    (c,) (body nodes, with ``normal``, ``gap``, ``friction`` and ``static`` as in :func:`observe`)
+    that are in no other contact (``others``), not anchored (``anchored`` (n,)), have friction
+    and close their gap within the step ``h`` at their mean velocity ``v`` (c, 3) m/s (the solver
+    would push them); ``new`` (c,) says which nodes' response columns are not known yet; ``x``
+    (n, 3) positions at the step's start. Not after a release (``last`` waiting) or while held.
+    The held step checks the answer as any held step does (pushes, inside the friction cone),
+    and a set that fails is let go and stepped free, waiting RETRY_AFTER steps as after any
+    release."""
+    if last is not None and (last.held or last.wait > 0):
+        return None
+    count = np.bincount(np.concatenate([nodes, others]).astype(np.int64), minlength=len(x))
+    approach = -np.einsum("cd,cd->c", v, normal)
+    ok = static & (count[nodes] == 1) & ~anchored[nodes] & (friction > 0) & (gap <= h * approach)
+    if np.count_nonzero(ok & new) < FIRST_SIGHT:
+        return None
+    record = _narrowed(None, nodes, ok, normal, gap, x, friction, 0)
+    return replace(record, steps=ENTER_AFTER + 1)
 
 
 def _joined(rest, more):

@@ -45,8 +45,11 @@ def step(model, state, dt=None):
                       touches=touches)
     else:
         new = coupled_step(model, state, dt)
-        while isinstance(new, held.LetGo):     # a held body's resting nodes let go: again, them free
-            state = held.released(model, state, new.body)
+        # a held body's resting nodes let go: again, them free; a large new resting patch: again,
+        # it held at once
+        while isinstance(new, (held.LetGo, held.HoldNow)):
+            state = held.released(model, state, new) if isinstance(new, held.LetGo) \
+                else held.held_now(model, state, new)
             new = coupled_step(model, state, dt)
     check_finite(model, new)
     return new
@@ -93,6 +96,9 @@ def coupled_step(model, state, h):
     rows, let_go = held.held_rows(hold, nodes, found)
     if let_go is not None:
         return let_go
+    hold_now = held.first_sight(model, state, hold, nodes, found, h)
+    if hold_now is not None:
+        return hold_now
 
     # 3. one contact problem over rigid bodies, touched nodes and places; solved, each touched
     #    deformable body taking its nodes' impulses through its own implicit system
@@ -105,7 +111,7 @@ def coupled_step(model, state, h):
     # 5. held nodes: the impulses they took must push and stick, else the step is taken again;
     #    the impulses of node contacts are remembered for the next step, resting sets watched
     start = found.rigid.count
-    row_impulse, let_go = held.hold_impulses(hold, nodes, found, rows, new_fem,
+    row_impulse, let_go = held.hold_impulses(model, hold, nodes, found, rows, new_fem,
                                              res.contact_impulse[start:start + problem.node_rows], h)
     if let_go is not None:
         return let_go
