@@ -142,7 +142,9 @@ def contact_set(model, dt, nodes, previous=None):
     body and step the sets belong to (the answer depends on the sets alone). Pure: the caller
     keeps the returned set (in its state) and passes it as ``previous`` next step.
     """
-    nodes = np.unique(np.asarray(nodes, dtype=np.int64))
+    nodes = np.asarray(nodes, dtype=np.int64)
+    if len(nodes) > 1 and not (nodes[1:] > nodes[:-1]).all():     # (sorted and distinct as given)
+        nodes = np.unique(nodes)
     if previous is not None:
         previous = np.asarray(previous, dtype=np.int64)
         at = np.minimum(np.searchsorted(previous, nodes), len(previous) - 1)

@@ -237,3 +237,18 @@ def test_sample_points_match_the_numpy_gather(seed):
     out = kernels.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
     assert np.array_equal(out[0], owner) and np.array_equal(out[1], at)
     np.testing.assert_allclose(out[2], x, rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_particle_impulses_match_add_at_over_both_sides(seed):
+    rng = np.random.default_rng(seed)
+    nb, count, c = 3, 12, 40
+    body_a = rng.integers(0, nb + count, size=c)
+    body_b = rng.integers(-1, nb + count, size=c)
+    increment = rng.standard_normal((c, 3))
+    on_a, on_b = body_a >= nb, body_b >= nb
+    reference = np.zeros((count, 3))
+    np.add.at(reference, body_a[on_a] - nb, increment[on_a])
+    np.add.at(reference, body_b[on_b] - nb, -increment[on_b])
+    out = kernels.particle_impulses(body_a, body_b, increment, nb, count)
+    np.testing.assert_allclose(out, reference, rtol=1e-14, atol=1e-15)

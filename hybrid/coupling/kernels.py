@@ -522,3 +522,23 @@ def sample_points(near, point_start, point_local, point_kind, skip_kind, positio
                                             + rotation[b, a, 2] * l2)
             p += 1
     return owner[:p], at[:p], x[:p]
+
+
+@nb.njit(cache=True)
+def particle_impulses(body_a, body_b, impulse, first, count):
+    """Each of ``count`` solver particles' total impulse ``(count, 3)`` N s from the contacts'
+    impulses ``impulse`` (c, 3) on side a (solver bodies ``body_a``, ``body_b`` (c,); particle i
+    is solver body ``first + i``; side b takes the opposite): ``np.add.at`` over side a, then
+    over side b, in one pass each."""
+    out = np.zeros((count, 3))
+    for k in range(len(body_a)):
+        i = body_a[k] - first
+        if i >= 0:
+            for d in range(3):
+                out[i, d] += impulse[k, d]
+    for k in range(len(body_b)):
+        i = body_b[k] - first
+        if body_b[k] >= 0 and i >= 0:
+            for d in range(3):
+                out[i, d] -= impulse[k, d]
+    return out

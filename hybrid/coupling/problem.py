@@ -6,7 +6,7 @@ grouped by FEM body, each group answering impulses through its body's exact Dela
 triangle's nodes.
 """
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -49,9 +49,12 @@ def build_problem(model, state, fems, predicted, nodes, found, held_rows, rigid_
     ``held_rows``; ``fems`` the FEM models as they step (held variants), ``predicted`` their steps
     without contact, ``nodes`` the stacked surface nodes, ``rigid_bodies`` the kicked rigid bodies."""
     nb = model.rigid.body_count
-    c_nodes = found.nodes.take(~held_rows)
+    # (a new Contacts either way: its body_a is renumbered below, found's stays)
+    c_nodes = found.nodes.take(~held_rows) if held_rows.any() else replace(found.nodes)
     pairs, on_faces, corners = found.pairs, found.on_faces, found.corners
-    touched, sets = _solver_nodes(fems, state, nodes, np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()]), h)
+    in_contact = c_nodes.body_a if not (pairs.count or len(corners)) else \
+        np.concatenate([c_nodes.body_a, pairs.a, corners.ravel()])
+    touched, sets = _solver_nodes(fems, state, nodes, in_contact, h)
     parts = Particles(touched, corners, found.weights, nodes.body)
     touched_bodies = _distinct(parts.body)
     blocks = [delassus_block(fems[j], h, nodes.local[parts.nodes_of(j)], scale=predicted[j].x_rate / h,
@@ -78,9 +81,14 @@ def _solver_nodes(fems, state, nodes, in_contact, h):
     nodes ``in_contact`` (fem.contact_response.contact_set, kept from the body's last step with
     contacts while contact rests); and every body's set for the next step."""
     sets = list(state.contact_sets) if state.contact_sets is not None else [None] * len(fems)
-    touched = np.unique(in_contact)
+    # (node contacts come in node order: then their distinct nodes need no sort)
+    ordered = len(in_contact) < 2 or bool((in_contact[1:] >= in_contact[:-1]).all())
+    touched = _distinct(in_contact) if ordered else np.unique(in_contact)
     if not len(touched):
         return touched, tuple(sets)
+    if len(fems) == 1:
+        sets[0] = contact_set(fems[0], h, nodes.local[touched], sets[0])
+        return nodes.stacked(0, sets[0]).astype(np.int64), tuple(sets)
     bodies = _distinct(nodes.body[touched])       # stacked nodes are grouped by body
     for j in bodies:
         sets[j] = contact_set(fems[j], h, nodes.local[touched[nodes.body[touched] == j]], sets[j])

@@ -7,6 +7,7 @@ from fem import dynamics as fem_dyn
 from fem.contact_response import apply_contact_impulses
 from rigid import step as rigid_step
 
+from .kernels import particle_impulses
 from .nodes import moving
 
 # coupling rounds of a step with corotated bodies in contact: at most MAX_ROUNDS, done when no
@@ -37,12 +38,14 @@ def solve(model, state, fems, predicted, nodes, problem, h):
                                           previous=res, warm=warm)
         total = res.collision_impulse + res.contact_impulse
         increment, applied = total - applied, total
-        on_a, on_b = contacts.body_a >= nb, contacts.body_b >= nb
-        if not (on_a.any() or on_b.any()):
+        if not parts.count:
             break
-        impulse = np.zeros((parts.count, 3))
-        np.add.at(impulse, contacts.body_a[on_a] - nb, increment[on_a])
-        np.add.at(impulse, contacts.body_b[on_b] - nb, -increment[on_b])
+        impulse = particle_impulses(contacts.body_a, contacts.body_b, increment, nb, parts.count)
+        if len(problem.touched_bodies) == 1 and not len(parts.corners):     # (spread: the same)
+            j = problem.touched_bodies[0]
+            predicted[j] = apply_contact_impulses(fems[j], state.fem[j], predicted[j], h,
+                                                  nodes.local[parts.nodes], impulse)
+            continue
         node_impulse = parts.spread(impulse, nodes.count)
         for j in problem.touched_bodies:
             at = parts.nodes_of(j)
