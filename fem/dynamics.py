@@ -133,6 +133,8 @@ def _prescribed_velocity(model, held_velocity):
     """``(k, 3)`` world velocities (m/s) of the prescribed nodes (``model.fixed_nodes``): their
     anchor's, or for held nodes ``held_velocity`` (in ``model.held_nodes`` order)."""
     nodes = model.fixed_nodes
+    if model.held_nodes is None and not model.anchor_velocity.any():    # anchors at rest
+        return np.zeros((len(nodes), 3))
     anchor = model.node_anchor[nodes]
     v = np.zeros((len(nodes), 3))
     v[anchor >= 0] = model.anchor_velocity[anchor[anchor >= 0]]
