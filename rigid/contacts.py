@@ -414,21 +414,3 @@ def concatenate(first, second, offset_a, offset_b):
                     np.concatenate([first.gap, second.gap]),
                     np.concatenate([first.friction, second.friction]),
                     np.concatenate([first.restitution, second.restitution]))
-
-
-def concatenate_all(parts):
-    """Contacts of every ``(contacts, offset_a, offset_b)`` of ``parts`` in order, each shifted as
-    by :func:`concatenate` (the first part is taken as it is, unshifted); parts without contacts
-    are skipped, and a single one with contacts is returned itself (not copied) when it needs no
-    shift."""
-    first = parts[0][0]
-    rest = [(c, oa, ob) for c, oa, ob in parts[1:] if c.count]
-    if not rest:
-        return first
-    if not first.count and len(rest) == 1 and rest[0][1] == 0 and rest[0][2] == 0 \
-            and not (rest[0][0].body_b < -1).any():
-        return rest[0][0]
-    out = first
-    for c, oa, ob in rest:
-        out = concatenate(out, c, oa, ob)
-    return out

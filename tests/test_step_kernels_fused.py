@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from fem import step_kernels
 from fem.system import _blocks
-from hybrid.coupling import kernels
+from hybrid.coupling import fem_contact, kernels, nodes, resting, solve
 
 SEEDS = range(4)
 
@@ -65,13 +65,13 @@ def test_stacked_moving_nodes_match_gathers_and_the_mean_velocity(seed):
     rng = np.random.default_rng(seed)
     n, h, rate = 60, 1e-3, 0.5e-3
     x, x_base, v = rng.standard_normal((n, 3)), rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
-    nodes = np.sort(rng.choice(n, size=25, replace=False))
+    picked = np.sort(rng.choice(n, size=25, replace=False))
     out_x, out_v = np.full((30, 3), np.nan), np.full((30, 3), np.nan)
-    kernels.stack_moving(x, x_base, v, rate, nodes, h, out_x, out_v, 5)
-    assert np.array_equal(out_x[5:], x[nodes])
-    np.testing.assert_allclose(out_v[5:], (x_base[nodes] - x[nodes] + rate * v[nodes]) / h, rtol=1e-14)
+    nodes.stack_moving(x, x_base, v, rate, picked, h, out_x, out_v, 5)
+    assert np.array_equal(out_x[5:], x[picked])
+    np.testing.assert_allclose(out_v[5:], (x_base[picked] - x[picked] + rate * v[picked]) / h, rtol=1e-14)
     assert np.isnan(out_x[:5]).all() and np.isnan(out_v[:5]).all()         # other bodies' rows untouched
-    sweep = kernels.row_norms(out_v[5:], h)
+    sweep = nodes.row_norms(out_v[5:], h)
     np.testing.assert_allclose(sweep, np.linalg.norm(out_v[5:], axis=1) * h, rtol=1e-14)
 
 
@@ -81,7 +81,7 @@ def test_normal_part_and_slide_match_einsum_and_norm(seed):
     impulse = rng.standard_normal((30, 3))
     normal = rng.standard_normal((30, 3))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    lam, slide = kernels.normal_and_slide(impulse, normal)
+    lam, slide = resting.normal_and_slide(impulse, normal)
     ref_lam = np.einsum("cd,cd->c", impulse, normal)
     np.testing.assert_allclose(lam, ref_lam, rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(slide, np.linalg.norm(impulse - ref_lam[:, None] * normal, axis=1),
@@ -94,11 +94,11 @@ def test_median_and_sorted_membership_match_numpy(seed):
     values = rng.standard_normal(31 + seed)
     mask = rng.random(len(values)) < 0.6
     mask[0] = True
-    assert kernels.median_of(values, mask) == np.median(values[mask])
+    assert resting.median_of(values, mask) == np.median(values[mask])
     pool = np.sort(rng.choice(100, size=20, replace=False))
     queries = rng.integers(-5, 110, size=50)
-    assert np.array_equal(kernels.sorted_isin(queries, pool), np.isin(queries, pool))
-    assert not kernels.sorted_isin(queries, pool[:0]).any()
+    assert np.array_equal(resting.sorted_isin(queries, pool), np.isin(queries, pool))
+    assert not resting.sorted_isin(queries, pool[:0]).any()
 
 
 def edge_normals_reference(normal, gap, body_b, own, edge_cos):
@@ -128,7 +128,7 @@ def test_edge_turns_match_the_numpy_edge_normals(seed):
     own /= np.linalg.norm(own, axis=1, keepdims=True)
     own[::7] = 0.0                      # nodes without a face normal of their own
     reference = edge_normals_reference(normal, gap, body_b, own, float(np.cos(np.radians(70.0))))
-    out = kernels.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))))
+    out = fem_contact.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))))
     np.testing.assert_allclose(out[0], reference[0], rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(out[1], reference[1], rtol=1e-14, atol=1e-18)
     assert np.array_equal(out[2], reference[2])
@@ -234,7 +234,7 @@ def test_sample_points_match_the_numpy_gather(seed):
     plain = point_kind[at] != 1
     owner, at = owner[plain], at[plain]
     x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], point_local[at])
-    out = kernels.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
+    out = fem_contact.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
     assert np.array_equal(out[0], owner) and np.array_equal(out[1], at)
     np.testing.assert_allclose(out[2], x, rtol=1e-13, atol=1e-15)
 
@@ -250,5 +250,5 @@ def test_particle_impulses_match_add_at_over_both_sides(seed):
     reference = np.zeros((count, 3))
     np.add.at(reference, body_a[on_a] - nb, increment[on_a])
     np.add.at(reference, body_b[on_b] - nb, -increment[on_b])
-    out = kernels.particle_impulses(body_a, body_b, increment, nb, count)
+    out = solve.particle_impulses(body_a, body_b, increment, nb, count)
     np.testing.assert_allclose(out, reference, rtol=1e-14, atol=1e-15)

@@ -11,7 +11,7 @@ from rigid.contacts import Contacts, detect, detect_points
 
 from .fem_contact import (EDGE_COS, SurfaceContacts, contact_node_normals, detect_fem_pairs,
                           detect_rigid_points, edge_normals)
-from .kernels import row_norms
+from .nodes import row_norms
 
 
 @dataclass

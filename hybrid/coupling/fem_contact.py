@@ -22,6 +22,7 @@ kept exactly, and what angular momentum still changes is first order in the time
 """
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -108,7 +109,7 @@ def edge_normals(contacts, own):
     the rigid body's normal and gap (its own, zero, made the contact's normal zero, and the
     contact solver divided by the length of the tangent built from it).
     ``own``: :func:`contact_node_normals` of ``contacts``. One pass (kernels.edge_turns)."""
-    return kernels.edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS))
+    return edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS))
 
 
 def _node_normals(m, s, local):
@@ -302,7 +303,7 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         if not len(near):
             continue
         # a cylinder meets deformable faces with its side's vertices, not the rings they lie on
-        owner, at, x = kernels.sample_points(near, rigid.point_start, rigid.point_local, rigid.point_kind,
+        owner, at, x = sample_points(near, rigid.point_start, rigid.point_local, rigid.point_kind,
                                              POINT_RING, position, np.asarray(rotation, float))
         # a point right over a node (within a tenth of the margin across the normal) is that
         # node's own contact with the rigid body; a second one there only slows the solver
@@ -320,3 +321,56 @@ def _append(parts, a, corners, weights, nearest, point, normal, gap, friction, r
     if len(a):
         parts.append((a, corners, weights, nearest, point, normal, gap,
                       np.broadcast_to(friction, len(a)), np.broadcast_to(restitution, len(a)), sample))
+
+
+@nb.njit(cache=True)
+def edge_turns(normal, gap, body_b, own, edge_cos):
+    """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` of
+    surface nodes' contacts (stacked node a, rigid body ``body_b`` >= 0 or a plane) whose nodes
+    have their own outward normals ``own`` (r, 3), one per contact with a rigid body in order
+    (hybrid.coupling.fem_contact.edge_normals; a node whose own normal is not a unit vector keeps
+    the contact's normal and gap)."""
+    c = len(gap)
+    out_n = normal.copy()
+    out_gap = gap.copy()
+    front = np.ones(c, dtype=np.bool_)
+    r = 0
+    for k in range(c):
+        if body_b[k] < 0:
+            continue
+        m0, m1, m2 = -own[r, 0], -own[r, 1], -own[r, 2]
+        r += 1
+        along = normal[k, 0] * m0 + normal[k, 1] * m1 + normal[k, 2] * m2
+        if along < -edge_cos:
+            front[k] = False
+        if along < edge_cos and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
+            out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
+            out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
+    return out_n, out_gap, front
+
+
+@nb.njit(cache=True)
+def sample_points(near, point_start, point_local, point_kind, skip_kind, position, rotation):
+    """The sample points of rigid bodies ``near`` (b,) other than those of kind ``skip_kind``:
+    their bodies ``owner`` (p,), indices ``at`` (p,) into ``point_local`` and world positions
+    (p, 3), ``position[owner] + rotation[owner] point_local[at]``, body by body in order
+    (hybrid.coupling.fem_contact.detect_rigid_points, in one pass)."""
+    total = 0
+    for j in range(len(near)):
+        total += point_start[near[j] + 1] - point_start[near[j]]
+    owner = np.empty(total, dtype=np.int64)
+    at = np.empty(total, dtype=np.int64)
+    x = np.empty((total, 3))
+    p = 0
+    for j in range(len(near)):
+        b = near[j]
+        for i in range(point_start[b], point_start[b + 1]):
+            if point_kind[i] == skip_kind:
+                continue
+            owner[p], at[p] = b, i
+            l0, l1, l2 = point_local[i, 0], point_local[i, 1], point_local[i, 2]
+            for a in range(3):
+                x[p, a] = position[b, a] + (rotation[b, a, 0] * l0 + rotation[b, a, 1] * l1
+                                            + rotation[b, a, 2] * l2)
+            p += 1
+    return owner[:p], at[:p], x[:p]

@@ -342,61 +342,6 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
 
 
 @nb.njit(cache=True)
-def stack_moving(x, x_base, v, x_rate, nodes, h, out_x, out_v, start):
-    """Write the positions ``x[nodes]`` and the mean velocities over the step in progress
-    ``(x_base[nodes] - x[nodes] + x_rate v[nodes]) / h`` (hybrid.coupling.nodes.moving) of one
-    body's ``nodes`` (k,) into rows ``start .. start + k - 1`` of ``out_x`` and ``out_v``
-    (stacked surface nodes, (s, 3)): one pass instead of two gathers, a product and a concatenate."""
-    for k in range(len(nodes)):
-        i = nodes[k]
-        for a in range(3):
-            out_x[start + k, a] = x[i, a]
-            out_v[start + k, a] = (x_base[i, a] - x[i, a] + x_rate * v[i, a]) / h
-
-
-@nb.njit(cache=True)
-def row_norms(a, scale):
-    """``scale`` times the Euclidean norm of each row of ``a`` (k, 3): ``np.linalg.norm(a, axis=1)
-    * scale`` in one pass."""
-    out = np.empty(len(a))
-    for k in range(len(a)):
-        out[k] = np.sqrt(a[k, 0] * a[k, 0] + a[k, 1] * a[k, 1] + a[k, 2] * a[k, 2]) * scale
-    return out
-
-
-@nb.njit(cache=True)
-def normal_and_slide(impulse, normal):
-    """Each impulse's part along its unit ``normal`` ``(c,)`` and the length of the rest ``(c,)``
-    (impulse (c, 3), normal (c, 3)): ``einsum("cd,cd->c")`` and the row norms of
-    ``impulse - lam normal``, in one pass."""
-    c = len(impulse)
-    lam = np.empty(c)
-    slide = np.empty(c)
-    for k in range(c):
-        l = impulse[k, 0] * normal[k, 0] + impulse[k, 1] * normal[k, 1] + impulse[k, 2] * normal[k, 2]
-        t0 = impulse[k, 0] - l * normal[k, 0]
-        t1 = impulse[k, 1] - l * normal[k, 1]
-        t2 = impulse[k, 2] - l * normal[k, 2]
-        lam[k] = l
-        slide[k] = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    return lam, slide
-
-
-@nb.njit(cache=True)
-def median_of(values, mask):
-    """``np.median(values[mask])`` of the selected ``values`` (at least one selected)."""
-    return np.median(values[mask])
-
-
-def sorted_isin(values, sorted_set):
-    """``np.isin(values, sorted_set)`` for a sorted ``sorted_set`` (one binary search each)."""
-    if len(sorted_set) == 0:
-        return np.zeros(len(values), dtype=bool)
-    at = np.minimum(np.searchsorted(sorted_set, values), len(sorted_set) - 1)
-    return sorted_set[at] == values
-
-
-@nb.njit(cache=True)
 def nearest_rows_of(x, rows, queries):
     """:func:`nearest_rows` of the points ``x[rows]`` (rows (s,) into x (n, 3)): the index into
     ``rows`` of the one nearest each query (the lowest among equally near ones). The points are
@@ -421,32 +366,6 @@ def nearest_rows_of(x, rows, queries):
                 best = d[i]
                 out[k] = i
     return out
-
-
-@nb.njit(cache=True)
-def edge_turns(normal, gap, body_b, own, edge_cos):
-    """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` of
-    surface nodes' contacts (stacked node a, rigid body ``body_b`` >= 0 or a plane) whose nodes
-    have their own outward normals ``own`` (r, 3), one per contact with a rigid body in order
-    (hybrid.coupling.fem_contact.edge_normals; a node whose own normal is not a unit vector keeps
-    the contact's normal and gap)."""
-    c = len(gap)
-    out_n = normal.copy()
-    out_gap = gap.copy()
-    front = np.ones(c, dtype=np.bool_)
-    r = 0
-    for k in range(c):
-        if body_b[k] < 0:
-            continue
-        m0, m1, m2 = -own[r, 0], -own[r, 1], -own[r, 2]
-        r += 1
-        along = normal[k, 0] * m0 + normal[k, 1] * m1 + normal[k, 2] * m2
-        if along < -edge_cos:
-            front[k] = False
-        if along < edge_cos and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
-            out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
-            out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
-    return out_n, out_gap, front
 
 
 @nb.njit(cache=True)
@@ -495,50 +414,3 @@ def off_nodes_kept(x, surface_nodes, close, points, n_rest, R, distance):
         a0, a1, a2 = a0 - along * m0, a1 - along * m1, a2 - along * m2
         keep[k] = a0 * a0 + a1 * a1 + a2 * a2 > distance * distance
     return keep
-
-
-@nb.njit(cache=True)
-def sample_points(near, point_start, point_local, point_kind, skip_kind, position, rotation):
-    """The sample points of rigid bodies ``near`` (b,) other than those of kind ``skip_kind``:
-    their bodies ``owner`` (p,), indices ``at`` (p,) into ``point_local`` and world positions
-    (p, 3), ``position[owner] + rotation[owner] point_local[at]``, body by body in order
-    (hybrid.coupling.fem_contact.detect_rigid_points, in one pass)."""
-    total = 0
-    for j in range(len(near)):
-        total += point_start[near[j] + 1] - point_start[near[j]]
-    owner = np.empty(total, dtype=np.int64)
-    at = np.empty(total, dtype=np.int64)
-    x = np.empty((total, 3))
-    p = 0
-    for j in range(len(near)):
-        b = near[j]
-        for i in range(point_start[b], point_start[b + 1]):
-            if point_kind[i] == skip_kind:
-                continue
-            owner[p], at[p] = b, i
-            l0, l1, l2 = point_local[i, 0], point_local[i, 1], point_local[i, 2]
-            for a in range(3):
-                x[p, a] = position[b, a] + (rotation[b, a, 0] * l0 + rotation[b, a, 1] * l1
-                                            + rotation[b, a, 2] * l2)
-            p += 1
-    return owner[:p], at[:p], x[:p]
-
-
-@nb.njit(cache=True)
-def particle_impulses(body_a, body_b, impulse, first, count):
-    """Each of ``count`` solver particles' total impulse ``(count, 3)`` N s from the contacts'
-    impulses ``impulse`` (c, 3) on side a (solver bodies ``body_a``, ``body_b`` (c,); particle i
-    is solver body ``first + i``; side b takes the opposite): ``np.add.at`` over side a, then
-    over side b, in one pass each."""
-    out = np.zeros((count, 3))
-    for k in range(len(body_a)):
-        i = body_a[k] - first
-        if i >= 0:
-            for d in range(3):
-                out[i, d] += impulse[k, d]
-    for k in range(len(body_b)):
-        i = body_b[k] - first
-        if body_b[k] >= 0 and i >= 0:
-            for d in range(3):
-                out[i, d] -= impulse[k, d]
-    return out

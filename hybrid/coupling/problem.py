@@ -12,7 +12,7 @@ import numpy as np
 
 from fem.contact_response import contact_set, delassus_block
 from rigid import step as rigid_step
-from rigid.contacts import Contacts, concatenate_all
+from rigid.contacts import Contacts, concatenate
 
 from .memory import contact_keys, point_keys
 
@@ -72,7 +72,7 @@ def build_problem(model, state, fems, predicted, nodes, found, held_rows, rigid_
                        pairs.gap, pairs.friction, pairs.restitution)
     c_points = Contacts(on_faces.a, place[pairs.count:], on_faces.point, on_faces.normal, on_faces.gap,
                         on_faces.friction, on_faces.restitution)
-    contacts = concatenate_all([(found.rigid, 0, 0), (c_nodes, 0, 0), (c_pairs, 0, 0), (c_points, 0, 0)])
+    contacts = _concatenate_all([(found.rigid, 0, 0), (c_nodes, 0, 0), (c_pairs, 0, 0), (c_points, 0, 0)])
     return Problem(parts, touched_bodies, bodies, contacts, keys, c_nodes.count, sets)
 
 
@@ -216,3 +216,21 @@ def stack_rows(blocks, nb):
     W = np.concatenate([w for _, _, w in blocks])
     diagonal = W[w_ptr[nb:-1]]                                                 # first in each row
     return w_ptr, w_col, W, ~diagonal.reshape(len(diagonal), -1).any(axis=1)
+
+
+def _concatenate_all(parts):
+    """Contacts of every ``(contacts, offset_a, offset_b)`` of ``parts`` in order, each shifted as
+    by rigid.contacts.concatenate (the first part taken as it is, unshifted); parts without contacts
+    are skipped, and a single one with contacts is returned itself (not copied) when it needs no
+    shift."""
+    first = parts[0][0]
+    rest = [(c, oa, ob) for c, oa, ob in parts[1:] if c.count]
+    if not rest:
+        return first
+    if not first.count and len(rest) == 1 and rest[0][1] == 0 and rest[0][2] == 0 \
+            and not (rest[0][0].body_b < -1).any():
+        return rest[0][0]
+    out = first
+    for c, oa, ob in rest:
+        out = concatenate(out, c, oa, ob)
+    return out

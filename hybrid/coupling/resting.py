@@ -33,11 +33,10 @@ solver.
 """
 from dataclasses import dataclass, replace
 
+import numba as nb
 import numpy as np
 
 from fem.dynamics import implicitness
-
-from .kernels import median_of, normal_and_slide, sorted_isin
 
 ENTER_AFTER = 10        # steps a set must rest unchanged before it is held
 RETRY_AFTER = 50        # steps after a release before a set may be held again
@@ -196,3 +195,35 @@ def _narrowed(last, nodes, ok, normal, gap, x, friction, wait):
             return Resting(keep, normal[pick][at], point[at], friction[pick][at], steps=last.steps + 1,
                            wait=wait)
     return Resting(chosen, normal[pick], point, friction[pick], steps=1, wait=wait)
+
+
+@nb.njit(cache=True)
+def normal_and_slide(impulse, normal):
+    """Each impulse's part along its unit ``normal`` ``(c,)`` and the length of the rest ``(c,)``
+    (impulse (c, 3), normal (c, 3)): ``einsum("cd,cd->c")`` and the row norms of
+    ``impulse - lam normal``, in one pass."""
+    c = len(impulse)
+    lam = np.empty(c)
+    slide = np.empty(c)
+    for k in range(c):
+        l = impulse[k, 0] * normal[k, 0] + impulse[k, 1] * normal[k, 1] + impulse[k, 2] * normal[k, 2]
+        t0 = impulse[k, 0] - l * normal[k, 0]
+        t1 = impulse[k, 1] - l * normal[k, 1]
+        t2 = impulse[k, 2] - l * normal[k, 2]
+        lam[k] = l
+        slide[k] = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    return lam, slide
+
+
+@nb.njit(cache=True)
+def median_of(values, mask):
+    """``np.median(values[mask])`` of the selected ``values`` (at least one selected)."""
+    return np.median(values[mask])
+
+
+def sorted_isin(values, sorted_set):
+    """``np.isin(values, sorted_set)`` for a sorted ``sorted_set`` (one binary search each)."""
+    if len(sorted_set) == 0:
+        return np.zeros(len(values), dtype=bool)
+    at = np.minimum(np.searchsorted(sorted_set, values), len(sorted_set) - 1)
+    return sorted_set[at] == values

@@ -1,13 +1,13 @@
 """Solving the contact problem: one contact resolution for every body, each deformable body then
 taking the impulses on its nodes through its own implicit system; and integrating to the step's end.
 """
+import numba as nb
 import numpy as np
 
 from fem import dynamics as fem_dyn
 from fem.contact_response import apply_contact_impulses
 from rigid import step as rigid_step
 
-from .kernels import particle_impulses
 from .nodes import moving
 
 # coupling rounds of a step with corotated bodies in contact: at most MAX_ROUNDS, done when no
@@ -88,3 +88,23 @@ def integrate(model, state, fems, predicted, nodes, parts, res, v, h):
         shift = (nodes.local[parts.nodes[sel]], h * pseudo[sel]) if sel.any() and np.any(pseudo[sel]) else None
         new_fem.append(fem_dyn.finish(m, s, pr, h, shift))
     return new_rigid, new_fem
+
+
+@nb.njit(cache=True)
+def particle_impulses(body_a, body_b, impulse, first, count):
+    """Each of ``count`` solver particles' total impulse ``(count, 3)`` N s from the contacts'
+    impulses ``impulse`` (c, 3) on side a (solver bodies ``body_a``, ``body_b`` (c,); particle i
+    is solver body ``first + i``; side b takes the opposite): ``np.add.at`` over side a, then
+    over side b, in one pass each."""
+    out = np.zeros((count, 3))
+    for k in range(len(body_a)):
+        i = body_a[k] - first
+        if i >= 0:
+            for d in range(3):
+                out[i, d] += impulse[k, d]
+    for k in range(len(body_b)):
+        i = body_b[k] - first
+        if body_b[k] >= 0 and i >= 0:
+            for d in range(3):
+                out[i, d] -= impulse[k, d]
+    return out
