@@ -81,7 +81,7 @@ def coupled_step(model, state, h):
     # 1. deformable bodies: implicit step without contact (prefactored system), a body resting on
     #    static ground with its resting nodes held; rigid bodies: leapfrog kick
     hold = held.hold_sets(model, state)
-    fems = [m if r is None else holding(m, r.nodes) for m, r in zip(model.fem, hold)]
+    fems = [m if r is None else _holding(m, r.nodes) for m, r in zip(model.fem, hold)]
     predicted = [fem_dyn.predict(m, s, h, model.gravity,
                                  None if r is None else resting.held_velocity(m, s, r, h))
                  for m, s, r in zip(fems, state.fem, hold)]
@@ -128,3 +128,13 @@ def coupled_step(model, state, h):
     return replace(state, rigid=new_rigid, fem=new_fem, time=state.time + h, steps=state.steps + 1,
                    contact_memory=memory, resting=held.watch(model, state, nodes, found, row_impulse),
                    contact_sets=problem.contact_sets, touches=touches)
+
+
+def _holding(model, nodes):
+    """fem.model.holding of a resting set's ``nodes`` (sorted and distinct): the variant kept for
+    them when they are the last asked for (``model.cache.held``), without holding's np.unique
+    (22 us for a set of 441 nodes, every step)."""
+    last = model.cache.held
+    if last is not None and np.array_equal(last.held_nodes, nodes):
+        return last
+    return holding(model, nodes)
