@@ -106,9 +106,8 @@ def hold_impulses(model, hold, nodes, found, rows, new_fem, solved_impulse, h):
         at = np.searchsorted(r.nodes, nodes.local[contacts.body_a[mine]])
         share = np.bincount(at, minlength=len(r.nodes))[at]
         row_impulse[mine] = impulse[at] / share[:, None]
-        reaction = new_fem[j].node_reaction.copy()
-        reaction[r.nodes] = 0.0
-        new_fem[j] = new_fem[j].replace(node_reaction=reaction)
+        # (in place: the reactions are this step's own, made by fem.dynamics.finish for this state)
+        new_fem[j].node_reaction[r.nodes] = 0.0
     return row_impulse, None
 
 
