@@ -257,10 +257,11 @@ def rigid_due(model, state):
 # --- elastify ----------------------------------------------------------------------------------
 
 def impulse_change(before, after, k):
-    """``(points (r, 3), changes (g, 3), group (r,))``: how the load the contacts put on body
-    ``k`` changed from the touches ``before`` to ``after``: for each partner, the change of its
-    total impulse ``changes[g]``, and the partner's contact points now (those it had, for a
-    partner that let go) with their partner's index ``g``. Only totals are compared: how a rigid
+    """``(points (r, 3), changes (g, 3), group (r,), partners (g,))``: how the load the contacts
+    put on body ``k`` changed from the touches ``before`` to ``after``: for each partner
+    ``partners[g]`` (scene index, -1: a plane or static ground), the change of its total impulse
+    ``changes[g]``, and the partner's contact points now (those it had, for a partner that let
+    go) with their partner's index ``g``. Only totals are compared: how a rigid
     body's contact points share a load is not determined (the sweeps end in one sharing or
     another, differently from step to step and from the FEM body's), and a settled box turned
     rigid, its load the same and shared differently, would otherwise turn back at its first
@@ -271,13 +272,14 @@ def impulse_change(before, after, k):
     if not len(partner) and not len(old_partner):
         return None
     points, changes, group = [], [], []
-    for g, p in enumerate(np.union1d(partner, old_partner)):
+    partners = np.union1d(partner, old_partner)
+    for g, p in enumerate(partners):
         rows, old_rows = partner == p, old_partner == p
         at = point[rows] if rows.any() else old_point[old_rows]
         points.append(at)
         changes.append(impulse[rows].sum(axis=0) - old_impulse[old_rows].sum(axis=0))
         group.append(np.full(len(at), g))
-    return np.concatenate(points), np.array(changes), np.concatenate(group)
+    return np.concatenate(points), np.array(changes), np.concatenate(group), partners
 
 
 # surface nodes (the lightest, which answer an impulse most) whose unit impulses along each axis
@@ -310,13 +312,16 @@ def unit_strain(fem, rest, inverse_F, h):
     return largest
 
 
-def predicted_strain(parked, position, rotation, points, changes, group, h):
+def predicted_strain(parked, position, rotation, points, changes, group, h, partners=()):
     """The strain measure of the velocity change that the impulses ``changes`` (g, 3) N s (world),
     each shared among the surface nodes nearest its group of ``points`` (r, 3) m (``group``
     (r,)) in proportion to their masses, would give the parked body's FEM system, the body's
     rigid pose now being ``position`` (3,), ``rotation`` (3, 3). Shared so, a change of load
     moves the nodes it acts on alike, as a change of pressure over the patch would, not its
-    lightest nodes at the patch's rim more."""
+    lightest nodes at the patch's rim more. The change from a partner ``partners[g]`` the body
+    rested on as an FEM body is shared over that contact's patch then as well
+    (``parked.patches``): a rigid body meets it at a few points (a box at its corners), the FEM
+    body's load spread over every node of the face."""
     fem, rest = parked.fem, parked.state
     local = (points - position) @ rotation               # body frame, as parked.local
     nodes = parked.surface_nodes[parked.tree.query(local)[1]]
@@ -325,6 +330,8 @@ def predicted_strain(parked, position, rotation, points, changes, group, h):
     turn = rotation @ parked.rotation.T
     for g in range(len(changes)):
         touched = np.unique(nodes[group == g])
+        if g < len(partners) and int(partners[g]) in parked.patches:
+            touched = np.union1d(touched, parked.patches[int(partners[g])])
         share = fem.node_mass[touched] / fem.node_mass[touched].sum()
         node_impulse[touched] += share[:, None] * (changes[g] @ turn)
     return strain_measure(fem, rest.x, _velocity_change(fem, rest, node_impulse, h), h,
@@ -346,7 +353,9 @@ def fem_due(model, before, after):
             continue            # far too small a change to matter: not solved for
         i = int(np.flatnonzero(model.rigid_ids == k)[0])
         R = quat.to_matrix(before.rigid.orientation[i])
-        strain = predicted_strain(parked, before.rigid.position[i], R, *change, model.dt)
+        points, changes, group, partners = change
+        strain = predicted_strain(parked, before.rigid.position[i], R, points, changes, group,
+                                  model.dt, partners)
         if strain > elastify:
             due.append(k)
     return due

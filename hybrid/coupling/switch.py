@@ -11,7 +11,7 @@ are kept, parked in ``HybridModel.parked`` (the model keeps its factorisation): 
 resumes from that deformed shape carried along by the rigid motion since, with the rigid velocity
 field as its node velocities and its plastic strain unchanged.
 """
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
@@ -57,6 +57,8 @@ class Parked:
     tree (a cKDTree of their ``local``): to find the node nearest a contact point. inverse_F
     (t, 3, 3): its elements' inverse deformation gradients then (the predicted strain's).
     unit_strain: the strain measure a unit impulse gives it at most (hybrid.coupling.auto.unit_strain).
+    patches: per contact partner it rested on then (scene index, -1: a plane or static ground),
+    the surface nodes that carried that partner's load (hybrid.coupling.auto.predicted_strain).
     """
     fem: object
     state: object
@@ -68,6 +70,7 @@ class Parked:
     tree: object
     inverse_F: np.ndarray
     unit_strain: float
+    patches: dict = field(default_factory=dict)
 
     def nodes_at(self, position, rotation):
         """The nodes ``(n, 3)`` m where the rigid body at pose (position, rotation) has them."""
@@ -109,6 +112,21 @@ def _rigid_bodies(model, state, bodies):
     return rm, rs
 
 
+def _patches(touches, k, fem, tree, position, rotation):
+    """Per partner of body ``k`` in ``touches`` (its last FEM step's contacts), the surface nodes
+    of ``fem`` whose contacts carried a load (the body's pose ``position``, ``rotation``; ``tree``
+    of its surface nodes in that frame)."""
+    if touches is None:
+        return {}
+    partner, point, impulse = touches.of_body(k)
+    carrying = np.any(impulse != 0.0, axis=1)
+    if not carrying.any():
+        return {}
+    nodes = fem.surface_nodes[tree.query((point[carrying] - position) @ rotation)[1]]
+    partner = partner[carrying]
+    return {int(p): np.unique(nodes[partner == p]) for p in np.unique(partner)}
+
+
 def rigidify(model, state, bodies):
     """Turn the FEM auto ``bodies`` (indices into model.fem) into rigid bodies; returns the new
     model, state and their Switch events."""
@@ -122,9 +140,12 @@ def rigidify(model, state, bodies):
         R = quat.to_matrix(rs.orientation[i])
         local = (s.x - rs.position[i]) @ R
         inverse_F = inverse_deformation_gradients(m, s.x)
+        tree = cKDTree(local[m.surface_nodes])
         parked[model.fem_ids[j]] = Parked(m, s, model.fracture[j], rs.position[i].copy(), R, local,
-                                          m.surface_nodes, cKDTree(local[m.surface_nodes]),
-                                          inverse_F, unit_strain(m, s, inverse_F, model.dt))
+                                          m.surface_nodes, tree, inverse_F,
+                                          unit_strain(m, s, inverse_F, model.dt),
+                                          _patches(state.touches, model.fem_ids[j], m, tree,
+                                                   rs.position[i], R))
     rigid, rigid_state = append_bodies(model.rigid, state.rigid, rm, rs)
     gone = set(bodies)
     keep = [j for j in range(len(model.fem)) if j not in gone]
