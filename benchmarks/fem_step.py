@@ -50,6 +50,12 @@ runs). Also reported: coupled step at least 20x faster than naive at 10k tets.
     OPENBLAS_NUM_THREADS=1 python benchmarks/fem_step.py [--sizes 1000 10000] [--big] [--steps 30]
         [--supports ground anchored] [--backends cholmod superlu]
 
+With ``--stages``, each stage of the floating CHOLMOD rows' coupled step is timed too (wall time,
+medians of ``--steps`` more steps, each right after reading 32 MB of other memory): the
+back-substitution, predict, detection, the contact problem, contact resolution, the impulse
+response, finish, the resting watch, and the finiteness check and the events (these two after
+``hybrid.coupling.step.coupled_step``, which holds the others).
+
 Then, unless ``--no-plastic``, the plastic pass of benchmarks/plastic_step.py: its cost per step
 at ~10k tets over the elastic step (goal: under 30% extra) and the reference updates
 (refactorisations) of the dent scene.
@@ -193,7 +199,7 @@ def naive_step(points_rest, tets, x, v, gravity):
     return v_new[dofs].T
 
 
-def measure(cells, frame, support, backend, steps, warmup):
+def measure(cells, frame, support, backend, steps, warmup, stages=False):
     scene = parse_scene(tomllib.loads(scene_text(cells, frame, support, backend)), "fem_step", Path("."))
     sim = Simulation(scene)
     model = sim.model
@@ -225,6 +231,7 @@ def measure(cells, frame, support, backend, steps, warmup):
     elastic, _ = median_ms(lambda: fem_dyn.step(fem_model, settled, DT, model.gravity), steps)
     floor = min(floor, floor_ms(fem_model))     # before and after the step timings
     in_step = in_step_solve_ms(sim, steps)
+    stage_times = stage_us(sim, steps) if stages else None
     state = sim.state
     sanity = dict(box_z=float(state.rigid.position[0, 2]), slab_min_z=float(settled.x[:, 2].min()))
     return model, state, dict(first_s=first, first_wall_s=first_wall, response_mb=response, coupled_ms=float(np.median(coupled)),
@@ -232,7 +239,7 @@ def measure(cells, frame, support, backend, steps, warmup):
                               coupled_wall_ms=float(np.median(coupled_wall)),
                               cold_wall_ms=float(np.median(cold_wall)),
                               floor_ms=floor, cold_floor_ms=float(np.median(cold)),
-                              solve_in_step_ms=in_step, held_nodes=held, **sanity)
+                              solve_in_step_ms=in_step, held_nodes=held, stages=stage_times, **sanity)
 
 
 def coupled_and_cold_ms(sim, fem_model, steps):
@@ -292,6 +299,60 @@ def in_step_solve_ms(sim, steps):
     return 1e3 * float(np.median(times)) if times else float("nan")
 
 
+# the stages of the coupled step timed by --stages: (label, owner, attribute), each wrapped where
+# hybrid.coupling.step (or the stage that calls it) looks it up
+def _stage_names():
+    from hybrid.coupling import solve as coupling_solve
+    from hybrid.coupling import step as coupling_step
+    from rigid import step as rigid_step
+    return (("back-substitution", fem_solver.Factorisation, "solve"),
+            ("predict (with it)", coupling_step.fem_dyn, "predict"),
+            ("surface nodes", coupling_step.SurfaceNodes, "of"),
+            ("detection", coupling_step, "detect_all"),
+            ("contact problem", coupling_step, "build_problem"),
+            ("contact resolution", rigid_step, "resolve_contacts"),
+            ("impulse response", coupling_solve, "apply_contact_impulses"),
+            ("finish", coupling_step, "integrate"),
+            ("held impulses", coupling_step.held, "hold_impulses"),
+            ("resting watch", coupling_step.held, "watch"),
+            ("finiteness check", coupling_step, "check_finite"),
+            ("events", coupling_step, "between_steps"),
+            ("coupled_step", coupling_step, "coupled_step"))
+
+
+def stage_us(sim, steps):
+    """Median time (us, wall) of each stage of the coupled step (:func:`_stage_names`) over
+    ``steps`` more steps, each taken right after reading COLD_BYTES of other memory (the caches
+    cleared, as a step's own work leaves them for the next)."""
+    names, spent, kept = _stage_names(), {}, []
+    current = {}
+
+    def timed(label, fn):
+        def wrapper(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                current[label] = current.get(label, 0.0) + time.perf_counter() - t0
+        return wrapper
+
+    for label, owner, attribute in names:
+        kept.append((owner, attribute, getattr(owner, attribute)))
+        setattr(owner, attribute, timed(label, getattr(owner, attribute)))
+    other = np.ones(COLD_BYTES // 8)
+    try:
+        for _ in range(steps):
+            other.sum()
+            current.clear()
+            sim.step()
+            for label, value in current.items():
+                spent.setdefault(label, []).append(1e6 * value)
+    finally:
+        for owner, attribute, fn in kept:
+            setattr(owner, attribute, fn)
+    return {label: float(np.median(spent.get(label, [0.0]))) for label, _, _ in names}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000],
@@ -309,6 +370,8 @@ def main():
                         "project uses cholmod when cholespy is installed)")
     parser.add_argument("--frames", nargs="+", default=list(FRAMES), choices=FRAMES,
                         help="frames to run (default: both; the corotated goal is at ~10k tets)")
+    parser.add_argument("--stages", action="store_true",
+                        help="also time each stage of the coupled step (floating frame, CHOLMOD) over --steps more steps")
     parser.add_argument("--no-plastic", action="store_true",
                         help="skip the plastic-pass cost and dent reference updates (plastic_step.py)")
     args = parser.parse_args()
@@ -334,7 +397,8 @@ def main():
 
 
 def measure_row(cells, frame, support, backend, naive_by_size, args):
-    model, state, r = measure(cells, frame, support, backend, args.steps, args.warmup)
+    model, state, r = measure(cells, frame, support, backend, args.steps, args.warmup,
+                              args.stages and frame == "floating" and backend == "cholmod")
     m = model.fem[0]
     s = state.fem[0]
     if (cells, support) not in naive_by_size:     # the naive step does not depend on the backend
@@ -413,10 +477,17 @@ def report(rows, args):
                   f"{r['naive_over_coupled']:.1f}x ({'met' if r['naive_over_coupled'] >= 20 else 'NOT met'}), "
                   f"elastic-only {r['naive_over_elastic']:.1f}x "
                   f"({'met' if r['naive_over_elastic'] >= 20 else 'NOT met'})")
+    staged = [r for r in rows if r["stages"] is not None]
+    if staged:
+        print("\nstages of the coupled step (us, medians, wall; each step after reading "
+              f"{COLD_BYTES // 2 ** 20} MB of other memory; predict includes the back-substitution)")
+        print(f"{'stage':>20} " + " ".join(f"{str(r['tets']) + ' ' + r['support']:>16}" for r in staged))
+        for label in staged[0]["stages"]:
+            print(f"{label:>20} " + " ".join(f"{r['stages'][label]:>16.0f}" for r in staged))
     print()
     for line in goals(rows):
         print(line)
-    write_csv(CSV_PATH, rows)
+    write_csv(CSV_PATH, [{k: v for k, v in r.items() if k != "stages"} for r in rows])
     print(f"wrote {CSV_PATH}")
 
 
