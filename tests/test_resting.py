@@ -163,3 +163,23 @@ def test_a_large_face_laid_on_the_ground_is_held_at_first_sight(sim, integrator)
     assert np.abs(positions(held) - positions(free)).max() < 1e-7
     v = free.state.fem[0].v
     assert np.abs(held.state.fem[0].v - v).max() < 1e-6 + 5e-3 * np.abs(v).max()
+
+
+def test_a_large_face_landing_flat_is_held_from_the_step_it_lands(sim):
+    """The wide slab dropped 5 mm: while it falls within reach of the ground its contacts close
+    no gap and nothing else touches it, so they leave the solver (they take no impulse) and its
+    face's response columns are not solved; the step it lands, the face is held at first sight.
+    It moves as the contact solver moves it."""
+    from fem.contact_response import response_cache
+    drop = _wide(slab(box=False)).replace(", 0.03]", ", 0.035]")
+    held = sim(drop)
+    counts = []
+    held.advance(0.2, each=lambda s: counts.append(len(s.state.resting[0].nodes)
+                                                   if s.state.resting[0] is not None and s.state.resting[0].held else 0))
+    landing = next(i for i, c in enumerate(counts) if c)
+    # free fall of 5 mm at g takes 32 ms, 16 steps of 2 ms
+    assert 13 <= landing <= 17 and counts[landing] == 169, (landing, counts[:20])
+    assert len(response_cache(held.model.fem[0], held.model.dt).known) == 0
+    free = sim(_wide(slab(box=False, hold=False)).replace(", 0.03]", ", 0.035]"))
+    free.advance(0.2)
+    assert np.abs(positions(held) - positions(free)).max() < 1e-7

@@ -79,6 +79,24 @@ def first_sight(model, state, hold, nodes, found, h):
     return None
 
 
+def idle_rows(hold, nodes, found, h):
+    """``(c,)`` bool: the node contacts of ``found`` that need no solve this step: every contact of
+    a body that is not held, is in no contact but with static ground, and closes none of those
+    within the step ``h`` at its nodes' mean velocities (a body falling towards the ground and
+    found within reach a step before it lands). Nothing else acts on such a body in the step, so
+    its contacts take no impulse, as the solver would find; left out, their response columns are
+    not solved for nothing, and the face that lands next step is new to its response and may be
+    held at first sight (:func:`first_sight`)."""
+    contacts = found.nodes
+    body = nodes.body[contacts.body_a]
+    approach = -np.einsum("cd,cd->c", nodes.v[contacts.body_a], contacts.normal)
+    busy = np.zeros(len(hold), dtype=bool)
+    busy[body[~found.nodes_static | (contacts.gap <= h * approach)]] = True
+    busy[nodes.body[found.in_others]] = True
+    busy[[j for j, r in enumerate(hold) if r is not None]] = True
+    return ~busy[body]
+
+
 def held_now(model, state, hold_now):
     """The state with the record of :class:`HoldNow` ``hold_now`` as its body's (held)."""
     out = list(records(model, state))

@@ -90,12 +90,13 @@ def coupled_step(model, state, h):
     rigid_bodies = rigid_step.solver_bodies(model.rigid, state.rigid, v, v_at_t, gvec, frames)
 
     # 2. contacts of every kind; held nodes leave the solver (their contacts with static ground
-    #    are the hold's)
+    #    are the hold's), as do those of a body only nearing static ground (they take nothing)
     nodes = SurfaceNodes.of(model, state, predicted, h)
     found = detect_all(model, state, nodes, rigid_bodies, h, frames[0])
     rows, let_go = held.held_rows(hold, nodes, found)
     if let_go is not None:
         return let_go
+    rows |= held.idle_rows(hold, nodes, found, h)
     hold_now = held.first_sight(model, state, hold, nodes, found, h)
     if hold_now is not None:
         return hold_now
