@@ -9,8 +9,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fem.contact_response import response_cache
-
 from . import resting
 
 
@@ -73,10 +71,19 @@ def first_sight(model, state, hold, nodes, found, h):
         record = resting.first_sight(
             last, local, nodes.local[others[nodes.body[others] == j]], contacts.normal[on],
             contacts.gap[on], nodes.v[contacts.body_a[on]], s.x, contacts.friction[on],
-            found.nodes_static[on], m.node_anchor >= 0, response_cache(m, h).slot[local] < 0, h)
+            found.nodes_static[on], m.node_anchor >= 0, _unsolved(m, h, local), h)
         if record is not None:
             return HoldNow(j, record)
     return None
+
+
+def _unsolved(model, h, local):
+    """``(k,)`` bool: which of body ``model``'s nodes ``local`` have no contact response solved for
+    steps of ``h`` s (fem.contact_response's cache, read, not made)."""
+    cache = model.cache.response
+    if cache is None or cache.dt != h:
+        return np.ones(len(local), dtype=bool)
+    return cache.slot[local] < 0
 
 
 def idle_rows(hold, nodes, found, h):
