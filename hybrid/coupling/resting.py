@@ -154,8 +154,7 @@ def first_sight(last, nodes, others, normal, gap, v, x, friction, static, anchor
     would push them); ``new`` (c,) says which nodes' response columns are not known yet; ``x``
     (n, 3) positions at the step's start. Not after a release (``last`` waiting) or while held.
     The held step checks the answer as any held step does (pushes, inside the friction cone),
-    and a set that fails is let go and stepped free, waiting RETRY_AFTER steps as after any
-    release."""
+    and the nodes that fail are let go as from any held set (:func:`released`)."""
     if last is not None and (last.held or last.wait > 0):
         return None
     count = np.bincount(np.concatenate([nodes, others]).astype(np.int64), minlength=len(x))
