@@ -51,3 +51,19 @@ def test_rigid_body_far_away_names_the_body(sim):
         check_finite(s.model, s.state)
     assert err.value.body == "ball" and err.value.quantity == "distance from origin (m)"
     assert err.value.value == pytest.approx(2e6)
+
+
+def test_largest_norms_match_numpy_on_random_states_with_nan_and_inf():
+    """The one-pass kernel behind the FEM check gives numpy's largest row norms, NaN where a row
+    holds a NaN, inf where one is infinite."""
+    import numpy as np
+    from hybrid.coupling.stability import largest_norms
+    rng = np.random.default_rng(7)
+    for n in (1, 5, 300):
+        for poison in (None, np.nan, np.inf):
+            v, x = rng.standard_normal((n, 3)) * 10.0, rng.standard_normal((n, 3)) * 1e3
+            if poison is not None:
+                v[rng.integers(n), rng.integers(3)] = poison
+            got = largest_norms(v, x)
+            want = [float(np.sqrt(np.einsum("ij,ij->i", a, a).max())) for a in (v, x)]
+            np.testing.assert_equal(got, want)

@@ -1,4 +1,7 @@
 """The check after every step: each body's state finite and physically plausible."""
+import math
+
+import numba as nb
 import numpy as np
 
 # above these the run is declared unstable (no scene of everyday objects gets near them)
@@ -51,13 +54,32 @@ def check_finite(model, state):
                 i = int(np.argmax(bad))
                 raise InstabilityError(model.names[model.rigid_ids[i]], state.time, quantity, float(size[i]))
     for j, s in enumerate(state.fem):
-        for quantity, values, limit in (("node speed (m/s)", s.v, MAX_SPEED),
-                                        ("node distance from origin (m)", s.x, MAX_DISTANCE)):
-            # the largest row norm; NaN anywhere makes it NaN
-            worst = float(np.sqrt(_row_norms(values, squared=True).max(initial=0.0)))
-            if not np.isfinite(worst) or worst > limit:
+        speed, distance = largest_norms(s.v, s.x)
+        for quantity, worst, limit in (("node speed (m/s)", speed, MAX_SPEED),
+                                       ("node distance from origin (m)", distance, MAX_DISTANCE)):
+            if not math.isfinite(worst) or worst > limit:
                 raise InstabilityError(model.names[model.fem_ids[j]], state.time, quantity,
-                                       worst if np.isfinite(worst) else float("nan"))
+                                       worst if math.isfinite(worst) else float("nan"))
+
+
+@nb.njit(cache=True)
+def largest_norms(v, x):
+    """The largest row norms of ``v`` and ``x`` (n, 3), in one pass; NaN for an array with a NaN
+    anywhere."""
+    worst_v = worst_x = 0.0
+    nan_v = nan_x = False
+    for i in range(len(v)):
+        sv = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]
+        sx = x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + x[i, 2] * x[i, 2]
+        if sv != sv:
+            nan_v = True
+        elif sv > worst_v:
+            worst_v = sv
+        if sx != sx:
+            nan_x = True
+        elif sx > worst_x:
+            worst_x = sx
+    return (math.nan if nan_v else math.sqrt(worst_v)), (math.nan if nan_x else math.sqrt(worst_x))
 
 
 def _row_norms(a, squared=False):
