@@ -2,7 +2,7 @@
 
 A glass pane (10 x 10 x 1 cm, E = 70 GPa, 5 MPa strength) held along two edges, struck at its
 centre by a steel ball (1 cm radius) at 30 m/s in zero gravity (the scene of
-tests/test_shattered_pane.py), run three ways one after the other:
+tests/test_shattered_pane.py, tests/scenes/pane_struck.toml), run three ways one after the other:
 
 - `dt` = 0.5 ms with `resolve_impacts` (the impact steps taken in sub-steps), 1 cm elements;
 - `dt` = 10 us throughout, no sub-steps (the small-step run the first should match);
@@ -25,31 +25,20 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from hybrid import Simulation
 from hybrid.app.scene import parse_scene
 
-SCENE = """
-[simulation]
-duration = {duration}
-dt = {dt}
-resolve_impacts = {resolve}
-gravity = [0.0, 0.0, 0.0]
-[[bodies]]
-name = "pane"
-model = "fem"
-shape = {{ type = "box", size = [0.1, 0.1, 0.01], resolution = {resolution} }}
-density = 2500.0
-young = 70e9
-poisson = 0.22
-fracture_stress = 5e6
-[[bodies.anchors]]
-box = [[-0.06, -0.06, -0.01], [-0.0499, 0.06, 0.01]]
-[[bodies.anchors]]
-box = [[0.0499, -0.06, -0.01], [0.06, 0.06, 0.01]]
-[[bodies]]
-name = "ball"
-shape = {{ type = "sphere", radius = 0.01 }}
-density = 7800.0
-position = [0.0, 0.0, 0.0151]
-velocity = [0.0, 0.0, -30.0]
-"""
+# the scene of tests/test_shattered_pane.py, its step, sub-stepping, mesh and duration set per way
+SCENE = Path(__file__).resolve().parents[1] / "tests" / "scenes" / "pane_struck.toml"
+
+
+def scene_text(dt, resolve, resolution, duration):
+    """The pane scene with ``dt`` (s), ``resolve_impacts`` ("true"/"false"), the pane's
+    ``resolution`` (m) and ``duration`` (s)."""
+    text = SCENE.read_text()
+    for old, new in (("dt = 5e-4", f"dt = {dt}"), ("resolve_impacts = true", f"resolve_impacts = {resolve}"),
+                     ("resolution = 0.01", f"resolution = {resolution}"),
+                     ("duration = 0.003", f"duration = {duration}")):
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
 
 WAYS = (("sub-stepped, dt 0.5 ms, 1 cm elements", 5e-4, "true", 0.01),
         ("dt 10 us throughout, 1 cm elements", 1e-5, "false", 0.01),
@@ -62,7 +51,7 @@ def main():
     args = parser.parse_args()
     print(f"{'way':40s} {'ball vz m/s':>12s} {'pieces':>7s} {'wall s':>7s}")
     for name, dt, resolve, resolution in WAYS:
-        text = SCENE.format(duration=args.duration, dt=dt, resolve=resolve, resolution=resolution)
+        text = scene_text(dt, resolve, resolution, args.duration)
         sim = Simulation(parse_scene(tomllib.loads(text), f"<{name}>", Path(".")))
         start = time.perf_counter()
         for _ in range(int(round(args.duration / dt))):

@@ -15,31 +15,7 @@ from hybrid import Simulation
 from hybrid.app.scene import parse_scene
 from rigid.model import kinetic_energy
 
-SCENE = """
-[simulation]
-duration = 0.003
-dt = 5e-4
-resolve_impacts = true
-gravity = [0.0, 0.0, 0.0]
-[[bodies]]
-name = "pane"
-model = "fem"
-shape = { type = "box", size = [0.1, 0.1, 0.01], resolution = 0.01 }
-density = 2500.0
-young = 70e9
-poisson = 0.22
-fracture_stress = 5e6
-[[bodies.anchors]]
-box = [[-0.06, -0.06, -0.01], [-0.0499, 0.06, 0.01]]
-[[bodies.anchors]]
-box = [[0.0499, -0.06, -0.01], [0.06, 0.06, 0.01]]
-[[bodies]]
-name = "ball"
-shape = { type = "sphere", radius = 0.01 }
-density = 7800.0
-position = [0.0, 0.0, 0.0151]
-velocity = [0.0, 0.0, -30.0]
-"""
+SCENE = (Path(__file__).parent / "scenes" / "pane_struck.toml").read_text()
 
 
 def _energy(sim):
