@@ -148,7 +148,10 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
               "plate's thin side (three across a bar's), cells along its long sides up to 4 times "
               "longer to stay within 4,000 nodes, and quadratic tets unless `order = 1` is given "
               "(docs/scenes.md, default meshes); a sphere or cylinder at half its radius. The run log "
-              "states each body's mesh and why.",
+              "states each body's mesh and why. A rigid box's surface vertices are its contact "
+              "points: without it, its corners, edge midpoints and face centres, or, for a box 10 "
+              "times heavier than a deformable body it meets nearly without friction, no further "
+              "apart than 0.4 of the deformable surfaces' edges (docs/coupling.md).",
               shapes=("box", "sphere", "cylinder", "capsule"), default_text="chosen by the builder"),
     Field("refine", "integer", 1, "", "A deformable box's mesh (its default mesh, or the one "
           "`resolution` gives) with each cell split this many times along each side, the element "
