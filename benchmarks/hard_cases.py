@@ -385,11 +385,7 @@ CASES = [
       for young in (1e3, 1e5, 1e7, 1e9, 2e11)],
     Case("1000:1 frictionless", "heavy_on_light",
          "a 1,800 kg box on a 1.8 kg slab, no friction: ill-conditioned contact, nothing holds the slab",
-         watch=_HEAVY[0], checks=_HEAVY[1], short=0.1,
-         cause="nothing holds the slab sideways; the box rocks and its corners meet the slab's "
-               "dented faces, whose tilted normals push it sideways; the slab's columns squeezed "
-               "between box and ground keep the contact problem ill-conditioned (solved to 1e-11 "
-               "it still moves at up to 0.05 m/s)"),
+         watch=_HEAVY[0], checks=_HEAVY[1], short=0.1),
     Case("1000:1 friction 0.5", "heavy_on_light",
          "the same with friction 0.5 on every surface",
          settings={"planes.0.friction": 0.5, "bodies.slab.friction": 0.5, "bodies.box.friction": 0.5},
