@@ -109,6 +109,45 @@ def test_a_rigid_auto_body_struck_turns_deformable_before_the_impact_step():
     assert abs(P_auto[0] - 2 * auto.model.rigid.body_mass[0]) < 1e-9 * abs(P_auto[0])
 
 
+def test_a_switch_that_re_shares_a_resting_load_reads_as_no_blow_and_a_blow_from_outside_does():
+    """An upper box (scene index 0) rests on the ground and leans on its neighbour's side (1), which
+    carries 0.4 of its weight while both are deformable; once the neighbour is rigid the upper box
+    rests on the ground alone. Body by body and partner by partner that is a change of 0.4 of
+    its weight (a blow by the elastify test); for the two together the load from outside (the
+    ground) is the same: no blow. A ball (2, not auto) striking the upper box in that step
+    changes the pair's outside load by exactly its impulse."""
+    from hybrid.coupling.touches import Touches, impulse_change, switch_groups
+
+    W, W1 = 10 * 9.81 * 0.002, 20 * 9.81 * 0.002        # weight impulses over a 2 ms step, N s
+    up = np.array([0.0, 0.0, 1.0])
+    push = np.array([0.3 * W, 0.0, 0.0])                         # the side contact's friction and push
+
+    def touches(rows):
+        body, partner, point, impulse = zip(*rows)
+        return Touches(np.array(body), np.array(partner), np.array(point, float), np.array(impulse, float))
+
+    ground0, side, ground1 = [0.0, 0.0, 0.2], [0.1, 0.0, 0.3], [0.2, 0.0, 0.0]
+    on_side = 0.4 * W * up + push                                # on box 0 from box 1's side
+    before = touches([(0, -1, ground0, 0.6 * W * up - push), (0, 1, side, on_side),
+                      (1, -1, ground1, W1 * up + on_side), (1, 0, side, -on_side)])
+    after = touches([(0, -1, ground0, W * up), (1, -1, ground1, W1 * up)])
+    groups = switch_groups(before, after, [1])
+    assert groups[0] == groups[1] == frozenset({0, 1})
+    # partner by partner: the side contact let go, the ground took its share
+    _, changes, _, partners = impulse_change(before, after, 0)
+    assert np.linalg.norm(changes[list(partners).index(1)]) > 0.3 * W
+    # the pair's load from outside: unchanged
+    _, change, _, _ = impulse_change(before, after, 0, groups[0])
+    assert np.linalg.norm(change) < 1e-12 * W
+    # a ball's blow on box 0 in the same step: the pair's outside load changes by exactly it
+    blow = np.array([-0.5, 0.2, -0.1])
+    struck = touches([(0, -1, ground0, W * up), (0, 2, side, blow), (1, -1, ground1, W1 * up)])
+    groups = switch_groups(before, struck, [1])
+    for k in (0, 1):
+        _, change, _, _ = impulse_change(before, struck, k, groups[k])
+        assert np.allclose(change[0], blow, atol=1e-12)
+
+
 SOFT = """
 [simulation]
 duration = 1.0

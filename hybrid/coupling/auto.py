@@ -16,7 +16,8 @@ Strain is measured as an element's strain rate (fem.stress.element_strain_rate) 
 response time, the longer of its elastic wave transit time (largest extent over sqrt(E / rho))
 and the step: the strain amplitude of a vibration when the body answers within a step, the strain
 one step adds when it answers more slowly. Both are dimensionless, so one default serves rubber
-and steel, centimetres and metres. The switches themselves are :mod:`hybrid.coupling.switch`.
+and steel, centimetres and metres. The switches themselves are :mod:`hybrid.coupling.switch`;
+the contact impulses compared, :mod:`hybrid.coupling.touches`.
 """
 from dataclasses import dataclass
 
@@ -27,6 +28,8 @@ from fem.momentum import rigid_part
 from fem.stress import element_strain_rate, element_stress, principal_stress_max
 from fem.system import system_factorisation
 from rigid import quaternion as quat
+
+from .touches import impulse_change, switch_groups
 
 
 @dataclass(frozen=True)
@@ -46,48 +49,6 @@ class Switch:
     def as_dict(self):
         """JSON-ready summary row: time, body, event kind."""
         return {"time": self.time, "body": self.body, "event": self.event}
-
-
-@dataclass(frozen=True)
-class Touches:
-    """The contact impulses rigid auto bodies took over one step, one row per contact side:
-    body (c,) the auto body's scene index, partner (c,) the other side's (-1: a plane or static
-    ground), point (c, 3) m world, impulse (c, 3) N s on the auto body (world)."""
-    body: np.ndarray
-    partner: np.ndarray
-    point: np.ndarray
-    impulse: np.ndarray
-
-    @classmethod
-    def between(cls, auto, a, b, point, impulse):
-        """The rows of contacts between scene bodies ``a`` and ``b`` (c,) (-1: a plane or static
-        ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a, that touch a body of
-        ``auto`` (scene indices), from that body's side."""
-        is_auto = np.zeros(max(int(auto.max(initial=-1)), int(a.max(initial=-1)),
-                               int(b.max(initial=-1))) + 2, dtype=bool)
-        is_auto[auto] = True                        # is_auto[-1] (planes, ground) stays False
-        on_a, on_b = is_auto[a], is_auto[b]
-        return cls(np.concatenate([a[on_a], b[on_b]]), np.concatenate([b[on_a], a[on_b]]),
-                   np.concatenate([point[on_a], point[on_b]]),
-                   np.concatenate([impulse[on_a], -impulse[on_b]]))
-
-    @classmethod
-    def of(cls, auto, contacts, impulse, scene_of):
-        """:meth:`between` for ``contacts`` whose bodies are numbered as ``scene_of`` (s,) gives
-        their scene indices (-1 stays -1)."""
-        a = np.where(contacts.body_a >= 0, scene_of[np.maximum(contacts.body_a, 0)], -1)
-        b = np.where(contacts.body_b >= 0, scene_of[np.maximum(contacts.body_b, 0)], -1)
-        return cls.between(auto, a, b, contacts.point, impulse)
-
-    def plus(self, other):
-        """These rows followed by ``other``'s."""
-        return Touches(*(np.concatenate([getattr(self, f), getattr(other, f)])
-                         for f in ("body", "partner", "point", "impulse")))
-
-    def of_body(self, k):
-        """``(partner, point, impulse)`` rows of body ``k``."""
-        rows = self.body == k
-        return self.partner[rows], self.point[rows], self.impulse[rows]
 
 
 def auto_bodies(model):
@@ -256,32 +217,6 @@ def rigid_due(model, state):
 
 # --- elastify ----------------------------------------------------------------------------------
 
-def impulse_change(before, after, k):
-    """``(points (r, 3), changes (g, 3), group (r,), partners (g,))``: how the load the contacts
-    put on body ``k`` changed from the touches ``before`` to ``after``: for each partner
-    ``partners[g]`` (scene index, -1: a plane or static ground), the change of its total impulse
-    ``changes[g]``, and the partner's contact points now (those it had, for a partner that let
-    go) with their partner's index ``g``. Only totals are compared: how a rigid
-    body's contact points share a load is not determined (the sweeps end in one sharing or
-    another, differently from step to step and from the FEM body's), and a settled box turned
-    rigid, its load the same and shared differently, would otherwise turn back at its first
-    rigid step. None when nothing touches it in either."""
-    partner, point, impulse = after.of_body(k)
-    old_partner, old_point, old_impulse = (before.of_body(k) if before is not None
-                                           else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))))
-    if not len(partner) and not len(old_partner):
-        return None
-    points, changes, group = [], [], []
-    partners = np.union1d(partner, old_partner)
-    for g, p in enumerate(partners):
-        rows, old_rows = partner == p, old_partner == p
-        at = point[rows] if rows.any() else old_point[old_rows]
-        points.append(at)
-        changes.append(impulse[rows].sum(axis=0) - old_impulse[old_rows].sum(axis=0))
-        group.append(np.full(len(at), g))
-    return np.concatenate(points), np.array(changes), np.concatenate(group), partners
-
-
 # surface nodes (the lightest, which answer an impulse most) whose unit impulses along each axis
 # measure how much strain a body turned rigid takes per N s (Parked.unit_strain); a step's change
 # of impulses under a third of its elastify strain by that measure is not solved for
@@ -340,25 +275,39 @@ def predicted_strain(parked, position, rotation, points, changes, group, h, part
 
 def fem_due(model, before, after):
     """Scene indices of the rigid auto bodies that the step from ``before`` to ``after`` would
-    strain beyond their ``elastify_strain`` (they must take it again as FEM bodies)."""
+    strain beyond their ``elastify_strain`` (they must take it again as FEM bodies). In the step
+    right after a switch, a body in contact with the switched one (:func:`switch_groups`) counts
+    a change of load only as far as both its own whole load and the load its group takes from
+    outside changed (the smaller strain of the two): a blow changes both; the switch's re-sharing
+    of a resting load among the group's supports changes neither the group's, and a cold start of
+    the contact solver that leaves one body's supports unbalanced, not the others' own."""
     if not model.parked or after.touches is None:
         return []
     due = []
+    switched = sorted({k for since in (before.rigid_since, before.fem_since)
+                       for k, at in since.items() if at == before.steps})
+    groups = switch_groups(before.touches, after.touches, switched)
     for k, parked in sorted(model.parked.items()):
-        change = impulse_change(before.touches, after.touches, k)
-        if change is None or not len(change[0]):
-            continue
         elastify = thresholds(model, k)[1]
-        if PROBE_MARGIN * parked.unit_strain * np.linalg.norm(change[1], axis=1).sum() < elastify:
-            continue            # far too small a change to matter: not solved for
-        i = int(np.flatnonzero(model.rigid_ids == k)[0])
-        R = quat.to_matrix(before.rigid.orientation[i])
-        points, changes, group, partners = change
-        strain = predicted_strain(parked, before.rigid.position[i], R, points, changes, group,
-                                  model.dt, partners)
-        if strain > elastify:
+        views = [None] if k not in groups else [frozenset({k}), groups[k]]
+        if all(_strain(model, before, parked, k, impulse_change(before.touches, after.touches, k, view),
+                       elastify) > elastify for view in views):
             due.append(k)
     return due
+
+
+def _strain(model, before, parked, k, change, elastify):
+    """The strain measure the load ``change`` (:func:`impulse_change`) gives parked body ``k``
+    (0 for none, or one too small to be solved for)."""
+    if change is None or not len(change[0]):
+        return 0.0
+    if PROBE_MARGIN * parked.unit_strain * np.linalg.norm(change[1], axis=1).sum() < elastify:
+        return 0.0              # far too small a change to matter: not solved for
+    i = int(np.flatnonzero(model.rigid_ids == k)[0])
+    R = quat.to_matrix(before.rigid.orientation[i])
+    points, changes, group, partners = change
+    return predicted_strain(parked, before.rigid.position[i], R, points, changes, group, model.dt,
+                            partners)
 
 
 def scene_indices(model, parts=None):
@@ -370,13 +319,3 @@ def scene_indices(model, parts=None):
     fem_ids = np.asarray(model.fem_ids, dtype=np.int64)
     place_body = parts.node_body[parts.corners[:, 0]] if len(parts.corners) else np.zeros(0, np.int64)
     return np.concatenate([rigid, fem_ids[parts.body], fem_ids[place_body]])
-
-
-def held_touches(model, auto, nodes, contacts, impulse):
-    """:class:`Touches` of held resting nodes' contacts (found's numbering: stacked surface nodes
-    ``nodes`` on side a, rigid bodies or -1 on side b) with ``impulse`` (c, 3) on the nodes."""
-    fem_ids = np.asarray(model.fem_ids, dtype=np.int64)
-    a = fem_ids[nodes.body[contacts.body_a]]
-    rigid = np.asarray(model.rigid_ids, dtype=np.int64)
-    b = np.where(contacts.body_b >= 0, rigid[np.maximum(contacts.body_b, 0)] if len(rigid) else -1, -1)
-    return Touches.between(auto, a, b, contacts.point, impulse)

@@ -69,13 +69,13 @@ class HybridState:
     body (hybrid.coupling.fracture). A split hands each deformable piece its own still-closed
     faces; reference-shape updates keep the tets, so the rows stay valid.
     Auto bodies (hybrid.coupling.auto): touches: the last step's contact impulses on rigid auto
-    bodies (:class:`hybrid.coupling.auto.Touches`, None without any); calm: per FEM auto body
+    bodies (:class:`hybrid.coupling.touches.Touches`, None without any); calm: per FEM auto body
     (scene index), how many steps in a row it has been calm enough to become rigid (negative: it
     was deforming, and is looked at again after that many steps). backoff: per
     auto body, the factor its calm window is stretched by (doubled each time it turns deformable
     again within a window of turning rigid, so a body whose contacts settle differently as a
-    rigid body does not switch back and forth); rigid_since: per rigid auto body, the step count
-    when it turned rigid.
+    rigid body does not switch back and forth); rigid_since / fem_since: per auto body, the step
+    count when it last turned rigid / deformable.
     """
     rigid: object
     fem: list = field(default_factory=list)
@@ -89,3 +89,4 @@ class HybridState:
     calm: dict = field(default_factory=dict)
     backoff: dict = field(default_factory=dict)
     rigid_since: dict = field(default_factory=dict)
+    fem_since: dict = field(default_factory=dict)

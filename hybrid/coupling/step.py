@@ -21,7 +21,8 @@ from fem.model import holding
 from rigid import step as rigid_step
 
 from . import held, resting
-from .auto import Touches, auto_bodies, fem_due, held_touches, scene_indices
+from .auto import auto_bodies, fem_due, scene_indices
+from .touches import Touches, held_touches
 from .detect import detect_all
 from .events import between_steps
 from .memory import ContactMemory, contact_keys

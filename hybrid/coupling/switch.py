@@ -219,6 +219,7 @@ def elastify(model, state, indices):
                         contact_sets=None if state.contact_sets is None else tuple(state.contact_sets) + more,
                         fracture_pending=pending,
                         calm={k: c for k, c in state.calm.items() if k not in indices},
-                        backoff=_backoff(model, state, indices))
+                        backoff=_backoff(model, state, indices),
+                        fem_since=dict(state.fem_since) | {k: state.steps for k in indices})
     events = [Switch(float(state.time), model.names[k], "elastify") for k in indices]
     return new_model, new_state, events
