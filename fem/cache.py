@@ -40,6 +40,7 @@ class FemCache:
         (``hybrid.coupling.fem_contact``).
     current_tree: k-d tree of the surface nodes at the positions it was built from (its ``data``)
         (``hybrid.coupling.fem_contact``).
+    extent: the rest shape's largest extent, m (``hybrid.coupling.auto.extent``).
     """
     factor: FactorCache = field(default_factory=FactorCache)
     response: object = None
@@ -52,3 +53,4 @@ class FemCache:
     surface_grid: object = None
     surface_index: tuple | None = None
     current_tree: object = None
+    extent: float | None = None

@@ -84,7 +84,9 @@ def thresholds(model, index):
 
 def extent(fem):
     """The body's largest extent (m), of its rest shape."""
-    return float(np.ptp(fem.rest_points, axis=0).max())
+    if fem.cache.extent is None:
+        fem.cache.extent = float(np.ptp(fem.rest_points, axis=0).max())
+    return fem.cache.extent
 
 
 def response_time(fem, h):

@@ -23,6 +23,8 @@ class Touches:
         """The rows of contacts between scene bodies ``a`` and ``b`` (c,) (-1: a plane or static
         ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a, that touch a body of
         ``auto`` (scene indices), from that body's side."""
+        if not len(a):
+            return EMPTY
         is_auto = np.zeros(max(int(auto.max(initial=-1)), int(a.max(initial=-1)),
                                int(b.max(initial=-1))) + 2, dtype=bool)
         is_auto[auto] = True                        # is_auto[-1] (planes, ground) stays False
@@ -41,6 +43,10 @@ class Touches:
 
     def plus(self, other):
         """These rows followed by ``other``'s."""
+        if not len(other.body):
+            return self
+        if not len(self.body):
+            return other
         return Touches(*(np.concatenate([getattr(self, f), getattr(other, f)])
                          for f in ("body", "partner", "point", "impulse")))
 
@@ -48,6 +54,9 @@ class Touches:
         """``(partner, point, impulse)`` rows of body ``k``."""
         rows = self.body == k
         return self.partner[rows], self.point[rows], self.impulse[rows]
+
+
+EMPTY = Touches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 def impulse_change(before, after, k, group=None):
