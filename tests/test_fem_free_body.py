@@ -317,3 +317,21 @@ angular_velocity = [0.0, 0.0, 2.0]
     soft, stiff = orientations()
     assert abs(abs(soft @ stiff) - 1) < 1e-4                 # both turned the same way
     assert abs(soft @ placed) < 0.999                        # and they did turn
+
+
+@pytest.mark.parametrize("integrator, lag", [("newmark", 0.0), ("backward_euler", 0.5)])
+def test_free_fall_follows_the_parabola_or_falls_its_first_order_lag_ahead(integrator, lag):
+    """A body thrown up in gravity: its centre of mass at time t is z0 + v0 t - g t^2 / 2, less
+    ``lag`` g h t for the rule (the trapezoidal rule is exact for a constant acceleration; backward
+    Euler, x += h v_new, sums the velocities at the ends of the steps: g h t / 2 ahead, docs/fem.md);
+    its velocity v0 - g t exactly under either rule."""
+    points, tets = box_tet_mesh((0.1, 0.1, 0.1), 2)
+    model = build_fem_model(points, tets, density=1000.0, young=1e5, poisson=0.3, integrator=integrator)
+    state = rest_state(model, v=np.tile([0.0, 0.0, 1.0], (model.node_count, 1)))
+    z0, g, h, n = center_of_mass(model, state)[2], 9.81, 0.002, 100
+    for _ in range(n):
+        state = step(model, state, h, gravity=(0, 0, -g))
+    t = n * h
+    assert abs(center_of_mass(model, state)[2] - (z0 + t - g * t * t / 2 - lag * g * h * t)) < 1e-12
+    np.testing.assert_allclose(linear_momentum(model, state)[2], model.node_mass.sum() * (1.0 - g * t),
+                               rtol=1e-12)
