@@ -148,29 +148,24 @@ def test_a_switch_that_re_shares_a_resting_load_reads_as_no_blow_and_a_blow_from
         assert np.allclose(change[0], blow, atol=1e-12)
 
 
-SOFT = """
-[simulation]
-duration = 1.0
-dt = 0.002
-[[planes]]
-[[bodies]]
-name = "low"
-model = "{model}"
+def soft_boxes(boxes, duration=1.0, dt=0.002):
+    """A scene of soft boxes (E = 0.1 MPa) on the ground, ``boxes`` rows of (name, size m,
+    resolution m, position), their model left as the ``{model}`` placeholder."""
+    text = f"[simulation]\nduration = {duration}\ndt = {dt}\n[[planes]]\n"
+    for name, size, resolution, position in boxes:
+        text += f"""[[bodies]]
+name = "{name}"
+model = "{{model}}"
 young = 1e5
 density = 1000
-shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.067 }}
-position = [0, 0, 0.11]
-damping = {{ stiffness = 0.002 }}
-[[bodies]]
-name = "high"
-model = "{model}"
-young = 1e5
-density = 1000
-shape = {{ type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }}
-position = [0.03, 0.02, 0.3]
-damping = {{ stiffness = 0.002 }}
+shape = {{{{ type = "box", size = [{size}, {size}, {size}], resolution = {resolution} }}}}
+position = {list(position)}
+damping = {{{{ stiffness = 0.002 }}}}
 """
+    return text
 
+
+SOFT = soft_boxes([("low", 0.2, 0.067, (0, 0, 0.11)), ("high", 0.1, 0.05, (0.03, 0.02, 0.3))])
 
 def test_soft_bodies_dropped_on_the_ground_and_each_other_settle_where_all_fem_ones_do():
     auto = Sim(SOFT.format(model="auto")).advance(2.0)
@@ -201,8 +196,8 @@ def test_a_box_turned_rigid_on_the_ground_is_not_turned_back_by_its_own_support(
             assert not turned or step - turned[-1] > window, (body, step, switched)
 
 
-STACK = SOFT.replace("duration = 1.0", "duration = 10.0").replace("dt = 0.002", "dt = 0.004") \
-    .replace("position = [0.03, 0.02, 0.3]", "position = [0.0, 0.0, 0.26]")
+STACK = soft_boxes([("low", 0.2, 0.067, (0, 0, 0.11)), ("high", 0.1, 0.05, (0.0, 0.0, 0.26))],
+                   duration=10.0, dt=0.004)
 
 
 def test_a_body_resting_under_a_steady_load_does_not_chatter():
@@ -217,43 +212,14 @@ def test_a_body_resting_under_a_steady_load_does_not_chatter():
     assert sim.body("low").kind == "rigid" and sim.body("high").kind == "rigid"
 
 
-BRIDGE = """
-[simulation]
-duration = 3.0
-dt = 0.004
-[[planes]]
-[[bodies]]
-name = "left"
-model = "{model}"
-young = 1e5
-density = 1000
-shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.067 }}
-position = [-0.105, 0, 0.101]
-damping = {{ stiffness = 0.002 }}
-[[bodies]]
-name = "right"
-model = "{model}"
-young = 1e5
-density = 1000
-shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.067 }}
-position = [0.105, 0, 0.101]
-damping = {{ stiffness = 0.002 }}
-[[bodies]]
-name = "top"
-model = "{model}"
-young = 1e5
-density = 1000
-shape = {{ type = "box", size = [0.15, 0.15, 0.15], resolution = 0.05 }}
-position = [0.03, 0.03, 0.30]
-damping = {{ stiffness = 0.002 }}
-"""
-
+BRIDGE = soft_boxes([("left", 0.2, 0.067, (-0.105, 0, 0.101)), ("right", 0.2, 0.067, (0.105, 0, 0.101)),
+                     ("top", 0.15, 0.05, (0.03, 0.03, 0.30))], duration=3.0, dt=0.004)
 
 def test_the_supports_of_a_box_lying_across_them_turn_rigid_once_and_stay_rigid():
     """A box dropped across two others, 1 cm apart: when any of the three switches, the top box's
     weight is shared between its supports differently (hybrid.coupling.auto.fem_due compares the
-    group's load from outside). The supports turn rigid once and stay so (before, each turned back
-    with every switch of another: 6-10 switches each in 3 s); all three end where the all-FEM
+    group's load from outside). The supports turn rigid once and stay so (compared partner by partner,
+    each turned back with every switch of another: 6-10 switches each in 3 s); all three end where the all-FEM
     ones do, to 1% of their size."""
     auto, fem = Sim(BRIDGE.format(model="auto")), Sim(BRIDGE.format(model="fem"))
     switched = {"left": [], "right": [], "top": []}
