@@ -218,9 +218,9 @@ BRIDGE = soft_boxes([("left", 0.2, 0.067, (-0.105, 0, 0.101)), ("right", 0.2, 0.
 def test_the_supports_of_a_box_lying_across_them_turn_rigid_once_and_stay_rigid():
     """A box dropped across two others, 1 cm apart: when any of the three switches, the top box's
     weight is shared between its supports differently (hybrid.coupling.auto.fem_due compares the
-    group's load from outside). The supports turn rigid once and stay so (compared partner by partner,
-    each turned back with every switch of another: 6-10 switches each in 3 s); all three end where the all-FEM
-    ones do, to 1% of their size."""
+    group's load from outside). The supports turn rigid once and stay so (compared partner by
+    partner, each turned back with every switch of another: 6-10 switches each in 3 s); all three
+    end where the all-FEM ones do, to 1% of their size."""
     auto, fem = Sim(BRIDGE.format(model="auto")), Sim(BRIDGE.format(model="fem"))
     switched = {"left": [], "right": [], "top": []}
     for _ in range(int(round(3.0 / auto.dt))):
