@@ -109,16 +109,14 @@ def switch_groups(before, after, switched):
         return {}
     body = np.concatenate([t.body for t in touches])
     partner = np.concatenate([t.partner for t in touches])
-    auto = np.union1d(body, switched)
+    auto = np.union1d(body, switched)                      # sorted: an index by searchsorted
     inner = np.isin(partner, auto)
-    index = {int(b): i for i, b in enumerate(auto)}
-    rows = np.array([index[int(b)] for b in body[inner]], np.int64)
-    cols = np.array([index[int(b)] for b in partner[inner]], np.int64)
+    rows, cols = np.searchsorted(auto, body[inner]), np.searchsorted(auto, partner[inner])
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(auto), len(auto)))
     _, label = connected_components(graph, directed=False)
     out = {}
     for k in switched:
-        members = frozenset(int(b) for b in auto[label == label[index[int(k)]]])
+        members = frozenset(auto[label == label[np.searchsorted(auto, k)]].tolist())
         out.update({b: members for b in members})
     return out
 
