@@ -29,11 +29,6 @@ from .auto import Switch, settings, unit_strain
 from .fracture import fracture_data
 
 
-# cells across a body's signed-distance grid when it turns rigid: others meet it through the
-# grid; 20 across builds in 0.07 s where the default 40 take 0.6 s (a switch waits for it)
-GRID_CELLS = 20
-
-
 def hull_points(vertices):
     """The vertices ``(p, 3)`` on the convex hull of ``vertices`` (all of them for a flat set):
     a body turned rigid meets planes and other bodies through these. A plane or a convex part of
@@ -92,7 +87,7 @@ def _rigid_bodies(model, state, bodies):
         descs.append(RigidBodyDesc(name=model.names[k], vertices=vertices, triangles=triangles,
                                    density=m.density, friction=scene_body.friction,
                                    restitution=scene_body.restitution, fixed=m.has_anchors,
-                                   point_masses=(s.x, m.node_mass), grid_cells=GRID_CELLS,
+                                   point_masses=(s.x, m.node_mass),
                                    contact_points=hull_points(vertices)))
     rm, rs = build_rigid(descs, [])
     last_dt = state.rigid.last_dt
