@@ -806,3 +806,35 @@ position = [0.485, 0.0, 0.06]
     print(f"tip sag {max(sag):.4f} m, deepest {max(depth[100:]):.3e} m")
     assert max(sag) > 0.05, "the beam did not bend"      # m, at its 0.5 m tip
     assert max(depth[100:]) < 1e-5          # m, once the box has landed
+
+
+@pytest.mark.parametrize("x", [0.02, 0.0])
+def test_a_ball_smaller_than_the_elements_rests_on_the_face_between_their_nodes(sim, x):
+    """A 3 cm steel ball on a stiff box whose top face has nodes 5 cm apart: the ball's centre
+    meets the face (radius and all) from beyond the face's signed-distance grid, whose padding is
+    1.5 cm (hybrid.coupling.rest_grid.beyond_padding), so it rests on the face, not on the two
+    nodes it fits between (13 mm down, its centre out of the grid; over a node it sank through
+    the box within a second)."""
+    s = sim(f"""
+[simulation]
+dt = 0.002
+[[planes]]
+[[bodies]]
+name = "box"
+model = "fem"
+young = 1e9
+density = 1000
+shape = {{ type = "box", size = [0.2, 0.1, 0.1], resolution = 0.05 }}
+position = [0, 0, 0.05]
+[[bodies]]
+name = "ball"
+shape = {{ type = "sphere", radius = 0.03 }}
+density = 7800
+position = [{x}, 0.0, 0.3]
+""")
+    ball = s.rigid_index("ball")
+    s.advance(0.3)
+    gaps = []
+    s.advance(0.7, lambda sim_: gaps.append(sim_.state.rigid.position[ball][2] - 0.03 - 0.1))
+    assert max(abs(g) for g in gaps) < 5e-4                 # on the top face, to the solver's slop
+    assert np.linalg.norm(s.state.rigid.velocity[ball]) < 1e-2

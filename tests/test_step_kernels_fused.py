@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from fem import step_kernels
 from fem.system import _blocks
-from hybrid.coupling import fem_contact, kernels, nodes, resting, solve
+from hybrid.coupling import fem_contact, kernels, nodes, resting, rest_grid, solve
 
 SEEDS = range(4)
 
@@ -186,15 +186,43 @@ def test_rest_query_matches_the_numpy_steps_of_against(seed):
     # the numpy code of fem_contact._against the kernel replaced
     X = (x - c) @ R + rest_center - moved[nearest]
     phi, n_rest = grid.query(X)
+    # beyond the grid: from the surface point nearest its edge point nearest X
+    edge = np.clip(X, grid.origin, grid.origin + (grid.shape - 1) * grid.cell_size)
+    beyond = np.nonzero(np.any(edge != X, axis=1))[0]
+    at, toward = grid.query(edge[beyond])
+    d = X[beyond] - (edge[beyond] - at[:, None] * toward)
+    phi[beyond] = np.linalg.norm(d, axis=1)
+    n_rest[beyond] = d / phi[beyond, None]
+    assert len(beyond) > 0
     phi = phi - radius
     near = np.nonzero((phi < reach + largest)
                       & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]
-    out = kernels.rest_query(x, nearest, moved, c, R, rest_center, grid.origin, grid.cell_size,
+    out = rest_grid.rest_query(x, nearest, moved, c, R, rest_center, grid.origin, grid.cell_size,
                              grid.shape, grid.values, radius, reach, largest)
     assert np.array_equal(out[0], near) and 0 < len(near) < p
     np.testing.assert_allclose(out[1], X, rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(out[2], phi, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(out[3], n_rest, rtol=1e-12, atol=1e-14)
+
+
+def test_points_beyond_the_grid_s_padding_get_their_distance_to_the_surface():
+    """Over a box's faces and beyond its grid's padding (3 cells), the grid's own query has no
+    normal; the rest query gives the distance to the face and the face's normal, as for a point
+    within the grid (a sphere larger than the padding touches the surface with its centre out
+    there)."""
+    grid = box_grid()
+    pad = grid.padding
+    X = np.array([[0.05, 0.02, 0.1 + 1.5 * pad], [0.2 + 2.0 * pad, -0.05, 0.03],
+                  [0.0, -0.15 - 1.2 * pad, 0.0], [0.05, 0.02, 0.1 + 0.5 * pad]])
+    expected = np.array([1.5 * pad, 2.0 * pad, 1.2 * pad, 0.5 * pad])
+    normals = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]])
+    assert np.all(grid.query(X[:3])[1] == 0)
+    out = rest_grid.rest_query(X, np.zeros(4, np.int64), np.zeros((1, 3)), np.zeros(3), np.eye(3),
+                               np.zeros(3), grid.origin, grid.cell_size, grid.shape, grid.values,
+                               np.zeros(4), np.full(4, 1.0), 0.0)
+    assert np.array_equal(out[0], np.arange(4))
+    np.testing.assert_allclose(out[2], expected, rtol=0, atol=1e-3 * grid.cell_size)
+    np.testing.assert_allclose(out[3], normals, rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize("seed", SEEDS)

@@ -30,7 +30,7 @@ from rigid.contacts import combine_friction, combine_restitution
 from rigid.model import POINT_RING
 from rigid.sdf import SignedDistanceGrid
 
-from . import kernels
+from . import kernels, rest_grid
 
 # queries of the nearest current surface node up to this many are answered by brute force
 # (hybrid.coupling.kernels.nearest_rows) instead of a k-d tree built anew for the moved surface
@@ -162,7 +162,7 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     grid = _grid(mb)
     R = np.asarray(sb.R, float)
     nearest = _current_nearest(mb, sb, x)
-    near, X, phi, n_rest = kernels.rest_query(
+    near, X, phi, n_rest = rest_grid.rest_query(
         x, nearest, moved, np.asarray(sb.c, float), R, mb.rest_center, grid.origin, grid.cell_size,
         grid.shape, grid.values, radius, reach, largest)
     if not len(near):

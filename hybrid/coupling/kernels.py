@@ -98,53 +98,6 @@ def node_normals(x, surface_nodes, triangles, around, local):
     return out
 
 
-@nb.njit(cache=True)
-def grid_query(origin, h, shape, values, X):
-    """Signed distance ``(p,)`` m and unit outward normal ``(p, 3)`` of a signed-distance grid
-    (rigid.sdf.SignedDistanceGrid: ``origin``, cell size ``h``, node counts ``shape``, node
-    ``values``) at body-frame points ``X`` (p, 3): the trilinear interpolant and its normalised
-    gradient, outside the grid the value at its nearest point plus the distance to it and a zero
-    normal (the arithmetic of ``SignedDistanceGrid.query``, point by point)."""
-    p = len(X)
-    phi = np.empty(p)
-    normal = np.zeros((p, 3))
-    f = np.empty(3)
-    cell = np.empty(3, dtype=np.int64)
-    for k in range(p):
-        out2 = 0.0
-        for a in range(3):
-            u = (X[k, a] - origin[a]) / h
-            upper = float(shape[a] - 1)
-            clamped = min(max(u, 0.0), upper)
-            out2 += (u - clamped) ** 2
-            c = min(np.int64(np.floor(clamped)), shape[a] - 2)
-            cell[a] = c
-            f[a] = clamped - c
-        outside = np.sqrt(out2) * h
-        i, j, l = cell[0], cell[1], cell[2]
-        fx, fy, fz = f[0], f[1], f[2]
-        gx, gy, gz = 1.0 - fx, 1.0 - fy, 1.0 - fz
-        c000, c001 = values[i, j, l], values[i, j, l + 1]
-        c010, c011 = values[i, j + 1, l], values[i, j + 1, l + 1]
-        c100, c101 = values[i + 1, j, l], values[i + 1, j, l + 1]
-        c110, c111 = values[i + 1, j + 1, l], values[i + 1, j + 1, l + 1]
-        cx0 = gy * (gz * c000 + fz * c001) + fy * (gz * c010 + fz * c011)
-        cx1 = gy * (gz * c100 + fz * c101) + fy * (gz * c110 + fz * c111)
-        cy0 = gx * (gz * c000 + fz * c001) + fx * (gz * c100 + fz * c101)
-        cy1 = gx * (gz * c010 + fz * c011) + fx * (gz * c110 + fz * c111)
-        cz0 = gx * (gy * c000 + fy * c010) + fx * (gy * c100 + fy * c110)
-        cz1 = gx * (gy * c001 + fy * c011) + fx * (gy * c101 + fy * c111)
-        phi[k] = gx * cx0 + fx * cx1 + outside
-        if outside > 0:
-            continue
-        d0, d1, d2 = (cx1 - cx0) / h, (cy1 - cy0) / h, (cz1 - cz0) / h
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if not length > 0:
-            length = 1.0
-        normal[k, 0], normal[k, 1], normal[k, 2] = d0 / length, d1 / length, d2 / length
-    return phi, normal
-
-
 @nb.njit(cache=True, inline="always")
 def _ratio(num, den):
     return num / (den if den != 0 else 1.0)
@@ -366,35 +319,6 @@ def nearest_rows_of(x, rows, queries):
                 best = d[i]
                 out[k] = i
     return out
-
-
-@nb.njit(cache=True)
-def rest_query(x, nearest, moved, c, R, rest_center, origin, h, shape, values, radius, reach,
-               largest):
-    """World points ``x`` (p, 3) against a deformable body's rest surface grid (``origin``, cell
-    ``h``, ``shape``, ``values``: grid_query's), each first moved back by the deformation ``moved``
-    (s, 3) at its ``nearest`` current surface node (p,) into the rest frame (rotation ``R``, centre
-    ``c``, rest centre ``rest_center``): ``X = (x - c) R + rest_center - moved[nearest]``.
-    Returns ``(near, X, phi, n_rest)``: the points that may touch (distance less ``radius`` below
-    ``reach + largest``, with a normal or within a cell of the surface), their rest points X
-    (p, 3), signed distances less their radius (p,) and rest normals (p, 3)
-    (hybrid.coupling.fem_contact._against, in one pass)."""
-    p = len(x)
-    X = np.empty((p, 3))
-    for k in range(p):
-        y0, y1, y2 = x[k, 0] - c[0], x[k, 1] - c[1], x[k, 2] - c[2]
-        for a in range(3):
-            X[k, a] = (y0 * R[0, a] + y1 * R[1, a] + y2 * R[2, a]) + rest_center[a] - moved[nearest[k], a]
-    phi, n_rest = grid_query(origin, h, shape, values, X)
-    near = np.empty(p, dtype=np.int64)
-    count = 0
-    for k in range(p):
-        phi[k] -= radius[k]
-        has_normal = n_rest[k, 0] != 0 or n_rest[k, 1] != 0 or n_rest[k, 2] != 0
-        if phi[k] < reach[k] + largest and (has_normal or abs(phi[k] + radius[k]) <= h):
-            near[count] = k
-            count += 1
-    return near[:count], X, phi, n_rest
 
 
 @nb.njit(cache=True)
