@@ -67,3 +67,26 @@ def test_largest_norms_match_numpy_on_random_states_with_nan_and_inf():
             got = largest_norms(v, x)
             want = [float(np.sqrt(np.einsum("ij,ij->i", a, a).max())) for a in (v, x)]
             np.testing.assert_equal(got, want)
+
+
+def test_a_rest_shape_update_without_a_finite_shape_names_the_body(sim, monkeypatch):
+    """A plastic flow the small-strain update cannot bake into a rest shape (a P2 corotated box of
+    yield strain 0.2 crushed by a steel ball gave NaN plastic displacements) stops the step with
+    the body, the time and the quantity, the simulation left at the state before it."""
+    import fem.reference
+    s = sim(SCENE.replace('young = 1e6', 'young = 1e6\nyield_stress = 1e3')).advance(0.002)
+    due = {"count": 0}
+
+    def nan_displacement(model, state):
+        due["count"] += 1
+        return np.full((model.node_count, 3), np.nan)
+
+    monkeypatch.setattr(fem.reference, "plastic_displacement", nan_displacement)
+    monkeypatch.setattr(fem.reference, "reference_update_due", lambda model, state: True)
+    before = s.state
+    with pytest.raises(InstabilityError) as err:
+        s.step()
+    assert due["count"] == 1
+    assert err.value.body == "block" and "rest-shape update" in err.value.quantity
+    assert err.value.time == pytest.approx(0.003)
+    assert s.state is before

@@ -15,10 +15,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from fem.reference import apply_reference_updates
 
 from .auto import rigid_due
 from .fracture import FractureEvent, apply_fracture, fragment_of
+from .stability import InstabilityError
 from .switch import rigidify
 
 __all__ = ["between_steps", "apply_fracture", "fragment_of", "FractureEvent", "ReferenceUpdate"]
@@ -51,6 +54,12 @@ def between_steps(model, state, timings=None):
     each with ``.message`` and ``.as_dict()``. ``timings``: see :func:`apply_fracture`."""
     events = []
     fem, fem_states, updated = apply_reference_updates(model.fem, state.fem, model.dt)
+    for j in updated:
+        moved = float(np.abs(fem[j].rest_points - model.fem[j].rest_points).max())
+        if not np.isfinite(moved):
+            # a plastic flow far beyond small strain (inverted elements) has no rest shape
+            raise InstabilityError(model.names[model.fem_ids[j]], float(state.time),
+                                   "rest-shape update's plastic displacement (m)", moved)
     if updated:
         # a new rest shape on the same tets: the bodies' fracture data (faces, smoothing) and
         # their crack faces waiting to open (state.fracture_pending) stay as they are
