@@ -298,3 +298,21 @@ def test_an_auto_plate_struck_to_fracture_cracks_at_the_same_load_as_the_all_fem
     assert t == fem_t
     # the ball has given the plate the same impulse by the time it cracks
     assert np.linalg.norm(ball - fem_ball) < 0.05 * np.linalg.norm([0, 0, -8.0] - fem_ball)
+
+
+def test_a_state_with_rigid_auto_bodies_goes_through_a_checkpoint_and_steps_on_bit_for_bit():
+    """A checkpoint holds what an auto body carries (its parked FEM model and state, the contact
+    impulses it took, its switch history): decoded, the run steps on exactly as it would have."""
+    from hybrid.app import codec
+    from hybrid.coupling.step import advance
+    sim = Sim(SOFT.format(model="auto")).advance(1.5)
+    assert sim.model.parked and sim.state.touches is not None and sim.state.rigid_since
+    copy = codec.decode(*codec.encode({"model": sim.model, "state": sim.state}))
+    model, state = sim.model, sim.state
+    twin_model, twin_state = copy["model"], copy["state"]
+    for _ in range(50):
+        model, state, _ = advance(model, state)
+        twin_model, twin_state = advance(twin_model, twin_state)[:2]
+    assert np.array_equal(twin_state.rigid.position, state.rigid.position)
+    assert all(np.array_equal(a.x, b.x) for a, b in zip(twin_state.fem, state.fem))
+    assert twin_model.names == model.names and sorted(twin_model.parked) == sorted(model.parked)

@@ -36,7 +36,7 @@ CLASSES = (
     "rigid.model:RigidModel", "rigid.model:RigidState", "rigid.resolve:ContactSettings",
     "hybrid.coupling.memory:ContactMemory", "hybrid.coupling.resting:Resting",
     "hybrid.coupling.fracture:FractureBody", "hybrid.coupling.fracture:FractureEvent",
-    "hybrid.coupling.switch:Parked", "hybrid.coupling.auto:Touches", "hybrid.coupling.auto:Switch",
+    "hybrid.coupling.switch:Parked", "hybrid.coupling.touches:Touches", "hybrid.coupling.auto:Switch",
     "hybrid.coupling.events:ReferenceUpdate",
     "hybrid.app.scene.records:Scene", "hybrid.app.scene.records:Simulation",
     "hybrid.app.scene.records:Solver", "hybrid.app.scene.records:Plane",
