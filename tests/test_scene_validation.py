@@ -226,13 +226,21 @@ def test_negative_density_message_is_exact(tmp_path):
 def test_zero_quaternion_is_rejected(tmp_path):
     message = only_problem(write_scene(tmp_path, BODY + "orientation = [0, 0, 0, 0]\n"))
     assert "[bodies] \"box\" (bodies[0]): field 'orientation' must be a unit quaternion" in message
-    assert message.endswith("got [0, 0, 0, 0] with norm 0 (allowed: within 1e-06 of 1)")
+    assert message.endswith("got [0, 0, 0, 0] with norm 0 (allowed: within 0.001 of 1)")
 
 
 def test_non_unit_quaternion_is_rejected_with_its_norm(tmp_path):
     message = only_problem(write_scene(tmp_path, BODY + "orientation = [1.0, 1.0, 0.0, 0.0]\n"))
     assert "field 'orientation' must be a unit quaternion" in message
     assert "got [1.0, 1.0, 0.0, 0.0] with norm 1.41421356" in message
+
+
+def test_a_hand_written_quaternion_is_renormalised(tmp_path):
+    """Four digits of a quarter turn about x (norm 0.99999) are a unit quaternion to the scene;
+    the body is turned by exactly a quarter turn."""
+    scene = load_scene(write_scene(tmp_path, BODY + "orientation = [0.7071, 0.7071, 0.0, 0.0]\n"))
+    q = np.asarray(scene.bodies[0].orientation)
+    np.testing.assert_allclose(q, [np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0], rtol=0, atol=1e-15)
 
 
 def test_missing_mesh_file_reports_written_and_resolved_paths(tmp_path):

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 # Models whose bodies may carry FEM fields (young, anchors, ...). "auto" switches to FEM when
 # stress demands it, so it needs the same material data.
 FEM_MODELS = ("fem", "auto")
-# A quaternion whose norm differs from 1 by more than this is a mistake, not round-off.
-QUATERNION_TOLERANCE = 1e-6
+# A quaternion whose norm differs from 1 by more than this is a mistake, not rounding (the four
+# digits of a hand-written 0.7071 give a norm 1e-5 short of 1; a typo gives far more).
+QUATERNION_TOLERANCE = 1e-3
 # a scene of more steps than this is a typo (1e9 steps take days at 1e4 steps/s)
 MAX_STEPS = 1e9
 # most elements a shape may be meshed into (a mistyped resolution would otherwise exhaust memory
@@ -232,7 +233,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     _positive("density", 1000.0, "kg/m^3", "Mass density."),
     Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame)."),
     Field("orientation", "quaternion", (1.0, 0.0, 0.0, 0.0), "", "Unit quaternion `[w, x, y, z]`; "
-          "renormalised if its norm is within 1e-6 of 1."),
+          "renormalised if its norm is within 1e-3 of 1 (`[0.7071, 0.7071, 0, 0]` is a quarter "
+          "turn about x)."),
     Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Initial velocity (world frame)."),
     Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world frame)."),
     _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
