@@ -10,8 +10,13 @@ import numba as nb
 import numpy as np
 
 from .model import SHAPE_BOX, SHAPE_CAPSULE, SHAPE_CYLINDER, SHAPE_GRID, SHAPE_SPHERE
+from .sdf import DEFAULT_PADDING_CELLS
 
 FAR = 1.0e30
+# grid_sdf beyond the grid's box: steps that look again from nearer the point, each from this
+# fraction of the padding (every point that near the surface lies inside the grid)
+BEYOND_STEPS = 8
+PADDING_REACH = 0.9
 
 
 @nb.njit(cache=True)
@@ -88,18 +93,28 @@ def cylinder_sdf(px, py, pz, r, hh, cx, cy, cz):
 def grid_sdf(values, start, shape, origin, cell, px, py, pz):
     """Signed distance and unit normal of a grid body at a shape-frame point. Beyond the grid's
     box (a sphere or capsule centre further out than the grid's padding, still within its radius
-    of the surface): the distance to the surface point nearest the box point closest to it (that
-    point less its distance along its normal), along the line to it."""
+    of the surface): the distance to the nearest surface point, found from the box point closest
+    to it (that point less its distance along its normal) and refined by BEYOND_STEPS steps that
+    each look again from the point of the line towards it at PADDING_REACH of the padding
+    from the surface (inside the grid), along the line to it. Taken once from the box point, a
+    face turned against the grid's axes (a body turned rigid as it turns) tilted the normal by
+    0.4 degrees for a ball resting 3 cm above it, and the ball rolled off."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     fx, fy, fz = (px - origin[0]) / cell, (py - origin[1]) / cell, (pz - origin[2]) / cell
     if fx < 0 or fy < 0 or fz < 0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
         qx = origin[0] + cell * min(max(fx, 0.0), nx - 1.0)
         qy = origin[1] + cell * min(max(fy, 0.0), ny - 1.0)
         qz = origin[2] + cell * min(max(fz, 0.0), nz - 1.0)
-        phi, gx, gy, gz = _grid_inside(values, start, shape, origin, cell, qx, qy, qz)
-        sx, sy, sz = qx - phi * gx, qy - phi * gy, qz - phi * gz
+        reach = PADDING_REACH * DEFAULT_PADDING_CELLS * cell      # within the grid from any surface point
+        sx, sy, sz = qx, qy, qz
+        for _ in range(BEYOND_STEPS + 1):
+            phi, gx, gy, gz = _grid_inside(values, start, shape, origin, cell, qx, qy, qz)
+            sx, sy, sz = qx - phi * gx, qy - phi * gy, qz - phi * gz
+            ux, uy, uz = _unit(px - sx, py - sy, pz - sz)
+            qx = min(max(sx + reach * ux, origin[0]), origin[0] + cell * (nx - 1.0))
+            qy = min(max(sy + reach * uy, origin[1]), origin[1] + cell * (ny - 1.0))
+            qz = min(max(sz + reach * uz, origin[2]), origin[2] + cell * (nz - 1.0))
         d = math.sqrt((px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2)
-        ux, uy, uz = _unit(px - sx, py - sy, pz - sz)
         return d, ux, uy, uz
     return _grid_inside(values, start, shape, origin, cell, px, py, pz)
 

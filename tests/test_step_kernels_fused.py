@@ -8,6 +8,8 @@ import scipy.sparse as sp
 from fem import step_kernels
 from fem.system import _blocks
 from hybrid.coupling import fem_contact, kernels, nodes, resting, rest_grid, solve
+from rigid.sdf import DEFAULT_PADDING_CELLS
+from rigid.sdf_kernels import BEYOND_STEPS, PADDING_REACH
 
 SEEDS = range(4)
 
@@ -186,14 +188,19 @@ def test_rest_query_matches_the_numpy_steps_of_against(seed):
     # the numpy code of fem_contact._against the kernel replaced
     X = (x - c) @ R + rest_center - moved[nearest]
     phi, n_rest = grid.query(X)
-    # beyond the grid: from the surface point nearest its edge point nearest X
-    edge = np.clip(X, grid.origin, grid.origin + (grid.shape - 1) * grid.cell_size)
-    beyond = np.nonzero(np.any(edge != X, axis=1))[0]
-    at, toward = grid.query(edge[beyond])
-    d = X[beyond] - (edge[beyond] - at[:, None] * toward)
-    phi[beyond] = np.linalg.norm(d, axis=1)
-    n_rest[beyond] = d / phi[beyond, None]
+    # beyond the grid: the nearest surface point, from the grid's point nearest X and then from
+    # points of the line towards X within the padding (rigid.sdf_kernels.grid_sdf)
+    low, high = grid.origin, grid.origin + (grid.shape - 1) * grid.cell_size
+    q = np.clip(X, low, high)
+    beyond = np.nonzero(np.any(q != X, axis=1))[0]
     assert len(beyond) > 0
+    q, P = q[beyond], X[beyond]
+    for _ in range(BEYOND_STEPS + 1):
+        at, toward = grid.query(q)
+        surface = q - at[:, None] * toward
+        u = (P - surface) / np.linalg.norm(P - surface, axis=1, keepdims=True)
+        q = np.clip(surface + PADDING_REACH * DEFAULT_PADDING_CELLS * grid.cell_size * u, low, high)
+    phi[beyond], n_rest[beyond] = np.linalg.norm(P - surface, axis=1), u
     phi = phi - radius
     near = np.nonzero((phi < reach + largest)
                       & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]

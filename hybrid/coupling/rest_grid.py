@@ -8,6 +8,8 @@ replace on random inputs.
 import numba as nb
 import numpy as np
 
+from rigid.sdf_kernels import grid_sdf
+
 
 @nb.njit(cache=True)
 def grid_query(origin, h, shape, values, X):
@@ -59,30 +61,21 @@ def grid_query(origin, h, shape, values, X):
 @nb.njit(cache=True)
 def beyond_padding(origin, h, shape, values, X, phi, normal):
     """Points ``X`` (p, 3) outside the grid (``grid_query``'s, which gives them a zero ``normal``):
-    their distance ``phi`` (p,) and outward ``normal`` (p, 3) in place, from the surface point
-    nearest the grid point nearest them (that point less its distance along its normal). A
-    sphere larger than the grid's padding touches the surface with its centre outside the grid
-    (a 3 cm ball between the 5 cm-apart nodes of a box's top face sank 13 mm, met by nothing)."""
+    their distance ``phi`` (p,) and outward ``normal`` (p, 3) in place, from the nearest surface
+    point as a rigid grid body finds it (rigid.sdf_kernels.grid_sdf). A sphere larger than the
+    grid's padding touches the surface with its centre outside the grid (a 3 cm ball between the
+    5 cm-apart nodes of a box's top face sank 13 mm, met by nothing)."""
+    flat = values.ravel()
     for k in range(len(X)):
         if normal[k, 0] != 0 or normal[k, 1] != 0 or normal[k, 2] != 0:
             continue
-        edge = np.empty((1, 3))
-        out2 = 0.0
+        outside = False
         for a in range(3):
-            edge[0, a] = min(max(X[k, a], origin[a]), origin[a] + (shape[a] - 1) * h)
-            out2 += (X[k, a] - edge[0, a]) ** 2
-        if out2 == 0.0:
-            continue
-        at, toward = grid_query(origin, h, shape, values, edge)
-        if toward[0, 0] == 0 and toward[0, 1] == 0 and toward[0, 2] == 0:
-            continue
-        d0 = X[k, 0] - (edge[0, 0] - at[0] * toward[0, 0])
-        d1 = X[k, 1] - (edge[0, 1] - at[0] * toward[0, 1])
-        d2 = X[k, 2] - (edge[0, 2] - at[0] * toward[0, 2])
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if length > 0:
-            phi[k] = length
-            normal[k, 0], normal[k, 1], normal[k, 2] = d0 / length, d1 / length, d2 / length
+            u = (X[k, a] - origin[a]) / h
+            outside = outside or u < 0 or u > shape[a] - 1
+        if outside:
+            phi[k], normal[k, 0], normal[k, 1], normal[k, 2] = grid_sdf(
+                flat, 0, shape, origin, h, X[k, 0], X[k, 1], X[k, 2])
 
 
 @nb.njit(cache=True)
