@@ -231,7 +231,7 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_s
                     sx, sy, sz = _to_shape(Rb, Sb, xb, ob, px, py, pz)
                     phi, gx, gy, gz = shape_sdf(kind, params, grid, grid_values, grid_start,
                                                 grid_shape, grid_origin, grid_cell, sx, sy, sz,
-                                                cx, cy, cz)
+                                                cx, cy, cz, point_ring[k] + point_radius[k])
                     if phi - point_ring[k] >= reach:
                         continue
                     nx, ny, nz = _normal_to_world(Rb, Sb, gx, gy, gz)
@@ -246,7 +246,7 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_s
                     else:
                         phi, gx, gy, gz = shape_sdf(kind, params, grid, grid_values, grid_start,
                                                     grid_shape, grid_origin, grid_cell, sx, sy,
-                                                    sz, cx, cy, cz)
+                                                    sz, cx, cy, cz, point_radius[k])
                     gap = phi - point_radius[k]
                     if gap >= reach:
                         continue

@@ -17,6 +17,8 @@ FAR = 1.0e30
 # fraction of the padding (every point that near the surface lies inside the grid)
 BEYOND_STEPS = 8
 PADDING_REACH = 0.9
+# ... until the surface point moves less than this fraction of a cell
+SETTLED = 1e-3
 
 
 @nb.njit(cache=True)
@@ -90,7 +92,7 @@ def cylinder_sdf(px, py, pz, r, hh, cx, cy, cz):
 
 
 @nb.njit(cache=True)
-def grid_sdf(values, start, shape, origin, cell, px, py, pz):
+def grid_sdf(values, start, shape, origin, cell, px, py, pz, extent=0.0):
     """Signed distance and unit normal of a grid body at a shape-frame point. Beyond the grid's
     box (a sphere or capsule centre further out than the grid's padding, still within its radius
     of the surface): the distance to the nearest surface point, found from the box point closest
@@ -98,7 +100,9 @@ def grid_sdf(values, start, shape, origin, cell, px, py, pz):
     each look again from the point of the line towards it at PADDING_REACH of the padding
     from the surface (inside the grid), along the line to it. Taken once from the box point, a
     face turned against the grid's axes (a body turned rigid as it turns) tilted the normal by
-    0.4 degrees for a ball resting 3 cm above it, and the ball rolled off."""
+    0.4 degrees for a ball resting 3 cm above it, and the ball rolled off. Only a point with an
+    ``extent`` of its own (m: a sphere's or capsule's radius) is refined: one without is beyond
+    the padding from the surface, out of reach, and needs no exact normal."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     fx, fy, fz = (px - origin[0]) / cell, (py - origin[1]) / cell, (pz - origin[2]) / cell
     if fx < 0 or fy < 0 or fz < 0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
@@ -107,10 +111,14 @@ def grid_sdf(values, start, shape, origin, cell, px, py, pz):
         qz = origin[2] + cell * min(max(fz, 0.0), nz - 1.0)
         reach = PADDING_REACH * DEFAULT_PADDING_CELLS * cell      # within the grid from any surface point
         sx, sy, sz = qx, qy, qz
-        for _ in range(BEYOND_STEPS + 1):
+        for step in range(BEYOND_STEPS + 1 if extent > 0 else 1):
             phi, gx, gy, gz = _grid_inside(values, start, shape, origin, cell, qx, qy, qz)
-            sx, sy, sz = qx - phi * gx, qy - phi * gy, qz - phi * gz
+            tx, ty, tz = qx - phi * gx, qy - phi * gy, qz - phi * gz
+            moved = (tx - sx) ** 2 + (ty - sy) ** 2 + (tz - sz) ** 2
+            sx, sy, sz = tx, ty, tz
             ux, uy, uz = _unit(px - sx, py - sy, pz - sz)
+            if step > 0 and moved < (SETTLED * cell) ** 2:
+                break
             qx = min(max(sx + reach * ux, origin[0]), origin[0] + cell * (nx - 1.0))
             qy = min(max(sy + reach * uy, origin[1]), origin[1] + cell * (ny - 1.0))
             qz = min(max(sz + reach * uz, origin[2]), origin[2] + cell * (nz - 1.0))
@@ -148,7 +156,8 @@ def _grid_inside(values, start, shape, origin, cell, px, py, pz):
 
 
 @nb.njit(cache=True)
-def shape_sdf(kind, params, grid, values, starts, shapes, origins, cells, px, py, pz, cx, cy, cz):
+def shape_sdf(kind, params, grid, values, starts, shapes, origins, cells, px, py, pz, cx, cy, cz,
+              extent=0.0):
     """Signed distance and normal of one body's shape at a shape-frame point.
 
     (cx, cy, cz): centre of the body the point belongs to, same frame (breaks ties at edges)."""
@@ -167,5 +176,6 @@ def shape_sdf(kind, params, grid, values, starts, shapes, origins, cells, px, py
     if kind == SHAPE_CYLINDER:
         return cylinder_sdf(px, py, pz, params[0], params[1], cx, cy, cz)
     if kind == SHAPE_GRID and grid >= 0:
-        return grid_sdf(values, starts[grid], shapes[grid], origins[grid], cells[grid], px, py, pz)
+        return grid_sdf(values, starts[grid], shapes[grid], origins[grid], cells[grid], px, py, pz,
+                        extent)
     return FAR, 0.0, 0.0, 0.0

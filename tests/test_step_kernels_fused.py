@@ -9,7 +9,7 @@ from fem import step_kernels
 from fem.system import _blocks
 from hybrid.coupling import fem_contact, kernels, nodes, resting, rest_grid, solve
 from rigid.sdf import DEFAULT_PADDING_CELLS
-from rigid.sdf_kernels import BEYOND_STEPS, PADDING_REACH
+from rigid.sdf_kernels import BEYOND_STEPS, PADDING_REACH, SETTLED
 
 SEEDS = range(4)
 
@@ -188,19 +188,23 @@ def test_rest_query_matches_the_numpy_steps_of_against(seed):
     # the numpy code of fem_contact._against the kernel replaced
     X = (x - c) @ R + rest_center - moved[nearest]
     phi, n_rest = grid.query(X)
-    # beyond the grid: the nearest surface point, from the grid's point nearest X and then from
-    # points of the line towards X within the padding (rigid.sdf_kernels.grid_sdf)
+    # beyond the grid: the nearest surface point, from the grid's point nearest X and then, for
+    # points with a radius, from points of the line towards X within the padding until it
+    # settles (rigid.sdf_kernels.grid_sdf)
     low, high = grid.origin, grid.origin + (grid.shape - 1) * grid.cell_size
-    q = np.clip(X, low, high)
-    beyond = np.nonzero(np.any(q != X, axis=1))[0]
-    assert len(beyond) > 0
-    q, P = q[beyond], X[beyond]
-    for _ in range(BEYOND_STEPS + 1):
-        at, toward = grid.query(q)
-        surface = q - at[:, None] * toward
-        u = (P - surface) / np.linalg.norm(P - surface, axis=1, keepdims=True)
-        q = np.clip(surface + PADDING_REACH * DEFAULT_PADDING_CELLS * grid.cell_size * u, low, high)
-    phi[beyond], n_rest[beyond] = np.linalg.norm(P - surface, axis=1), u
+    beyond = np.nonzero(np.any(np.clip(X, low, high) != X, axis=1))[0]
+    assert len(beyond) > 0 and np.any(radius[beyond] > 0) and np.any(radius[beyond] == 0)
+    for k in beyond:
+        q, surface = np.clip(X[k], low, high), np.clip(X[k], low, high)
+        for step in range(BEYOND_STEPS + 1 if radius[k] > 0 else 1):
+            at, toward = grid.query(q[None])
+            shift = np.sum((q - at[0] * toward[0] - surface) ** 2)
+            surface = q - at[0] * toward[0]
+            u = (X[k] - surface) / np.linalg.norm(X[k] - surface)
+            if step > 0 and shift < (SETTLED * grid.cell_size) ** 2:
+                break
+            q = np.clip(surface + PADDING_REACH * DEFAULT_PADDING_CELLS * grid.cell_size * u, low, high)
+        phi[k], n_rest[k] = np.linalg.norm(X[k] - surface), u
     phi = phi - radius
     near = np.nonzero((phi < reach + largest)
                       & (np.any(n_rest != 0, axis=1) | (np.abs(phi + radius) <= grid.cell_size)))[0]

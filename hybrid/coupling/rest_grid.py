@@ -59,10 +59,10 @@ def grid_query(origin, h, shape, values, X):
 
 
 @nb.njit(cache=True)
-def beyond_padding(origin, h, shape, values, X, phi, normal):
+def beyond_padding(origin, h, shape, values, X, radius, phi, normal):
     """Points ``X`` (p, 3) outside the grid (``grid_query``'s, which gives them a zero ``normal``):
     their distance ``phi`` (p,) and outward ``normal`` (p, 3) in place, from the nearest surface
-    point as a rigid grid body finds it (rigid.sdf_kernels.grid_sdf). A sphere larger than the
+    point as a rigid grid body finds it for points of ``radius`` (p,) m (rigid.sdf_kernels.grid_sdf). A sphere larger than the
     grid's padding touches the surface with its centre outside the grid (a 3 cm ball between the
     5 cm-apart nodes of a box's top face sank 13 mm, met by nothing)."""
     flat = values.ravel()
@@ -75,7 +75,7 @@ def beyond_padding(origin, h, shape, values, X, phi, normal):
             outside = outside or u < 0 or u > shape[a] - 1
         if outside:
             phi[k], normal[k, 0], normal[k, 1], normal[k, 2] = grid_sdf(
-                flat, 0, shape, origin, h, X[k, 0], X[k, 1], X[k, 2])
+                flat, 0, shape, origin, h, X[k, 0], X[k, 1], X[k, 2], radius[k])
 
 
 @nb.njit(cache=True)
@@ -96,7 +96,7 @@ def rest_query(x, nearest, moved, c, R, rest_center, origin, h, shape, values, r
         for a in range(3):
             X[k, a] = (y0 * R[0, a] + y1 * R[1, a] + y2 * R[2, a]) + rest_center[a] - moved[nearest[k], a]
     phi, n_rest = grid_query(origin, h, shape, values, X)
-    beyond_padding(origin, h, shape, values, X, phi, n_rest)
+    beyond_padding(origin, h, shape, values, X, radius, phi, n_rest)
     near = np.empty(p, dtype=np.int64)
     count = 0
     for k in range(p):
