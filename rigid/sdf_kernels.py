@@ -96,9 +96,10 @@ def grid_sdf(values, start, shape, origin, cell, px, py, pz, extent=0.0):
     """Signed distance and unit normal of a grid body at a shape-frame point. Beyond the grid's
     box (a sphere or capsule centre further out than the grid's padding, still within its radius
     of the surface): the distance to the nearest surface point, found from the box point closest
-    to it (that point less its distance along its normal) and refined by BEYOND_STEPS steps that
-    each look again from the point of the line towards it at PADDING_REACH of the padding
-    from the surface (inside the grid), along the line to it. Taken once from the box point, a
+    to it (that point less its distance along its normal) and refined by up to BEYOND_STEPS steps
+    that each look again from the point of the line towards it at PADDING_REACH of the padding
+    from the surface (inside the grid), until the surface point moves less than SETTLED of a
+    cell; the normal is along the line to it. Taken once from the box point, a
     face turned against the grid's axes (a body turned rigid as it turns) tilted the normal by
     0.4 degrees for a ball resting 3 cm above it, and the ball rolled off. Only a point with an
     ``extent`` of its own (m: a sphere's or capsule's radius) is refined: one without is beyond
