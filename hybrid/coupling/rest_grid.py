@@ -8,53 +8,22 @@ replace on random inputs.
 import numba as nb
 import numpy as np
 
+from rigid.sdf import sdf_sample
 from rigid.sdf_kernels import grid_sdf
 
 
 @nb.njit(cache=True)
 def grid_query(origin, h, shape, values, X):
     """Signed distance ``(p,)`` m and unit outward normal ``(p, 3)`` of a signed-distance grid
-    (rigid.sdf.SignedDistanceGrid: ``origin``, cell size ``h``, node counts ``shape``, node
-    ``values``) at body-frame points ``X`` (p, 3): the trilinear interpolant and its normalised
-    gradient, outside the grid the value at its nearest point plus the distance to it and a zero
-    normal (the arithmetic of ``SignedDistanceGrid.query``, point by point)."""
+    (rigid.sdf.SignedDistanceGrid: ``origin``, cell size ``h``, node ``values``) at body-frame
+    points ``X`` (p, 3): ``rigid.sdf.sdf_sample`` point by point (outside the grid the value at
+    its nearest point plus the distance to it, and a zero normal). ``shape``: the node counts,
+    ``values.shape``."""
     p = len(X)
     phi = np.empty(p)
     normal = np.zeros((p, 3))
-    f = np.empty(3)
-    cell = np.empty(3, dtype=np.int64)
     for k in range(p):
-        out2 = 0.0
-        for a in range(3):
-            u = (X[k, a] - origin[a]) / h
-            upper = float(shape[a] - 1)
-            clamped = min(max(u, 0.0), upper)
-            out2 += (u - clamped) ** 2
-            c = min(np.int64(np.floor(clamped)), shape[a] - 2)
-            cell[a] = c
-            f[a] = clamped - c
-        outside = np.sqrt(out2) * h
-        i, j, l = cell[0], cell[1], cell[2]
-        fx, fy, fz = f[0], f[1], f[2]
-        gx, gy, gz = 1.0 - fx, 1.0 - fy, 1.0 - fz
-        c000, c001 = values[i, j, l], values[i, j, l + 1]
-        c010, c011 = values[i, j + 1, l], values[i, j + 1, l + 1]
-        c100, c101 = values[i + 1, j, l], values[i + 1, j, l + 1]
-        c110, c111 = values[i + 1, j + 1, l], values[i + 1, j + 1, l + 1]
-        cx0 = gy * (gz * c000 + fz * c001) + fy * (gz * c010 + fz * c011)
-        cx1 = gy * (gz * c100 + fz * c101) + fy * (gz * c110 + fz * c111)
-        cy0 = gx * (gz * c000 + fz * c001) + fx * (gz * c100 + fz * c101)
-        cy1 = gx * (gz * c010 + fz * c011) + fx * (gz * c110 + fz * c111)
-        cz0 = gx * (gy * c000 + fy * c010) + fx * (gy * c100 + fy * c110)
-        cz1 = gx * (gy * c001 + fy * c011) + fx * (gy * c101 + fy * c111)
-        phi[k] = gx * cx0 + fx * cx1 + outside
-        if outside > 0:
-            continue
-        d0, d1, d2 = (cx1 - cx0) / h, (cy1 - cy0) / h, (cz1 - cz0) / h
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if not length > 0:
-            length = 1.0
-        normal[k, 0], normal[k, 1], normal[k, 2] = d0 / length, d1 / length, d2 / length
+        phi[k], normal[k, 0], normal[k, 1], normal[k, 2] = sdf_sample(values, origin, h, X[k])
     return phi, normal
 
 
