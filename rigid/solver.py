@@ -15,7 +15,7 @@ import numpy as np
 from .coarse import _cross3, _push, _rigid_velocity, coarse_space, coarse_step, entities
 from .coarse import COARSE_EVERY
 from .particle_kernels import (_add_pair_block, _apply_particle, _particle_velocity,
-                               _rotate_particles)
+                               _rotate_particles, with_place_rows)
 
 
 @nb.njit(cache=True)
@@ -370,8 +370,8 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     for i in range(len(group_of)):
         if group_of[i] >= 0:
             return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
-                        invI, v, w, iterations, (group_of, group_R, w_ptr, w_col, W, corner,
-                                                 corner_w), apply_lam)
+                        invI, v, w, iterations, with_place_rows(ia, ib, active, (
+                            group_of, group_R, w_ptr, w_col, W, corner, corner_w)), apply_lam)
     return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v,
                 w, iterations, None, apply_lam)
 
@@ -384,7 +384,7 @@ def pgs_at(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, 
     for i in range(len(group_of)):
         if group_of[i] >= 0:
             return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam,
-                          inv_m, invI, v, w, iterations, (group_of, group_R, w_ptr, w_col, W,
-                                                          corner, corner_w), apply_lam)
+                          inv_m, invI, v, w, iterations, with_place_rows(ia, ib, active, (
+                              group_of, group_R, w_ptr, w_col, W, corner, corner_w)), apply_lam)
     return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
                   invI, v, w, iterations, None, apply_lam)

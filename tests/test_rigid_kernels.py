@@ -133,6 +133,7 @@ def test_arms_and_normal_velocity_match_numpy():
 def test_rigid_only_solve_matches_the_solve_with_particle_branches():
     """pgs compiles its sweeps twice, with the particle branches pruned when no solver body is a
     particle: both give the same impulses and velocities, bit for bit, on a rigid problem."""
+    from rigid.particle_kernels import with_place_rows
     from rigid.solver import _pgs
     rng = np.random.default_rng(5)
     n, c = 20, 120
@@ -149,7 +150,7 @@ def test_rigid_only_solve_matches_the_solve_with_particle_branches():
     groups = (np.full(n, -1), np.eye(3)[None], np.zeros(n + 1, np.int64), np.zeros(1, np.int64),
               np.zeros((1, 3, 3)), np.full((n, 3), -1), np.zeros((n, 3)))
     results = []
-    for g in (None, groups):
+    for g in (None, with_place_rows(ia, ib, active, groups)):
         v, w, lam = v0.copy(), w0.copy(), lam0.copy()
         out = _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_mass,
                    invI, v, w, 15, g, True)
@@ -173,3 +174,56 @@ def test_combined_coefficients_match_numpy():
     e_b = np.where(b < 0, plane_e[plane], body_e[np.maximum(b, 0)])
     np.testing.assert_array_equal(mu, combine_friction(mu_a, mu_b))
     np.testing.assert_array_equal(e, combine_restitution(e_a, e_b))
+
+
+def test_place_rows_push_as_their_corners_rows_do():
+    """An impulse on a place through its merged row (rigid.particle_kernels.with_place_rows) moves
+    every particle of its group as the place's corners' weighted shares pushed through their own
+    rows do (numpy, dense), to round-off; a place no active contact touches gets an empty row."""
+    from rigid.particle_kernels import _apply_particle, with_place_rows
+    rng = np.random.default_rng(11)
+    n_part, n_place = 12, 5
+    n = n_part + n_place
+    group_of = np.r_[np.zeros(6, np.int64), np.ones(6, np.int64), [0, 0, 1, 1, 0]]
+    R = quat.to_matrix(quat.normalize(rng.normal(size=(2, 4))))
+    # block-sparse symmetric W over each group's particles, some blocks dropped
+    dense = np.zeros((n_part, n_part, 3, 3))
+    for g in (0, 1):
+        members = np.flatnonzero(group_of[:n_part] == g)
+        A = rng.normal(size=(3 * len(members), 3 * len(members)))
+        S = (A @ A.T).reshape(len(members), 3, len(members), 3).transpose(0, 2, 1, 3)
+        keep = rng.random((len(members), len(members))) < 0.6
+        keep = keep | keep.T | np.eye(len(members), dtype=bool)
+        for a, i in enumerate(members):
+            for b, l in enumerate(members):
+                if keep[a, b]:
+                    dense[i, l] = S[a, b]
+    w_ptr, w_col, W = [0], [], []
+    for i in range(n):
+        cols = [i] + [l for l in range(n_part) if l != i and dense[i, l].any()] if i < n_part else []
+        w_col += cols
+        W += [dense[i, l] for l in cols]
+        w_ptr.append(len(w_col))
+    corner = np.full((n, 3), -1)
+    corner_w = np.zeros((n, 3))
+    for i in range(n_part, n):
+        corner[i] = rng.choice(np.flatnonzero(group_of[:n_part] == group_of[i]), 3, replace=False)
+        corner_w[i] = rng.dirichlet(np.ones(3))
+    corner_w[n - 1, 1] = 0.0                            # a place on an edge: one weight zero
+    groups = (group_of, R, np.array(w_ptr), np.array(w_col), np.array(W), corner, corner_w)
+    ia = np.array([0, 7, 3, 9, 2])
+    ib = np.array([12, 13, 14, 16, 15])
+    active = np.array([True, True, False, True, True])      # place 14 is touched by nothing active
+    extended = with_place_rows(ia, ib, active, groups)
+    ptr = extended[7]
+    assert ptr[15] - ptr[14] == 0 and ptr[13] - ptr[12] > 0
+    for i in (12, 13, 15, 16):
+        J = rng.normal(size=3)
+        v = rng.normal(size=(n, 3))
+        expected = v.copy()
+        j = R[group_of[i]].T @ J                         # the impulse in the group's frame
+        for c, f in zip(corner[i], corner_w[i]):
+            for p in range(w_ptr[c], w_ptr[c + 1]):
+                expected[w_col[p]] += W[p].T @ (f * j)
+        _apply_particle(i, J[0], J[1], J[2], v, extended)
+        np.testing.assert_allclose(v, expected, rtol=1e-13, atol=1e-13)
