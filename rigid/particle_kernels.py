@@ -11,16 +11,6 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
-def _block(i, l, W, w_ptr, w_col):
-    """W[i, l] (3, 3), group frame: velocity of particle i per unit impulse on particle l (zero
-    when the block was dropped as negligible)."""
-    for p in range(w_ptr[i], w_ptr[i + 1]):
-        if w_col[p] == l:
-            return W[p]
-    return np.zeros((3, 3))
-
-
 @nb.njit(cache=True, inline="always")
 def _particle_velocity(i, v, groups):
     """World velocity of particle or place i: its group-frame velocity rotated out (a place: the
@@ -122,11 +112,18 @@ def with_place_rows(ia, ib, active, groups):
     return (groups[0], groups[1], groups[2], groups[3], groups[4], groups[5], groups[6], ptr, col, B)
 
 
-@nb.njit(cache=True)
-def _add_pair_block(i, l, D, scale, groups, out):
-    """:func:`_add_block` for particles or places i and l of one group (a place's block is the
-    weighted sum of its corners')."""
-    corner, corner_w = groups[5], groups[6]
+@nb.njit(cache=True, inline="always")
+def _add_pair_block(i, l, D, scale, groups, out, Db):
+    """Add scale * D R W[i, l] R^T D^T to out (3, 3) for particles or places i and l of one group
+    (a place's block is the weighted sum of its corners'): block W[i, l] (group frame, zero when
+    dropped) seen along the rows of D (world directions). ``Db`` (3, 3): scratch, the rows of D
+    in the group frame."""
+    group_of, group_R, w_ptr, w_col, W, corner, corner_w = (groups[0], groups[1], groups[2], groups[3],
+                                                            groups[4], groups[5], groups[6])
+    R = group_R[group_of[i]]
+    for e in range(3):
+        for a in range(3):
+            Db[e, a] = D[e, 0] * R[0, a] + D[e, 1] * R[1, a] + D[e, 2] * R[2, a]
     ni = 3 if corner[i, 0] >= 0 else 1
     nl = 3 if corner[l, 0] >= 0 else 1
     for a in range(ni):
@@ -134,26 +131,29 @@ def _add_pair_block(i, l, D, scale, groups, out):
         for b in range(nl):
             q, fq = (corner[l, b], corner_w[l, b]) if nl == 3 else (l, 1.0)
             if fp != 0.0 and fq != 0.0:
-                _add_block(p, q, D, scale * fp * fq, groups, out)
+                _add_block(_block_at(p, q, w_ptr, w_col), W, Db, scale * fp * fq, out)
 
 
-@nb.njit(cache=True)
-def _add_block(i, l, D, scale, groups, out):
-    """Add scale * D R W[i, l] R^T D^T to out (3, 3): block W[i, l] (group frame) seen along the
-    rows of D (world directions)."""
-    group_of, group_R, w_ptr, w_col, W = groups[0], groups[1], groups[2], groups[3], groups[4]
-    R = group_R[group_of[i]]
-    Wb = _block(i, l, W, w_ptr, w_col)
-    Db = np.zeros((3, 3))                               # directions in the group frame
-    for e in range(3):
-        for a in range(3):
-            Db[e, a] = D[e, 0] * R[0, a] + D[e, 1] * R[1, a] + D[e, 2] * R[2, a]
+@nb.njit(cache=True, inline="always")
+def _block_at(i, l, w_ptr, w_col):
+    """Where block [i, l] is in W (-1 when it was dropped as negligible)."""
+    for p in range(w_ptr[i], w_ptr[i + 1]):
+        if w_col[p] == l:
+            return p
+    return -1
+
+
+@nb.njit(cache=True, inline="always")
+def _add_block(p, W, Db, scale, out):
+    """Add scale * Db W[p] Db^T to out (3, 3) (nothing for p = -1, a dropped block)."""
+    if p < 0:
+        return
     for e in range(3):
         for f in range(3):
             acc = 0.0
             for a in range(3):
                 for b in range(3):
-                    acc += Db[f, a] * Wb[a, b] * Db[e, b]
+                    acc += Db[f, a] * W[p, a, b] * Db[e, b]
             out[f, e] += scale * acc
 
 

@@ -102,15 +102,15 @@ def _apply_pair(j, k, l0, l1, l2, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m
     _apply(ib[k], rb, k, -J0, -J1, -J2, scale_b[k], inv_m, invI, v, w, groups)
 
 
-@nb.njit(cache=True)
-def _response(i, r, k, basis, j, scale, inv_m, invI, groups, K):
+@nb.njit(cache=True, inline="always")
+def _response(i, r, k, basis, j, scale, inv_m, invI, groups, K, Db):
     """Add to K[j] (3, 3) the velocity of body i at arm r[k] along the rows of basis[j] per unit
-    impulse along them, times scale."""
+    impulse along them, times scale (Db: (3, 3) scratch)."""
     if i < 0 or scale == 0.0:
         return
     if groups is not None:
         if groups[0][i] >= 0:
-            _add_pair_block(i, i, basis[j], scale, groups, K[j])
+            _add_pair_block(i, i, basis[j], scale, groups, K[j], Db)
             return
     r0, r1, r2 = r[k, 0], r[k, 1], r[k, 2]
     for e in range(3):
@@ -132,19 +132,20 @@ def _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups
     (m, 2) each side's own part of the normal response (the share rigid.coarse weighs)."""
     K = np.zeros((len(idx), 3, 3))
     side = np.zeros((len(idx), 2))
+    Db = np.empty((3, 3))
     for j in range(len(idx)):
         k = idx[j]
         a, b = ia[k], ib[k]
-        _response(a, ra, k, basis, j, scale_a[k], inv_m, invI, groups, K)
+        _response(a, ra, k, basis, j, scale_a[k], inv_m, invI, groups, K, Db)
         side[j, 0] = K[j, 0, 0]
-        _response(b, rb, k, basis, j, scale_b[k], inv_m, invI, groups, K)
+        _response(b, rb, k, basis, j, scale_b[k], inv_m, invI, groups, K, Db)
         side[j, 1] = K[j, 0, 0] - side[j, 0]
         if groups is not None:
             group_of = groups[0]
             if a >= 0 and b >= 0 and group_of[a] >= 0 and group_of[a] == group_of[b]:
                 # both sides in one deformable body: an impulse on one side moves the other too
-                _add_pair_block(a, b, basis[j], -scale_b[k], groups, K[j])
-                _add_pair_block(b, a, basis[j], -scale_a[k], groups, K[j])
+                _add_pair_block(a, b, basis[j], -scale_b[k], groups, K[j], Db)
+                _add_pair_block(b, a, basis[j], -scale_a[k], groups, K[j], Db)
     return K, side
 
 
