@@ -177,12 +177,15 @@ def _corotated_solver(model, dt, A, state):
     if model.corotated_solver == "lu":
         return Factorisation(A_ff, model.linear_solver).solve, iterations
     # precondition with the rest system rotated into the body's best-fit frame: exact for a rigid
-    # rotation of the whole body, close while the elements rotate together (R = I when anchored)
+    # rotation of the whole body, close while the elements rotate together (R = I when anchored;
+    # a body whose resting nodes are held keeps its floating frame, and every DOF of a held node
+    # is prescribed, so its free DOFs turn node by node too)
     rest = system_factorisation(model, dt)
-    R = state.R
+    R = np.asarray(state.R, float)
+    turned = not np.array_equal(R, np.eye(3))
 
     def precondition(r):
-        if model.anchored:
+        if not turned:
             return rest.solve(r)
         return (rest.solve((r.reshape(-1, 3) @ R).ravel()).reshape(-1, 3) @ R.T).ravel()
 

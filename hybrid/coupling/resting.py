@@ -27,9 +27,8 @@ cone stays inside it, while Newmark's keep oscillating about their mean. While a
 the body's other resting nodes are watched the same way, and once they have rested
 ``ENTER_AFTER`` steps and number at least ``GROW_SHARE`` of the set they join it (one more
 factorisation): a set first held while the body was still settling takes in the nodes that come
-to rest later (the rim of a slab spreading under a load, 88-96% of the way to sliding). Floating-
-frame and anchored elastic bodies are held; corotated and plastic ones always go through the
-solver.
+to rest later (the rim of a slab spreading under a load, 88-96% of the way to sliding). Elastic
+bodies are held (floating, corotated or anchored); plastic ones always go through the solver.
 """
 from dataclasses import dataclass, replace
 
@@ -76,8 +75,8 @@ class Resting:
 
 
 def eligible(model):
-    """Whether a body may be held: elastic, in the floating frame (or anchored)."""
-    return model.frame == "floating" and not model.plastic
+    """Whether a body may be held: elastic (floating or corotated frame, or anchored)."""
+    return not model.plastic
 
 
 def held_velocity(model, state, rest, h):
