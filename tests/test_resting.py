@@ -90,6 +90,24 @@ def test_held_slab_moves_as_the_contact_solver_moves_it(sim, integrator, frame):
     assert np.abs(held.state.fem[0].v - v).max() < 1e-6 + 5e-3 * np.abs(v).max()
 
 
+def test_held_plastic_slab_yields_as_under_the_contact_solver(sim):
+    """A plastic slab (yield stress 300 Pa) yielding under the box on it is held like an elastic
+    one (its return map does not move nodes) and flows as the solver-only slab does: the same
+    plastic strain and positions to the solver's tolerance, through its reference-shape updates."""
+    def plastic(hold):
+        return slab(hold=hold).replace("young = 1.0e6", "young = 1.0e6\nyield_stress = 300.0")
+    held, free = sim(plastic(True)), sim(plastic(False))
+    steps = []
+    held.advance(0.8, each=lambda s: steps.append(s.state.resting[0] is not None and s.state.resting[0].held))
+    free.advance(0.8)
+    assert sum(steps) > 100 and not any(r is not None and r.held for r in free.state.resting)
+    a, b = held.state.fem[0], free.state.fem[0]
+    assert np.abs(b.tet_plastic_strain).max() > 3e-3            # it yields
+    assert np.abs(a.tet_plastic_strain - b.tet_plastic_strain).max() < 1e-3 * np.abs(b.tet_plastic_strain).max()
+    assert np.abs(positions(held) - positions(free)).max() < 2e-7
+    assert len(held.events) == len(free.events) > 0              # reference-shape updates
+
+
 def test_ground_carries_the_weight_of_a_held_slab_and_its_load(sim):
     """At rest, the impulses the held nodes take per step add up to the weight of the slab and
     the box on it, and they push only along the ground's normal."""

@@ -36,8 +36,8 @@ def records(model, state):
 
 def hold_sets(model, state):
     """Per FEM body, its resting record when the body steps with its resting nodes held, else None."""
-    return [r if model.settings.hold_resting and r is not None and r.held and resting.eligible(m)
-            else None for m, r in zip(model.fem, records(model, state))]
+    return [r if model.settings.hold_resting and r is not None and r.held else None
+            for r in records(model, state)]
 
 
 def held_rows(hold, nodes, found):
@@ -57,7 +57,7 @@ def held_rows(hold, nodes, found):
 
 
 def first_sight(model, state, hold, nodes, found, h):
-    """The :class:`HoldNow` of the first free, eligible body whose node contacts with static
+    """The :class:`HoldNow` of the first free body whose node contacts with static
     ground make a large new resting patch (hybrid.coupling.resting.first_sight), else None."""
     if not model.settings.hold_resting:
         return None
@@ -65,7 +65,7 @@ def first_sight(model, state, hold, nodes, found, h):
     body = nodes.body[contacts.body_a]
     for j, (m, s, last) in enumerate(zip(model.fem, state.fem, records(model, state))):
         on = np.nonzero((body == j) & found.nodes_static)[0]
-        if hold[j] is not None or len(on) < resting.FIRST_SIGHT or not resting.eligible(m):
+        if hold[j] is not None or len(on) < resting.FIRST_SIGHT:
             continue
         local = nodes.local[contacts.body_a[on]]
         record = resting.first_sight(
@@ -150,8 +150,7 @@ def watch(model, state, nodes, found, row_impulse):
         out.append(resting.observe(
             last, nodes.local[contacts.body_a[on]], nodes.local[others[nodes.body[others] == j]],
             contacts.normal[on], contacts.gap[on], s.x, contacts.friction[on], row_impulse[on],
-            found.nodes_static[on], m.node_anchor >= 0, resting.stick_margin(m))
-            if resting.eligible(m) else None)
+            found.nodes_static[on], m.node_anchor >= 0, resting.stick_margin(m)))
     return tuple(out)
 
 

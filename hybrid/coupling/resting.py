@@ -27,8 +27,9 @@ cone stays inside it, while Newmark's keep oscillating about their mean. While a
 the body's other resting nodes are watched the same way, and once they have rested
 ``ENTER_AFTER`` steps and number at least ``GROW_SHARE`` of the set they join it (one more
 factorisation): a set first held while the body was still settling takes in the nodes that come
-to rest later (the rim of a slab spreading under a load, 88-96% of the way to sliding). Elastic
-bodies are held (floating, corotated or anchored); plastic ones always go through the solver.
+to rest later (the rim of a slab spreading under a load, 88-96% of the way to sliding). Every
+deformable body may be held: floating or corotated, anchored or not, elastic or plastic (its
+return map changes strains, not positions, after the step's check).
 """
 from dataclasses import dataclass, replace
 
@@ -72,11 +73,6 @@ class Resting:
         """Whether the set is held: it has rested unchanged over ``ENTER_AFTER`` steps, no wait
         after a release remains, and it is not empty."""
         return self.steps > ENTER_AFTER and self.wait == 0 and len(self.nodes) > 0
-
-
-def eligible(model):
-    """Whether a body may be held: elastic (floating or corotated frame, or anchored)."""
-    return not model.plastic
 
 
 def held_velocity(model, state, rest, h):
