@@ -123,9 +123,15 @@ def warped_assembly(data, rotations, dof_count):
     """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) for element rotations
     ``(t, 3, 3)``: each node-pair block of ``tet_stiffness`` rotated and summed into the
     precomputed pattern in one compiled pass (stiffness warping, Mueller and Gross 2004)."""
+    return sp.csr_matrix((warped_values(data, rotations), data.pattern_cols, data.pattern_indptr),
+                         shape=(dof_count, dof_count))
+
+
+def warped_values(data, rotations):
+    """The values ``(nnz,)`` of :func:`warped_assembly` on the pattern of ``data``."""
     values = np.zeros(len(data.pattern_cols))
     _warp_into(data.tet_stiffness, np.ascontiguousarray(rotations, dtype=float), data.block_to_csr, values)
-    return sp.csr_matrix((values, data.pattern_cols, data.pattern_indptr), shape=(dof_count, dof_count))
+    return values
 
 
 @nb.njit(cache=True)

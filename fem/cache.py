@@ -41,6 +41,8 @@ class FemCache:
     current_tree: k-d tree of the surface nodes at the positions it was built from (its ``data``)
         (``hybrid.coupling.fem_contact``).
     extent: the rest shape's largest extent, m (``hybrid.coupling.auto.extent``).
+    warped_places: where a corotated body's mass and free block sit in its stiffness pattern
+        (``fem.system._warped_places``).
     """
     factor: FactorCache = field(default_factory=FactorCache)
     response: object = None
@@ -54,3 +56,4 @@ class FemCache:
     surface_index: tuple | None = None
     current_tree: object = None
     extent: float | None = None
+    warped_places: tuple | None = None

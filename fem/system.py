@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from fem.assembly import warped_assembly, warped_forces
+from fem.assembly import warped_assembly, warped_forces, warped_values
 from fem.plastic_flow import plastic_force
 from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
@@ -149,9 +149,8 @@ def internal_forces_and_solver(model, dt, state):
         force = elastic_force(model, state, tet_R)
         if model.plastic:
             force += plastic_force(model, state, tet_R)
-        K = warped_stiffness(model, tet_R)
-        A = (a_M * model.M + a_K * K).tocsr()
-        solve, iterations = _corotated_solver(model, dt, A, state)
+        K, A, A_ff = _warped_system(model, dt, tet_R)
+        solve, iterations = _corotated_solver(model, dt, A_ff, state)
         return force, K, np.eye(3), A, solve, iterations
     force = elastic_force(model, state)
     if model.plastic:
@@ -169,10 +168,61 @@ class LazyMatrix:
         return system_matrix(self.model, self.dt) @ vector
 
 
-def _corotated_solver(model, dt, A, state):
-    """Solver for this step's warped system on the free DOFs; returns ``(solve, iterations)``
-    where ``iterations`` is a one-element list counting CG iterations (stays 0 for LU)."""
-    A_ff = _free_block(model, A)
+def _warped_system(model, dt, tet_R):
+    """The warped stiffness K_R, the step's system ``A = a_M M + a_K K_R`` and A's block on the free
+    DOFs (CSR), all on the fixed pattern of K (:func:`_warped_places`): the sum is taken value by
+    value, the mass added at its places, and the free block gathered from A's values, instead of
+    summing and slicing sparse matrices every step (the same numbers)."""
+    a_M, a_K = system_coefficients(model, dt)
+    data, n3 = model.elements, 3 * model.node_count
+    values = warped_values(data, tet_R)
+    K = sp.csr_matrix((values, data.pattern_cols, data.pattern_indptr), shape=(n3, n3))
+    places = _warped_places(model)
+    if places is None:
+        A = (a_M * model.M + a_K * K).tocsr()
+        return K, A, _free_block(model, A)
+    at, mass, free_entries, free_indices, free_indptr = places
+    a = a_K * values
+    a[at] += a_M * mass
+    A = sp.csr_matrix((a, data.pattern_cols, data.pattern_indptr), shape=(n3, n3))
+    if not model.anchored:
+        return K, A, A
+    f = len(model.free_dofs)
+    return K, A, sp.csr_matrix((a[free_entries], free_indices, free_indptr), shape=(f, f))
+
+
+def _warped_places(model):
+    """Where the mass matrix's entries sit in the stiffness pattern, and which pattern entries make
+    the free block: ``(at (m,), mass (m,), free_entries, free_indices, free_indptr)``, the last
+    three the free block's CSR data positions, columns and row pointer; None when M has an entry
+    outside the pattern. Built once per model (a held variant has its own cache)."""
+    if model.cache.warped_places is None:
+        data, n3 = model.elements, 3 * model.node_count
+        rows = np.repeat(np.arange(n3), np.diff(data.pattern_indptr))
+        keys = rows * n3 + data.pattern_cols             # sorted: rows in order, columns within
+        M = sp.csr_matrix(model.M)
+        M.sum_duplicates()
+        m_keys = np.repeat(np.arange(n3), np.diff(M.indptr)) * n3 + M.indices
+        at = np.minimum(np.searchsorted(keys, m_keys), len(keys) - 1)
+        if len(keys) == 0 or not np.array_equal(keys[at], m_keys):
+            model.cache.warped_places = (None,)
+        else:
+            free = np.zeros(n3, dtype=bool)
+            free[model.free_dofs] = True
+            entries = np.nonzero(free[rows] & free[data.pattern_cols])[0]
+            renumber = np.cumsum(free) - 1
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(renumber[rows[entries]],
+                                                                 minlength=len(model.free_dofs)))])
+            model.cache.warped_places = (at, M.data.copy(), entries, renumber[data.pattern_cols[entries]],
+                                         indptr)
+    places = model.cache.warped_places
+    return None if places[0] is None else places
+
+
+def _corotated_solver(model, dt, A_ff, state):
+    """Solver for this step's warped system on the free DOFs (``A_ff``); returns ``(solve,
+    iterations)`` where ``iterations`` is a one-element list counting CG iterations (stays 0 for
+    LU)."""
     iterations = [0]
     if model.corotated_solver == "lu":
         return Factorisation(A_ff, model.linear_solver).solve, iterations
@@ -189,14 +239,16 @@ def _corotated_solver(model, dt, A, state):
             return rest.solve(r)
         return (rest.solve((r.reshape(-1, 3) @ R).ravel()).reshape(-1, 3) @ R.T).ravel()
 
-    guess = state.v.ravel()[model.free_dofs] if model.anchored else state.v.ravel()
+    # the step's first solve is for its velocities, warm-started from the last ones; the later
+    # ones answer impulses (velocity changes) and start from zero
+    guess = [state.v.ravel()[model.free_dofs] if model.anchored else state.v.ravel()]
 
     direct = []      # this step's factorisation, made only if CG fails to converge
 
     def solve(rhs):
         if not direct:
             try:
-                x, its = cg_solve(A_ff, rhs, guess, precondition)
+                x, its = cg_solve(A_ff, rhs, guess.pop() if guess else None, precondition)
                 iterations[0] += its
                 return x
             except RuntimeError:

@@ -1,6 +1,8 @@
-"""A corotated body whose CG solve does not converge takes the step by a direct solve of the same
-warped system: the same step the `lu` setting takes."""
+"""The corotated body's step system: a CG solve that does not converge is replaced by a direct
+solve of the same warped system (the step the `lu` setting takes); a held body turned from its rest
+shape is preconditioned in its frame; the system built on the stiffness pattern is scipy's sum."""
 import numpy as np
+import pytest
 
 import fem.system as system
 from fem import dynamics as fem_dyn
@@ -38,7 +40,7 @@ def test_a_held_corotated_body_turned_from_its_rest_shape_is_preconditioned_in_i
     once, and the step is the direct solve's (lu)."""
     from fem.model import holding
     from rigid import quaternion as quat
-    points, tets = box_tet_mesh((0.2, 0.1, 0.1), 0.025)
+    points, tets = box_tet_mesh((0.2, 0.1, 0.1), 8)
     turn = quat.to_matrix(np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]))     # 90 deg about x
     x = points @ turn.T
     bottom = np.nonzero(x[:, 2] < x[:, 2].min() + 1e-9)[0]
@@ -54,3 +56,25 @@ def test_a_held_corotated_body_turned_from_its_rest_shape_is_preconditioned_in_i
     assert steps["cg"].iterations[0] <= 2
     assert np.allclose(steps["cg"].v, steps["lu"].v, rtol=1e-8, atol=1e-12)
     assert np.abs(steps["cg"].v[bottom]).max() == 0.0
+
+
+@pytest.mark.parametrize("mass, order", [("lumped", 1), ("consistent", 1), ("lumped", 2), ("consistent", 2)])
+def test_warped_system_on_the_stiffness_pattern_is_the_sparse_sum(mass, order):
+    """The step's warped system taken value by value on K's pattern (fem.system._warped_system)
+    multiplies as ``a_M M + a_K K_R`` and its free block do, built by scipy's sum and slicing, bit
+    for bit; for a free body and for a held variant."""
+    from fem.assembly import warped_assembly
+    from fem.model import holding
+    from rigid import quaternion as quat
+    rng = np.random.default_rng(4)
+    points, tets = box_tet_mesh((0.2, 0.1, 0.1), 6)
+    model = build_fem_model(points, tets, order=order, density=1000, young=1e6, poisson=0.3,
+                            frame="corotated", mass=mass, damping_mass=0.5, damping_stiffness=0.01)
+    for m in (model, holding(model, np.arange(0, model.node_count, 7))):
+        R = quat.to_matrix(quat.normalize(rng.normal(size=(m.tet_count, 4))))
+        a_M, a_K = system.system_coefficients(m, 1e-3)
+        A_sum = (a_M * m.M + a_K * warped_assembly(m.elements, R, 3 * m.node_count)).tocsr()
+        K, A, A_ff = system._warped_system(m, 1e-3, R)
+        x, y = rng.normal(size=A.shape[0]), rng.normal(size=A_ff.shape[0])
+        np.testing.assert_array_equal(A @ x, A_sum @ x)
+        np.testing.assert_array_equal(A_ff @ y, system._free_block(m, A_sum) @ y)
