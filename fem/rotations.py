@@ -3,6 +3,7 @@ gradient (stiffness warping, Mueller and Gross 2004). The corotated frame's forc
 (``fem.dynamics``), its strains and stresses (``fem.stress``) and its plastic flow
 (``fem.plastic_flow``) all turn each element by these.
 """
+import numba as nb
 import numpy as np
 
 from rigid.shape_matching import rotation_of
@@ -11,9 +12,26 @@ from rigid.shape_matching import rotation_of
 def tet_rotations(model, x):
     """Per-element rotations ``(t, 3, 3)`` from the polar decomposition of the vertex simplex's
     deformation gradient ``F = Ds Dm^-1`` of positions ``x`` (n, 3) m."""
-    xs = x[model.tets[:, :4]]
-    Ds = (xs[:, 1:] - xs[:, :1]).transpose(0, 2, 1)
-    return rotation_of(Ds @ model.elements.tet_rest_inverse)
+    return rotation_of(deformation_gradients(np.asarray(x, dtype=float), model.tets,
+                                             model.elements.tet_rest_inverse))
+
+
+@nb.njit(cache=True)
+def deformation_gradients(x, tets, rest_inverse):
+    """``F = Ds Dm^-1`` ``(t, 3, 3)`` of each element's vertex simplex: ``Ds`` the edge matrix
+    ``[x1 - x0, x2 - x0, x3 - x0]`` of positions ``x`` (n, 3) m at the first four nodes of ``tets``,
+    ``rest_inverse`` ``(t, 3, 3)`` the inverse rest edge matrices; one pass over the elements."""
+    t = tets.shape[0]
+    F = np.empty((t, 3, 3))
+    for e in range(t):
+        p = tets[e, 0]
+        for i in range(3):
+            d1 = x[tets[e, 1], i] - x[p, i]
+            d2 = x[tets[e, 2], i] - x[p, i]
+            d3 = x[tets[e, 3], i] - x[p, i]
+            for j in range(3):
+                F[e, i, j] = d1 * rest_inverse[e, 0, j] + d2 * rest_inverse[e, 1, j] + d3 * rest_inverse[e, 2, j]
+    return F
 
 
 def element_rotations(model, x):

@@ -78,3 +78,17 @@ def test_warped_system_on_the_stiffness_pattern_is_the_sparse_sum(mass, order):
         x, y = rng.normal(size=A.shape[0]), rng.normal(size=A_ff.shape[0])
         np.testing.assert_array_equal(A @ x, A_sum @ x)
         np.testing.assert_array_equal(A_ff @ y, system._free_block(m, A_sum) @ y)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_deformation_gradients_match_numpy(order):
+    """The element rotations' deformation gradients in one compiled pass
+    (fem.rotations.deformation_gradients) against the batched numpy products ``Ds Dm^-1``."""
+    from fem.rotations import deformation_gradients
+    points, tets = box_tet_mesh((0.2, 0.1, 0.1), 6)
+    m = build_fem_model(points, tets, order=order, density=1000, young=1e6, poisson=0.3, frame="corotated")
+    x = m.rest_points + 0.01 * np.random.default_rng(order).normal(size=m.rest_points.shape) + 50.0
+    xs = x[m.tets[:, :4]]
+    expected = (xs[:, 1:] - xs[:, :1]).transpose(0, 2, 1) @ m.elements.tet_rest_inverse
+    got = deformation_gradients(x, m.tets, m.elements.tet_rest_inverse)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-14)
