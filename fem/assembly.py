@@ -7,7 +7,6 @@ before edges); the permutation between the two is built once here and nowhere el
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
-import numba as nb
 import numpy as np
 import scipy.sparse as sp
 import skfem
@@ -32,6 +31,9 @@ class ElementData:
     pattern_indptr: ``(3 n + 1,)`` CSR row pointer of that pattern.
     block_to_csr: ``(t * 9 b^2,)`` position in the CSR data of each entry of ``tet_stiffness``
         (flattened), so a warped stiffness is assembled with one ``np.bincount``.
+    lame: ``(mu, lam)`` Pa, the Lame parameters ``tet_stiffness`` was built with (:func:`_element_stiffness`):
+        linear elements warp their stiffness and forces from their gradients with them (None: from
+        ``tet_stiffness``).
     """
     tet_nodes: np.ndarray
     tet_gradients: np.ndarray
@@ -43,6 +45,7 @@ class ElementData:
     pattern_cols: np.ndarray
     pattern_indptr: np.ndarray
     block_to_csr: np.ndarray
+    lame: tuple | None = None
 
 
 def _skfem_mesh(points, tets):
@@ -119,105 +122,6 @@ def assemble_from_blocks(data, blocks, dof_count):
     return sp.csr_matrix((values, data.pattern_cols, data.pattern_indptr), shape=(dof_count, dof_count))
 
 
-def warped_assembly(data, rotations, dof_count):
-    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) for element rotations
-    ``(t, 3, 3)``: each node-pair block of ``tet_stiffness`` rotated and summed into the
-    precomputed pattern in one compiled pass (stiffness warping, Mueller and Gross 2004)."""
-    return sp.csr_matrix((warped_values(data, rotations), data.pattern_cols, data.pattern_indptr),
-                         shape=(dof_count, dof_count))
-
-
-def warped_values(data, rotations):
-    """The values ``(nnz,)`` of :func:`warped_assembly` on the pattern of ``data``."""
-    values = np.zeros(len(data.pattern_cols))
-    _warp_into(data.tet_stiffness, np.ascontiguousarray(rotations, dtype=float), data.block_to_csr, values)
-    return values
-
-
-@nb.njit(cache=True)
-def _warp_into(Ke, R, block_to_csr, values):
-    """values[block_to_csr[e, 3a+i, 3c+j]] += (R_e Ke[e]_{ac} R_e^T)_ij for every element e and
-    node pair (a, c); Ke (t, 3b, 3b), R (t, 3, 3), block_to_csr flattened (t, 3b, 3b)."""
-    t, m, _ = Ke.shape
-    b = m // 3
-    RB = np.empty((3, 3))
-    for e in range(t):
-        Re = R[e]
-        base = e * m * m
-        for a in range(b):
-            for c in range(b):
-                # RB = R_e B, B the (a, c) block of Ke[e]
-                for i in range(3):
-                    for j in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += Re[i, k] * Ke[e, 3 * a + k, 3 * c + j]
-                        RB[i, j] = acc
-                for i in range(3):
-                    row = base + (3 * a + i) * m + 3 * c
-                    for j in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += RB[i, k] * Re[j, k]
-                        values[block_to_csr[row + j]] += acc
-
-
-def warped_forces(data, rotations, x, rest_points, node_count):
-    """Elastic node forces ``(n, 3)`` (N) of stiffness warping: per element,
-    ``-R_e K_e (R_e^T x_e - X_e)`` with each element's mean translation removed (K_e ignores it;
-    removing it keeps the digits of far-away bodies), summed over elements in one compiled pass."""
-    return _warped(data, rotations, x, rest_points, node_count)[0]
-
-
-def warped_energy(data, rotations, x, rest_points):
-    """Strain energy ``sum_e 1/2 u_e^T K_e u_e`` (J) of stiffness warping, ``u_e`` as in
-    :func:`warped_forces` (whose force is its gradient when ``R_e`` are the polar rotations)."""
-    return _warped(data, rotations, x, rest_points, len(x))[1]
-
-
-def _warped(data, rotations, x, rest_points, node_count):
-    out = np.zeros((node_count, 3))
-    energy = _warped_forces_into(data.tet_stiffness, np.ascontiguousarray(rotations, dtype=float),
-                                 data.tet_nodes, np.ascontiguousarray(x, dtype=float),
-                                 np.ascontiguousarray(rest_points, dtype=float), out)
-    return out, energy
-
-
-@nb.njit(cache=True)
-def _warped_forces_into(Ke, R, tet_nodes, x, X, out):
-    """out[node] -= (R_e K_e u_e)[node] for every element e, u_e = R_e^T x_e - X_e less its mean;
-    Ke (t, 3b, 3b), R (t, 3, 3), tet_nodes (t, b), x and X (n, 3). Returns the strain energy
-    ``sum_e 1/2 u_e . K_e u_e``."""
-    t, m, _ = Ke.shape
-    b = m // 3
-    u = np.empty(m)
-    g = np.empty(m)
-    energy = 0.0
-    for e in range(t):
-        Re = R[e]
-        mean = np.zeros(3)
-        for a in range(b):
-            node = tet_nodes[e, a]
-            for i in range(3):      # (R^T x - X)_i
-                u[3 * a + i] = (Re[0, i] * x[node, 0] + Re[1, i] * x[node, 1] + Re[2, i] * x[node, 2]
-                                - X[node, i])
-                mean[i] += u[3 * a + i]
-        for a in range(b):
-            for i in range(3):
-                u[3 * a + i] -= mean[i] / b
-        for r in range(m):
-            acc = 0.0
-            for c in range(m):
-                acc += Ke[e, r, c] * u[c]
-            g[r] = acc
-            energy += 0.5 * u[r] * acc
-        for a in range(b):
-            node = tet_nodes[e, a]
-            for i in range(3):
-                out[node, i] -= Re[i, 0] * g[3 * a] + Re[i, 1] * g[3 * a + 1] + Re[i, 2] * g[3 * a + 2]
-    return energy
-
-
 def assemble(points, tets, young, poisson, density):
     """Assemble a tet mesh with scikit-fem.
 
@@ -273,7 +177,7 @@ def assemble(points, tets, young, poisson, density):
         tet_nodes=tet_nodes, tet_gradients=grads, tet_weights=weights, tet_volume=weights.sum(axis=1),
         tet_rest_inverse=np.linalg.inv((X[:, 1:] - X[:, :1]).transpose(0, 2, 1)), tet_stiffness=Ke,
         pattern_rows=pattern[0], pattern_cols=pattern[1], pattern_indptr=pattern[2],
-        block_to_csr=pattern[3])
+        block_to_csr=pattern[3], lame=(float(mu), float(lam)))
     return K, M_scalar, data
 
 

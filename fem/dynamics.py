@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse as sp
 
-from fem.assembly import warped_energy
+from fem.warping import warped_energy
 from fem.momentum import (angular_momentum, center_of_mass, linear_momentum, mass_moments, mass_times,
                           mass_weights, rigid_part)
 from fem.plastic_flow import elastic_energy as plastic_elastic_energy

@@ -16,7 +16,7 @@ __all__ = ["quadrature_stress", "element_stress", "element_strain_rate", "von_mi
 
 def _corotated_displacement(model, x, tet_R):
     """Element displacements in each element's frame, ``R_e^T x_e - X_e`` ``(t, b, 3)`` (m), as
-    :func:`fem.assembly.warped_forces` forms them per element (here for the strains)."""
+    :func:`fem.warping.warped_forces` forms them per element (here for the strains)."""
     nodes = model.elements.tet_nodes
     u = np.einsum("taj,tji->tai", x[nodes], tet_R) - model.rest_points[nodes]
     # drop each element's mean translation (K_e ignores it) so far-away bodies keep their digits

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from fem.assembly import warped_assembly, warped_forces, warped_values
+from fem.warping import warped_assembly, warped_forces, warped_values
 from fem.plastic_flow import plastic_force
 from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
@@ -85,7 +85,7 @@ def implicitness(model):
 
 
 def warped_stiffness(model, tet_R):
-    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) (:func:`fem.assembly.warped_assembly`)."""
+    """Warped stiffness ``sum_e R_e K_e R_e^T`` ``(3n, 3n)`` CSR (N/m) (:func:`fem.warping.warped_assembly`)."""
     return warped_assembly(model.elements, tet_R, 3 * model.node_count)
 
 

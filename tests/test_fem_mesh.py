@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from fem.assembly import assemble, assemble_from_blocks, warped_assembly
+from fem.assembly import assemble, assemble_from_blocks
+from fem.warping import warped_assembly
 from fem.mesh import (box_tet_mesh, check_tets, cylinder_tet_mesh, quadratic_tets,
                       sphere_tet_mesh, surface_triangles, tet_signed_volumes)
 from fem.model import build_fem_model
@@ -109,7 +110,7 @@ def test_warped_stiffness_of_a_rigidly_rotated_body_is_the_rotated_stiffness(ord
 
 
 def test_warped_forces_vanish_under_rigid_motion_and_equal_linear_forces_unrotated():
-    from fem.assembly import warped_forces
+    from fem.warping import warped_forces
     points, tets = cylinder_tet_mesh(0.1, 0.3, 4)
     K, _, data = assemble(points, tets, 1e9, 0.3, 1200.0)
     n = len(points)

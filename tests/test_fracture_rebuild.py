@@ -8,7 +8,8 @@ boundary faces by one integer key per face. Each is compared here with what it r
 import numpy as np
 import pytest
 
-from fem.assembly import _csr_pattern, assemble, assemble_subset, warped_assembly
+from fem.assembly import _csr_pattern, assemble, assemble_subset
+from fem.warping import warped_assembly
 from fem.fracture import (find_crack, fracture_candidates, fracture_model, principal_tension,
                           tension_bound)
 from fem.mesh import box_tet_mesh, quadratic_tets, surface_triangles

@@ -63,7 +63,7 @@ def test_warped_system_on_the_stiffness_pattern_is_the_sparse_sum(mass, order):
     """The step's warped system taken value by value on K's pattern (fem.system._warped_system)
     multiplies as ``a_M M + a_K K_R`` and its free block do, built by scipy's sum and slicing, bit
     for bit; for a free body and for a held variant."""
-    from fem.assembly import warped_assembly
+    from fem.warping import warped_assembly
     from fem.model import holding
     from rigid import quaternion as quat
     rng = np.random.default_rng(4)
@@ -92,3 +92,27 @@ def test_deformation_gradients_match_numpy(order):
     expected = (xs[:, 1:] - xs[:, :1]).transpose(0, 2, 1) @ m.elements.tet_rest_inverse
     got = deformation_gradients(x, m.tets, m.elements.tet_rest_inverse)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-14)
+
+
+def test_linear_tets_warp_from_their_gradients_as_from_their_blocks():
+    """Linear tets warp their stiffness and forces from their four gradients and Lame parameters
+    (fem.warping._warp_linear_into, _warped_linear_forces_into): the same values, forces and
+    energy as the element blocks ``tet_stiffness`` give, to round-off, turned, deformed and far
+    from the origin."""
+    from dataclasses import replace
+    from fem.rotations import tet_rotations
+    from fem.warping import warped_energy, warped_forces, warped_values
+    rng = np.random.default_rng(9)
+    points, tets = box_tet_mesh((0.2, 0.1, 0.1), 6)
+    m = build_fem_model(points, tets, density=1000, young=1e6, poisson=0.3, frame="corotated")
+    assert m.elements.lame is not None
+    blocks = replace(m.elements, lame=None)
+    x = m.rest_points + 0.01 * rng.normal(size=m.rest_points.shape) + 30.0
+    R = tet_rotations(m, x)
+    v = warped_values(blocks, R)
+    np.testing.assert_allclose(warped_values(m.elements, R), v, rtol=0, atol=1e-13 * np.abs(v).max())
+    f = warped_forces(blocks, R, x, m.rest_points, m.node_count)
+    np.testing.assert_allclose(warped_forces(m.elements, R, x, m.rest_points, m.node_count), f,
+                               rtol=0, atol=1e-12 * np.abs(f).max())
+    e = warped_energy(blocks, R, x, m.rest_points)
+    assert e > 0 and warped_energy(m.elements, R, x, m.rest_points) == pytest.approx(e, rel=1e-12)
