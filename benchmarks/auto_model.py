@@ -14,7 +14,7 @@ scene with them `model = "fem"`), alternating so both see the same machine:
 - ringing (the worst case): an undamped Newmark block in zero gravity set vibrating, which never
   calms, so auto gains nothing and costs its checks (0.5 s, dt = 1 ms).
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/auto_model.py [--seconds 5] [--repeat 1] [--scenes pile plate ringing]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/auto_model.py [--seconds 5] [--repeat 1] [--scenes pile plate ringing] [--timeline]
 
 Prints a table and GOAL lines (issue 21: the pile 5x faster within 1% of size, the worst case's
 overhead under 10%); writes outputs/bench/auto_model.csv.
@@ -36,6 +36,7 @@ from hybrid.app.scene import parse_scene
 from _common import write_csv
 
 CSV_PATH = Path("outputs/bench/auto_model.csv")
+TIMELINE = 0.25      # s of simulated time per entry of --timeline
 
 
 def pile_scene(seconds, elastify=None):
@@ -143,9 +144,15 @@ def run(texts):
         sim = simulation(text, model)
         sim.scene_text = text
         steps = int(round(sim.scene.simulation.duration / sim.dt))
-        start = time.perf_counter()
-        for _ in range(steps):
+        every = max(1, int(round(TIMELINE / sim.dt)))
+        sim.timeline = []           # wall time (s) of each TIMELINE s of simulated time
+        start = last = time.perf_counter()
+        for k in range(steps):
             sim.step()
+            if (k + 1) % every == 0 or k + 1 == steps:
+                now = time.perf_counter()
+                sim.timeline.append(now - last)
+                last = now
         walls[name], sims[name] = time.perf_counter() - start, sim
     return walls, sims
 
@@ -179,6 +186,8 @@ def main():
                         help="which scenes to run")
     parser.add_argument("--pile-elastify", type=float, nargs="*", default=[1e-2],
                         help="the pile run again with its boxes' elastify_strain at these values")
+    parser.add_argument("--timeline", action="store_true",
+                        help=f"also print each run's wall time per {TIMELINE} s of simulated time")
     args = parser.parse_args()
     rows = []
     pile = {"auto": pile_scene(args.seconds)}
@@ -188,6 +197,10 @@ def main():
         results = [run(texts) for _ in range(args.repeat)]
         fem = float(np.median([w["fem"] for w, _ in results]))
         sims = results[-1][1]
+        if args.timeline:
+            for variant in [*texts, "fem"]:
+                print(f"timeline {name} ({variant}), wall s per {TIMELINE} s simulated: "
+                      + " ".join(f"{w:.2f}" for w in sims[variant].timeline))
         for variant in texts:
             auto = float(np.median([w[variant] for w, _ in results]))
             sim = sims[variant]
