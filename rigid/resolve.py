@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .shock import STACK_COS, sweep_levels
-from .solver import arms, contact_basis, normal_velocity, pgs_at
+from .solver import arms, contact_basis, normal_velocity, solve_groups, solver_groups
 from .step_kernels import contact_targets, impact_kinematics
 
 
@@ -120,20 +120,29 @@ def _scatter(target, index, values):
 @dataclass
 class _Problem:
     """One call's contacts as the solver kernel takes them: the contacts, their arms ra, rb
-    (c, 3) m on sides a and b, the solver bodies and their groups (SolverBodies.groups)."""
+    (c, 3) m on sides a and b, the solver bodies, each solver body's group (-1: not a particle)
+    and what the compiled sweeps take for the particles (rigid.solver.solver_groups: None when
+    there are none), made once for every pass over these contacts."""
     contacts: object
     ra: np.ndarray
     rb: np.ndarray
     bodies: SolverBodies
-    groups: tuple
+    group_of: np.ndarray
+    groups: tuple | None
+
+    @classmethod
+    def of(cls, contacts, bodies):
+        groups = bodies.groups()
+        return cls(contacts, *arms(contacts.body_a, contacts.body_b, contacts.point, bodies.position),
+                   bodies, groups[0], solver_groups(contacts.body_a, contacts.body_b, groups))
 
     def solve(self, target, friction, scale_a, scale_b, active, lam, v, w, iterations,
               apply_lam=False):
         """:func:`rigid.solver.pgs_at` over these contacts (updates v, w and lam in place)."""
         c, b = self.contacts, self.bodies
-        return pgs_at(c.body_a, c.body_b, self.ra, self.rb, c.point, c.normal, target, friction,
-                      scale_a, scale_b, active, lam, b.inv_mass, b.inv_inertia, v, w, iterations,
-                      *self.groups, apply_lam)
+        return solve_groups(c.body_a, c.body_b, self.ra, self.rb, c.point, c.normal, target,
+                            friction, scale_a, scale_b, active, lam, b.inv_mass, b.inv_inertia, v, w,
+                            iterations, self.groups, apply_lam)
 
     def sweep_stack(self, up, selected, target, lam, v, w, iterations, impulse):
         """Shock propagation (Guendelman 2003): the contacts ``selected`` solved again level by
@@ -143,7 +152,7 @@ class _Problem:
         c, b = self.contacts, self.bodies
         return sweep_levels(c.body_a, c.body_b, self.ra, self.rb, c.point, c.normal, up, b.static,
                             selected, target, c.friction, lam, b.inv_mass, b.inv_inertia, v, w,
-                            iterations, *self.groups, impulse)
+                            iterations, self.group_of, self.groups, impulse, False)
 
 
 def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm=None):
@@ -161,10 +170,9 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     out = Resolution(v, w, *(np.zeros((n, 3)) for _ in range(6)), *(np.zeros((c, 3)) for _ in range(3)))
     if c == 0:
         return out
-    problem = _Problem(contacts, *arms(contacts.body_a, contacts.body_b, contacts.point,
-                                      bodies.position), bodies, bodies.groups())
+    problem = _Problem.of(contacts, bodies)
     # contacts on deformable bodies (particles) bounce through the body's own elasticity
-    particle = problem.groups[0] >= 0
+    particle = problem.group_of >= 0
     ia, ib = contacts.body_a, contacts.body_b
     on_particle = particle[ia] | (particle[np.maximum(ib, 0)] & (ib >= 0))
 

@@ -4,7 +4,7 @@ be swept bottom-up (rigid.resolve)."""
 import numba as nb
 import numpy as np
 
-from .solver import pgs_at
+from .solver import solve_groups
 
 # a contact stacks one body on another when its normal is within ~70 degrees of up
 STACK_COS = 0.34
@@ -83,13 +83,15 @@ def shock_scales(body_a, body_b, level):
 
 @nb.njit(cache=True)
 def sweep_levels(ia, ib, ra, rb, point, normal, up, static, selected, target, friction, lam,
-                 inv_m, invI, v, w, iterations, group_of, group_R, w_ptr, w_col, W, corner,
-                 corner_w, impulse):
+                 inv_m, invI, v, w, iterations, group_of, groups, impulse, apply_lam):
     """Shock propagation (Guendelman 2003): the contacts ``selected`` (world points ``point``)
     solved again (rigid.solver.pgs_at, ``iterations`` sweeps) level by level up the stack (``up``,
     unit), lowest first, each level with the lower side of its contacts frozen; their impulses
-    replace theirs in ``impulse`` (c, 3); v, w and lam are updated in place. Returns the per-contact inverse-mass
-    scales (scale_a, scale_b) that freeze the lower sides."""
+    replace theirs in ``impulse`` (c, 3); v, w and lam are updated in place. ``group_of``: each
+    solver body's group (-1: not a particle); ``groups``: rigid.solver.solver_groups of the
+    contacts; ``apply_lam`` (False: the velocities include lam; an argument, not a literal, so
+    that the sweeps compiled for the contact pass serve here too). Returns the per-contact
+    inverse-mass scales (scale_a, scale_b) that freeze the lower sides."""
     level = stack_levels(ia, ib, normal, up, len(inv_m), static, group_of)
     contact_level, scale_a, scale_b = shock_scales(ia, ib, level)
     top = -1
@@ -104,9 +106,9 @@ def sweep_levels(ia, ib, ra, rb, point, normal, up, static, selected, target, fr
             count += at_level[k]
         if count == 0:
             continue
-        level_impulse = pgs_at(ia, ib, ra, rb, point, normal, target, friction, scale_a, scale_b,
-                               at_level, lam, inv_m, invI, v, w, iterations, group_of, group_R,
-                               w_ptr, w_col, W, corner, corner_w, False)
+        level_impulse = solve_groups(ia, ib, ra, rb, point, normal, target, friction, scale_a,
+                                     scale_b, at_level, lam, inv_m, invI, v, w, iterations, groups,
+                                     apply_lam)
         for k in range(len(ia)):
             if at_level[k]:
                 for d in range(3):

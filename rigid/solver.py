@@ -275,15 +275,15 @@ def _sweeps(idx, K, inverse, basis, ia, ib, ra, rb, target, mu, scale_a, scale_b
 def _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
          iterations, groups, apply_lam):
     """:func:`pgs` with the group arrays as one tuple, or None when no solver body is a particle."""
-    return _solve(ia, ib, ra, rb, np.zeros((0, 3)), normal, target, mu, scale_a, scale_b, active,
-                  lam, inv_m, invI, v, w, iterations, groups, apply_lam)
+    return solve_groups(ia, ib, ra, rb, np.zeros((0, 3)), normal, target, mu, scale_a, scale_b,
+                        active, lam, inv_m, invI, v, w, iterations, groups, apply_lam)
 
 
 @nb.njit(cache=True)
-def _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI,
-           v, w, iterations, groups, apply_lam):
-    """:func:`pgs_at` with the group arrays as one tuple, or None when no solver body is a
-    particle."""
+def solve_groups(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
+                 invI, v, w, iterations, groups, apply_lam):
+    """:func:`pgs_at` with the particles' arrays as :func:`solver_groups` makes them (None when no
+    solver body is a particle), compiled once for each of the two."""
     idx = np.nonzero(active)[0]
     basis = contact_basis(normal[idx])
     K, side_kn = _responses(idx, basis, ia, ib, ra, rb, scale_a, scale_b, inv_m, invI, groups)
@@ -339,7 +339,6 @@ def _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, 
     return out
 
 
-@nb.njit(cache=True)
 def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v, w,
         iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w, apply_lam):
     """Projected Gauss-Seidel. Updates v, w (solver bodies) and lam (c, 3) in place.
@@ -367,25 +366,29 @@ def pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m
     corrections (rigid.coarse) alternate with the sweeps; here over uniform modes only (the contact
     points are not given: :func:`pgs_at` takes them). Returns the world impulse on side a of each
     contact, (c, 3) N s (NaN rows for inactive contacts).
+    (A Python function choosing the compiled sweeps: see :func:`solver_groups`.)
     """
-    for i in range(len(group_of)):
-        if group_of[i] >= 0:
-            return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
-                        invI, v, w, iterations, with_place_rows(ia, ib, active, (
-                            group_of, group_R, w_ptr, w_col, W, corner, corner_w)), apply_lam)
+    groups = solver_groups(ia, ib, (group_of, group_R, w_ptr, w_col, W, corner, corner_w))
     return _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI, v,
-                w, iterations, None, apply_lam)
+                w, iterations, groups, apply_lam)
 
 
-@nb.njit(cache=True)
 def pgs_at(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m, invI,
            v, w, iterations, group_of, group_R, w_ptr, w_col, W, corner, corner_w, apply_lam):
     """:func:`pgs` with the contacts' world points ``point`` (c, 3) m, so the coarse corrections
     also span the moments across each contact patch (rigid.coarse.aggregates)."""
-    for i in range(len(group_of)):
-        if group_of[i] >= 0:
-            return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam,
-                          inv_m, invI, v, w, iterations, with_place_rows(ia, ib, active, (
-                              group_of, group_R, w_ptr, w_col, W, corner, corner_w)), apply_lam)
-    return _solve(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam, inv_m,
-                  invI, v, w, iterations, None, apply_lam)
+    groups = solver_groups(ia, ib, (group_of, group_R, w_ptr, w_col, W, corner, corner_w))
+    return solve_groups(ia, ib, ra, rb, point, normal, target, mu, scale_a, scale_b, active, lam,
+                        inv_m, invI, v, w, iterations, groups, apply_lam)
+
+
+def solver_groups(ia, ib, groups):
+    """What the compiled sweeps take for the particles: None when no solver body is one (the
+    sweeps compiled without the particle branches), else ``groups`` (group_of, group_R, w_ptr,
+    w_col, W, corner, corner_w) extended by the rows of the places any contact (ia, ib) touches
+    (:func:`rigid.particle_kernels.with_place_rows`). Chosen here, outside the compiled code, so
+    that a scene of rigid bodies never compiles the particle sweeps and one with deformable bodies
+    compiles them once: a compiled choice compiled both (17-21 s on a cleared cache)."""
+    if not (np.asarray(groups[0]) >= 0).any():
+        return None
+    return with_place_rows(ia, ib, np.ones(len(ia), dtype=np.bool_), groups)
