@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from fem.warping import warped_assembly, warped_forces, warped_values
+from fem.warping import warped_assembly, warped_forces
 from fem.plastic_flow import plastic_force
 from fem.rotations import element_rotations
 from fem.solver import Factorisation, cg_solve
@@ -174,17 +174,15 @@ def _warped_system(model, dt, tet_R):
     value, the mass added at its places, and the free block gathered from A's values, instead of
     summing and slicing sparse matrices every step (the same numbers)."""
     a_M, a_K = system_coefficients(model, dt)
-    data, n3 = model.elements, 3 * model.node_count
-    values = warped_values(data, tet_R)
-    K = sp.csr_matrix((values, data.pattern_cols, data.pattern_indptr), shape=(n3, n3))
+    K = warped_stiffness(model, tet_R)
     places = _warped_places(model)
     if places is None:
         A = (a_M * model.M + a_K * K).tocsr()
         return K, A, _free_block(model, A)
     at, mass, free_entries, free_indices, free_indptr = places
-    a = a_K * values
+    a = a_K * K.data
     a[at] += a_M * mass
-    A = sp.csr_matrix((a, data.pattern_cols, data.pattern_indptr), shape=(n3, n3))
+    A = sp.csr_matrix((a, K.indices, K.indptr), shape=K.shape)
     if not model.anchored:
         return K, A, A
     f = len(model.free_dofs)

@@ -57,8 +57,8 @@ def _push_row(i, J0, J1, J2, v, group_of, group_R, ptr, col, B):
 
 
 @nb.njit(cache=True)
-def with_place_rows(ia, ib, active, groups):
-    """``groups`` extended by the rows of the places the active contacts touch: (place_ptr (n + 1,),
+def with_place_rows(ia, ib, groups):
+    """``groups`` extended by the rows of the places the contacts (ia, ib) touch: (place_ptr (n + 1,),
     place_col, place_W (q, 3, 3)), where place i's row is the sum over its corners c of
     corner_w[i, c] W[c, :] (group frame, columns merged), so that pushing an impulse through it
     moves every particle as pushing each corner's share through the corner's row does (to
@@ -70,10 +70,9 @@ def with_place_rows(ia, ib, active, groups):
     n = len(group_of)
     used = np.zeros(n, np.bool_)
     for k in range(len(ia)):
-        if active[k]:
-            for i in (ia[k], ib[k]):
-                if i >= 0 and group_of[i] >= 0 and corner[i, 0] >= 0:
-                    used[i] = True
+        for i in (ia[k], ib[k]):
+            if i >= 0 and group_of[i] >= 0 and corner[i, 0] >= 0:
+                used[i] = True
     seen = np.full(n, -1, np.int64)         # the place whose row last took column l
     at = np.zeros(n, np.int64)              # and where in that row
     ptr = np.zeros(n + 1, np.int64)

@@ -391,4 +391,4 @@ def solver_groups(ia, ib, groups):
     compiles them once: a compiled choice compiled both (17-21 s on a cleared cache)."""
     if not (np.asarray(groups[0]) >= 0).any():
         return None
-    return with_place_rows(ia, ib, np.ones(len(ia), dtype=np.bool_), groups)
+    return with_place_rows(ia, ib, groups)

@@ -150,7 +150,7 @@ def test_rigid_only_solve_matches_the_solve_with_particle_branches():
     groups = (np.full(n, -1), np.eye(3)[None], np.zeros(n + 1, np.int64), np.zeros(1, np.int64),
               np.zeros((1, 3, 3)), np.full((n, 3), -1), np.zeros((n, 3)))
     results = []
-    for g in (None, with_place_rows(ia, ib, active, groups)):
+    for g in (None, with_place_rows(ia, ib, groups)):
         v, w, lam = v0.copy(), w0.copy(), lam0.copy()
         out = _pgs(ia, ib, ra, rb, normal, target, mu, scale_a, scale_b, active, lam, inv_mass,
                    invI, v, w, 15, g, True)
@@ -179,7 +179,7 @@ def test_combined_coefficients_match_numpy():
 def test_place_rows_push_as_their_corners_rows_do():
     """An impulse on a place through its merged row (rigid.particle_kernels.with_place_rows) moves
     every particle of its group as the place's corners' weighted shares pushed through their own
-    rows do (numpy, dense), to round-off; a place no active contact touches gets an empty row."""
+    rows do (numpy, dense), to round-off; a place no contact touches gets an empty row."""
     from rigid.particle_kernels import _apply_particle, with_place_rows
     rng = np.random.default_rng(11)
     n_part, n_place = 12, 5
@@ -211,10 +211,9 @@ def test_place_rows_push_as_their_corners_rows_do():
         corner_w[i] = rng.dirichlet(np.ones(3))
     corner_w[n - 1, 1] = 0.0                            # a place on an edge: one weight zero
     groups = (group_of, R, np.array(w_ptr), np.array(w_col), np.array(W), corner, corner_w)
-    ia = np.array([0, 7, 3, 9, 2])
-    ib = np.array([12, 13, 14, 16, 15])
-    active = np.array([True, True, False, True, True])      # place 14 is touched by nothing active
-    extended = with_place_rows(ia, ib, active, groups)
+    ia = np.array([0, 7, 9, 2])
+    ib = np.array([12, 13, 16, 15])                         # place 14 is touched by no contact
+    extended = with_place_rows(ia, ib, groups)
     ptr = extended[7]
     assert ptr[15] - ptr[14] == 0 and ptr[13] - ptr[12] > 0
     for i in (12, 13, 15, 16):
