@@ -385,7 +385,13 @@ CASES = [
       for young in (1e3, 1e5, 1e7, 1e9, 2e11)],
     Case("1000:1 frictionless", "heavy_on_light",
          "a 1,800 kg box on a 1.8 kg slab, no friction: ill-conditioned contact, nothing holds the slab",
-         watch=_HEAVY[0], checks=_HEAVY[1], short=0.1),
+         watch=_HEAVY[0], checks=_HEAVY[1], short=0.1,
+         cause="the undamped slab rings sideways under the box (its centre at up to 0.27 m/s in "
+               "the first 0.4 s, nothing but the step's numerical damping slowing it) and its "
+               "speed at the end is a sample of that ringing, not a drift: the box moved 1 nm "
+               "to either side ends with the slab at 0.002-0.02 m/s, and contact impulses that "
+               "differ by round-off (1e-14) move it across the at-rest check's 0.01 m/s either "
+               "way; the box stays put (its end speed 6e-6 to 1.2e-4 m/s)"),
     Case("1000:1 friction 0.5", "heavy_on_light",
          "the same with friction 0.5 on every surface",
          settings={"planes.0.friction": 0.5, "bodies.slab.friction": 0.5, "bodies.box.friction": 0.5},
