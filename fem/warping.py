@@ -56,15 +56,23 @@ def _warp_linear_into(G, V, mu, lam, R, block_to_csr, values):
                     for j in range(3):
                         w = lam * r[a, i] * r[c, j] + mu * r[c, i] * r[a, j]
                         W[i, j] = v * (w + dot if i == j else w)
-                for i in range(3):
-                    row = base + (3 * a + i) * 12 + 3 * c
-                    for j in range(3):
-                        values[block_to_csr[row + j]] += W[i, j]
-                if c != a:
-                    for i in range(3):
-                        row = base + (3 * c + i) * 12 + 3 * a
-                        for j in range(3):
-                            values[block_to_csr[row + j]] += W[j, i]
+                _scatter_pair(values, block_to_csr, base, 12, a, c, W)
+
+
+@nb.njit(cache=True, inline="always")
+def _scatter_pair(values, block_to_csr, base, m, a, c, W):
+    """Add the turned block W (3, 3) of node pair (a, c) of the element whose entries start at
+    ``base`` in ``block_to_csr`` (m = 3b DOFs a row) to ``values``, and its transpose as the pair
+    (c, a) when c != a."""
+    for i in range(3):
+        row = base + (3 * a + i) * m + 3 * c
+        for j in range(3):
+            values[block_to_csr[row + j]] += W[i, j]
+    if c != a:
+        for i in range(3):
+            row = base + (3 * c + i) * m + 3 * a
+            for j in range(3):
+                values[block_to_csr[row + j]] += W[j, i]
 
 
 @nb.njit(cache=True)
@@ -95,15 +103,7 @@ def _warp_into(Ke, R, block_to_csr, values):
                         for k in range(3):
                             acc += RB[i, k] * Re[j, k]
                         W[i, j] = acc
-                for i in range(3):
-                    row = base + (3 * a + i) * m + 3 * c
-                    for j in range(3):
-                        values[block_to_csr[row + j]] += W[i, j]
-                if c != a:
-                    for i in range(3):
-                        row = base + (3 * c + i) * m + 3 * a
-                        for j in range(3):
-                            values[block_to_csr[row + j]] += W[j, i]
+                _scatter_pair(values, block_to_csr, base, m, a, c, W)
 
 
 def warped_forces(data, rotations, x, rest_points, node_count):
