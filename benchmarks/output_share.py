@@ -1,9 +1,10 @@
 """Share of a run's wall time spent writing its output, frames written in place, by a writer
 thread and by a writer process, side by side in one run.
 
-Scenes: the built-in default scene (rigid bodies, 3 s at 1/240 s, 30 frames/s) and a soft
-1,296-tet cube (0.2 m, 6 x 6 x 6 cells, E = 100 kPa) dropped on the ground (1 s at dt = 1 ms,
-100 frames/s, the rate at which writing frames took 0.4 s of 1.5 s per simulated second). Each
+Scenes (``--scenes``): the built-in default scene (rigid bodies, 3 s at 1/240 s, 30 frames/s),
+a soft 1,296-tet cube (0.2 m, 6 x 6 x 6 cells, E = 100 kPa) dropped on the ground (1 s at
+dt = 1 ms, 100 frames/s, the rate at which writing frames took 0.4 s of 1.5 s per simulated
+second) and the 1,000 rigid boxes of benchmarks/rigid_pile.py (1 s, 60 frames/s). Each
 scene is run through ``Simulation.run`` (what ``hybrid run SCENE --out DIR`` does) in these
 ways, interleaved, ``--repeats`` times:
 
@@ -20,10 +21,10 @@ The output share of a way is (median wall with output - median wall of ``none``)
 with output; its CPU share the same with the process's CPU time (all threads), steadier when
 other jobs load the machine. Also printed: the stepping thread's own time in the output calls (the frame's
 fields and rows computed in ``hybrid.app.observe``, and ``write_frame`` / ``write_regions`` /
-``close``), which the writer thread cannot take over. The goal line takes the larger share of the
-two scenes with the default way (``auto``).
+``close``), which the writer thread cannot take over. The goal line takes the largest share of the
+scenes run with the default way (``auto``).
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/output_share.py [--repeats 5]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/output_share.py [--repeats 5] [--scenes default cube pile]
 """
 import argparse
 import functools
@@ -37,6 +38,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import cube_scene, write_csv  # noqa: E402
+from rigid_pile import scene_toml as pile_toml  # noqa: E402
 
 from hybrid import Simulation  # noqa: E402
 from hybrid.app import observe, output, run as run_module  # noqa: E402
@@ -100,6 +102,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5, help="runs of each way (medians)")
     parser.add_argument("--csv", default="outputs/bench/output_share.csv")
+    parser.add_argument("--scenes", nargs="+", choices=("default", "cube", "pile"),
+                        default=["default", "cube", "pile"], help="which scenes to run")
     args = parser.parse_args(argv)
     from hybrid.app import writer_process
     why = writer_process.unavailable()
@@ -113,7 +117,11 @@ def main(argv=None):
     print(f"multiprocessing's fork server up in {time.perf_counter() - start:.2f} s (once per process)")
     work = Path(tempfile.mkdtemp(prefix="output_share_"))
     try:
-        scenes = {"default": "default", "cube_1296": cube_scene(work)}
+        pile = work / "pile.toml"
+        pile.write_text(pile_toml(1000, 1.0))
+        scenes = {label: path for key, label, path in (
+            ("default", "default", "default"), ("cube", "cube_1296", cube_scene(work)),
+            ("pile", "rigid_pile_1000", pile)) if key in args.scenes}
         ways = tuple(WAYS)
         rows, shares = [], {}
         for label, scene in scenes.items():

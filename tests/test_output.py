@@ -183,3 +183,75 @@ def test_drift_figures_stay_meaningful_when_a_quantity_starts_at_zero():
     assert _drift(np.zeros((4, 3)), np.zeros(3)) == 0.0
     # no total at all (two bodies meeting head-on) but 10 units carried: a change of 1e-5 is 1e-6
     assert _drift([[0, 0, 0], [0, 1e-5, 0]], np.zeros(3), [10.0, 9.0]) == pytest.approx(1e-6)
+
+
+def test_a_piece_of_several_bodies_writes_each_cells_own_body_id(tmp_path):
+    """A piece may carry one id per cell (many rigid bodies in one piece): the frame holds each
+    cell's id; a list of ids that does not match the cells is refused before writing."""
+    two_boxes = FramePiece(body_id=np.repeat([2, 5], 12), points=np.vstack([BOX_POINTS, BOX_POINTS + 2.0]),
+                           cells=[("triangle", np.vstack([BOX_TRIANGLES, BOX_TRIANGLES + 8]))])
+    with RunWriter(tmp_path / "run", "demo", background=False) as writer:
+        writer.write_frame(0.0, [two_boxes, tet_piece(0.0)])
+        with pytest.raises(ValueError, match="23 body ids for 24 cells"):
+            writer.write_frame(0.1, [FramePiece(np.repeat([2, 5], [11, 12]), two_boxes.points, two_boxes.cells)])
+        with pytest.raises(ValueError, match="integer"):
+            writer.write_frame(0.1, [FramePiece(np.full(24, 2.0), two_boxes.points, two_boxes.cells)])
+    mesh = meshio.read(tmp_path / "run" / "frames" / "frame_00000.vtu")
+    np.testing.assert_array_equal(np.concatenate(mesh.cell_data["body_id"]), [2] * 12 + [5] * 12 + [7, 7])
+    assert len(list((tmp_path / "run" / "frames").glob("*.vtu"))) == 1
+
+
+def test_frame_pieces_write_rigid_runs_as_the_bodies_own_surfaces():
+    """frame_pieces puts each run of rigid bodies between FEM ones into one piece: every rigid
+    body's cells are its own surface turned and moved to its pose, with its scene index and
+    fragment_of, and the frame lists bodies in scene order."""
+    import tomllib
+    from pathlib import Path
+    from hybrid import Simulation
+    from hybrid.app.observe import frame_pieces
+    from hybrid.app.scene import parse_scene
+    from rigid import quaternion as quat
+    scene = """
+[simulation]
+duration = 0.05
+gravity = [0, 0, 0]
+[[bodies]]
+name = "r0"
+shape = { type = "box", size = [0.2, 0.1, 0.3] }
+angular_velocity = [1, 2, 3]
+[[bodies]]
+name = "soft"
+model = "fem"
+young = 1e5
+shape = { type = "box", size = [0.2, 0.2, 0.1], resolution = 0.1 }
+position = [1, 0, 0]
+[[bodies]]
+name = "r1"
+shape = { type = "sphere", radius = 0.05 }
+position = [0, 1, 0]
+velocity = [0, 0, 1]
+[[bodies]]
+name = "r2"
+shape = { type = "capsule", radius = 0.05, height = 0.2 }
+position = [0, -1, 0]
+angular_velocity = [0, 4, 0]
+"""
+    sim = Simulation(parse_scene(tomllib.loads(scene), "<runs>", Path(".")))
+    for _ in range(10):
+        sim.step()
+    model, state = sim.model, sim.state
+    pieces = frame_pieces(model, state)
+    ids = [np.unique(p.body_id).tolist() for p in pieces]
+    assert ids == [[0], [1], [2, 3]]
+    R = quat.to_matrix(state.rigid.orientation)
+    rm = model.rigid
+    for piece in (pieces[0], pieces[2]):
+        tri = piece.cells[0][1]
+        for k in np.unique(piece.body_id):
+            i = list(model.rigid_ids).index(k)
+            mine = piece.body_id == k
+            expected = state.rigid.position[i] + rm.surface_vertices[i] @ R[i].T
+            used = np.unique(tri[mine])
+            np.testing.assert_allclose(piece.points[used], expected, rtol=0, atol=1e-15)
+            np.testing.assert_array_equal(tri[mine] - used.min(), rm.surface_triangles[i])
+            np.testing.assert_array_equal(piece.cell_data["fragment_of"][mine], k)

@@ -51,24 +51,59 @@ def fem_states(model, state):
 
 
 def frame_pieces(model, state):
-    """One FramePiece per body: rigid surfaces and FEM tet meshes in world coordinates (auto
-    bodies as tet meshes however they are stepped)."""
-    pieces = []
-    rm, rs = model.rigid, state.rigid
-    if rm.body_count:
-        R = quat.to_matrix(rs.orientation)
-        for i in range(rm.body_count):
-            if int(model.rigid_ids[i]) in model.parked:
-                continue
-            pts = rs.position[i] + rm.surface_vertices[i] @ R[i].T
-            pieces.append(FramePiece(int(model.rigid_ids[i]), pts, [("triangle", rm.surface_triangles[i])]))
-    pieces += [_tet_piece(k, m, s) for k, m, s in fem_states(model, state)]
+    """The frame's FramePieces, in body order: FEM tet meshes (auto bodies as tet meshes however
+    they are stepped) one body each, and rigid surfaces in world coordinates, each run of rigid
+    bodies between FEM ones as one piece (ids per cell: one check and one hand-over for a
+    thousand boxes, not a thousand)."""
     # the original scene body each piece came from (itself unless it is a fracture fragment)
-    origin = model.fragment_of if model.fragment_of is not None else list(range(len(model.names)))
+    origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
+    pieces = [_tet_piece(k, m, s) for k, m, s in fem_states(model, state)]
     for piece in pieces:
         piece.cell_data["fragment_of"] = np.int64(origin[piece.body_id])
-    pieces.sort(key=lambda p: p.body_id)
+    if model.rigid.body_count:
+        rs = state.rigid
+        R = quat.to_matrix(rs.orientation)
+        for vertices, vertex_body, triangles, cell_id, fragment_of in _rigid_runs(model, pieces):
+            turn = R[vertex_body]
+            points = rs.position[vertex_body] + (turn[:, :, 0] * vertices[:, :1] + turn[:, :, 1] * vertices[:, 1:2]
+                                                 + turn[:, :, 2] * vertices[:, 2:])
+            pieces.append(FramePiece(cell_id, points, [("triangle", triangles)],
+                                     cell_data={"fragment_of": fragment_of}))
+    pieces.sort(key=lambda p: int(np.min(p.body_id)))
     return pieces
+
+
+def _rigid_runs(model, fem_pieces):
+    """The rigid bodies' surfaces in runs of bodies with no FEM piece between them (by scene
+    index; parked auto bodies are FEM pieces): per run ``(vertices (n, 3) body frame, their rigid
+    body (n,), triangles (t, 3) into them, each triangle's scene index and fragment_of (t,))``,
+    read-only, built once per model and set of FEM pieces (``model.cache.rigid_frames``)."""
+    written = tuple(p.body_id for p in fem_pieces)
+    memo = model.cache.rigid_frames
+    if memo is not None and memo[0] == written:
+        return memo[1]
+    rm, ids = model.rigid, [int(k) for k in model.rigid_ids]
+    origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
+    rigid = sorted((k, i) for i, k in enumerate(ids) if k not in model.parked)
+    runs = {}
+    for k, i in rigid:
+        runs.setdefault(int(np.searchsorted(sorted(written), k)), []).append((k, i))
+    out = []
+    for members in runs.values():
+        counts = [len(rm.surface_vertices[i]) for _, i in members]
+        start = np.cumsum([0] + counts[:-1])
+        sizes = [len(rm.surface_triangles[i]) for _, i in members]
+        arrays = (np.concatenate([rm.surface_vertices[i] for _, i in members]).astype(float),
+                  np.repeat([i for _, i in members], counts).astype(np.int64),
+                  np.concatenate([np.asarray(rm.surface_triangles[i], np.int64) + s
+                                  for (_, i), s in zip(members, start)]),
+                  np.repeat([k for k, _ in members], sizes).astype(np.int64),
+                  np.repeat([origin[k] for k, _ in members], sizes).astype(np.int64))
+        for a in arrays:
+            a.flags.writeable = False
+        out.append(arrays)
+    model.cache.rigid_frames = (written, out)
+    return out
 
 
 def body_rows(model, state):
@@ -87,18 +122,16 @@ def body_rows(model, state):
     if rm.body_count:
         v = reported_velocity(rm, rs, model.gravity)
         w = angular_velocity(rm, rs)
-        ke = kinetic_energy(rm, rs, v)
+        ke = kinetic_energy(rm, rs, v, w)
         R_shape, _ = body_pose_in_shape_frame(rm, rs)
         q = quat.from_matrix(R_shape)
-        for i in range(rm.body_count):
-            k = int(model.rigid_ids[i])
+        ids = [int(k) for k in model.rigid_ids]
+        for i, k in enumerate(ids):
             if k in model.parked:
                 q[i] = _parked_orientation(model, state, i, k)
         # one conversion of the whole table to Python floats (not one per value)
         table = np.column_stack([rs.position, q, v, w, ke]).tolist()
-        for i, values in enumerate(table):
-            k = int(model.rigid_ids[i])
-            rows[k] = (t, model.names[k], *values, "rigid")
+        rows = {k: (t, model.names[k], *values, "rigid") for k, values in zip(ids, table)}
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
         weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix
         mass = weights.sum()

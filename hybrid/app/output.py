@@ -38,7 +38,8 @@ import numpy as np
 from . import writer_process
 from .text_files import atomic_write_text as _atomic_write_text, plain as _plain
 from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
-from .writer_process import WriterProcess, check_field, check_rows, owned
+from .frame_input import check_pieces, check_rows, owned
+from .writer_process import WriterProcess
 from .writer_thread import WriterThread
 
 BODY_COLUMNS = (
@@ -55,9 +56,11 @@ SUMMARY_JSON = "summary.json"
 
 @dataclass
 class FramePiece:
-    """One body's contribution to a frame.
+    """One body's contribution to a frame, or several bodies' at once.
 
-    body_id: integer id written as cell data ``body_id`` on every cell of the piece.
+    body_id: integer id written as cell data ``body_id`` on every cell of the piece, or a
+        ``(cell_count,)`` integer array of each cell's id (many rigid bodies in one piece: one
+        check and one hand-over for all of them).
     points: (n, 3) world coordinates in m.
     cells: list of (meshio cell type, (m, k) int array of indices into ``points``), e.g.
         ``[("triangle", faces)]`` for a rigid body, ``[("tetra", tets)]`` for an FEM body.
@@ -66,7 +69,7 @@ class FramePiece:
     point_data: name -> (n,) or (n, k) array, one value or row per point.
     """
 
-    body_id: int
+    body_id: int | np.ndarray
     points: np.ndarray
     cells: list[tuple[str, np.ndarray]]
     cell_data: dict[str, np.ndarray] = field(default_factory=dict)
@@ -323,31 +326,8 @@ class RunWriter:
     def _check_pieces(self, pieces: Sequence[FramePiece]) -> list[tuple]:
         """The pieces as :func:`hybrid.app.vtu.merge_pieces` takes them, checked (ValueError);
         registers their fields once all are good."""
-        cell_fields, point_fields = dict(self._cell_fields), dict(self._point_fields)
-        checked, cell_total = [], 0
-        for piece in pieces:
-            owner = f"body {piece.body_id}"
-            points = np.asarray(piece.points, dtype=float)
-            if points.ndim != 2 or points.shape[1] != 3:
-                raise ValueError(f"{owner}: points have shape {points.shape}, expected (n, 3)")
-            blocks = []
-            for cell_type, conn in piece.cells:
-                conn = np.asarray(conn, dtype=np.int64)
-                if conn.ndim != 2:
-                    raise ValueError(f"{owner}: {cell_type} cells must be a 2-d index array")
-                if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
-                    raise ValueError(f"{owner}: {cell_type} cell index out of range")
-                blocks.append((str(cell_type), conn))
-            cell_count = sum(len(c) for _, c in blocks)
-            cell_total += cell_count
-            cdata = {n: check_field(n, v, cell_count, f"{owner} cell", cell_fields) for n, v in piece.cell_data.items()}
-            pdata = {n: check_field(n, v, len(points), f"{owner} point", point_fields)
-                     for n, v in piece.point_data.items()}
-            checked.append((int(piece.body_id), points, blocks, cdata, pdata))
-        if not cell_total:
-            # VTK readers cannot read back an empty unstructured grid.
-            raise ValueError("a frame needs at least one body with at least one cell")
-        self._cell_fields, self._point_fields = cell_fields, point_fields
+        checked, self._cell_fields, self._point_fields = check_pieces(pieces, self._cell_fields,
+                                                                      self._point_fields)
         return checked
 
     def build_mesh(self, pieces: Sequence[FramePiece]):

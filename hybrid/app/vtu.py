@@ -128,7 +128,7 @@ class FrameMesh:
         return meshio.Mesh(self.points, cells, point_data=self.point_data, cell_data=cell_data)
 
 
-Piece = tuple       # (body id, points (n, 3) float, [(cell type, (m, k) int64)], cell data, point data)
+Piece = tuple       # (body id or ids per cell, points (n, 3) float, [(cell type, (m, k) int64)], cell data, point data)
 
 
 @dataclass
@@ -173,7 +173,8 @@ def merge_pieces(pieces: Sequence[Piece], cell_fields: Mapping[str, tuple[int, .
         for cell_type, c in blocks:
             stop = start + len(c)
             conn.append((cell_type, c + offset))
-            body_ids.append(np.full(len(c), body_id, dtype=np.int32))
+            body_ids.append(np.full(len(c), body_id, dtype=np.int32) if np.ndim(body_id) == 0
+                            else body_id[start:stop].astype(np.int32))
             for name, trailing in cell_fields.items():
                 value = cdata.get(name)
                 if value is None:

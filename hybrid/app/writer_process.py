@@ -1,8 +1,7 @@
-"""The writer process of a run's output (:class:`WriterProcess`), and the checks of a frame's
-input before it is handed over.
+"""The writer process of a run's output (:class:`WriterProcess`).
 
 :class:`hybrid.app.output.RunWriter` checks each frame on the stepping thread
-(:func:`check_field`, :func:`check_rows`) and hands it over as plain data (numpy arrays,
+(:mod:`hybrid.app.frame_input`) and hands it over as plain data (numpy arrays,
 numbers, strings: no simulation objects) in a job. A :class:`hybrid.app.vtu.FrameFiles` runs the
 jobs in order: it merges the bodies into one mesh, encodes the ``.vtu``, appends the CSV rows
 and keeps the ``.pvd`` index. It runs on the caller's thread, on a writer thread, or in a writer
@@ -33,59 +32,8 @@ import traceback
 import weakref
 from collections import deque
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
 
-import numpy as np
-
-from .vtu import Deferred, FrameFiles
-
-
-def check_field(name: str, value: Any, count: int, owner: str, registry: dict) -> np.ndarray:
-    """A piece's field checked: a 0-d value (the same on every cell or point), (count,) or
-    (count, k), or a :class:`hybrid.app.vtu.Deferred` of ``count`` rows; its row shape registered
-    in ``registry`` (ValueError if it differs from before)."""
-    if isinstance(value, Deferred):
-        array, trailing = value, tuple(value.trailing)
-        if len(value.trailing) > 1 or len(value) != count:
-            raise ValueError(f"{owner} field {name!r} has {len(value)} rows, expected {count}")
-    else:
-        array = np.asarray(value)
-        if array.ndim != 0 and (array.ndim not in (1, 2) or len(array) != count):
-            raise ValueError(f"{owner} field {name!r} has shape {array.shape}, expected ({count},) or ({count}, k)")
-        trailing = array.shape[1:]
-    known = registry.setdefault(name, trailing)
-    if known != trailing:
-        kind = owner.rsplit(" ", 1)[-1]
-        raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
-    return array
-
-
-def check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
-    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
-    out = []
-    for row in rows:
-        if isinstance(row, Mapping):
-            if set(row) != set(columns):
-                missing = sorted(set(columns) - set(row))
-                extra = sorted(set(row) - set(columns))
-                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
-            row = tuple(row[c] for c in columns)
-        else:
-            row = tuple(row)
-            if len(row) != len(columns):
-                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
-        out.append(row)
-    return out
-
-
-def owned(job: tuple) -> tuple:
-    """``job`` with its frame's arrays copied (a job run later by the writer thread)."""
-    if job[0] != "frame":
-        return job
-    pieces = [(body_id, points.copy(), [(t, c.copy()) for t, c in blocks],
-               {n: v.copy() for n, v in cdata.items()}, {n: v.copy() for n, v in pdata.items()})
-              for body_id, points, blocks, cdata, pdata in job[3]]
-    return job[:3] + (pieces,) + job[4:]
+from .vtu import FrameFiles
 
 
 class WriterProcessError(RuntimeError):

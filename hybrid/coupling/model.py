@@ -13,8 +13,11 @@ class CouplingCache:
 
     stacked_rows: the last ``(blocks, rigid_count)`` given to the contact problem's row stacking
     and its answer (hybrid.coupling.problem); resting contact asks the same again every step.
+    rigid_frames: the rigid bodies' surfaces as the frames write them, stacked, for the last set
+    of FEM pieces they were asked with (hybrid.app.observe.frame_pieces).
     """
     stacked_rows: tuple = None
+    rigid_frames: tuple = None
 
 
 @dataclass
