@@ -241,3 +241,17 @@ def test_colour_bar_has_its_own_room_beside_the_bodies(tmp_path):
         & (np.ptp(image, axis=-1) < 8) & (image.sum(axis=-1) > 200)
     columns = np.nonzero(cube[40:].sum(axis=0) >= 30)[0]      # the cube (not the bar's grey text)
     assert len(columns) > 10 and columns.max() < WIDTH * render._bar_left("von_mises", WIDTH)
+
+
+def test_a_body_in_a_walled_bin_is_seen_through_the_walls_nearest_the_camera(tmp_path):
+    """Planes are drawn from their open side only: a box inside a bin of four walls stays in view
+    (the walls between the fixed camera and the box would cover it)."""
+    walls = [{"point": [0, 0, 0], "normal": [0, 0, 1]}] + [
+        {"point": list(point), "normal": list(-np.asarray(point) / 1.5)}
+        for point in ([1.5, 0, 0], [-1.5, 0, 0], [0, 1.5, 0], [0, -1.5, 0])]
+    run_dir = tmp_path / "bin"
+    with RunWriter(run_dir, "bin") as writer:
+        writer.write_frame(0.0, [FramePiece(0, CUBE_POINTS + [0, 0, 0.5], [("triangle", CUBE_TRIANGLES)])], [])
+        writer.close({"scene": {"name": "bin", "planes": walls, "simulation": {"output_fps": 20}}})
+    image = iio.imread(render_run(run_dir, size=(WIDTH, HEIGHT))["pngs"][0])[..., :3]
+    assert pixels_of_body(image, 0).sum() > 200

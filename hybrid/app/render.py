@@ -306,9 +306,10 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
 
 
 def _set_stage(plotter, lo, hi, planes, aspect, room=1.0):
-    """Background, the scene's planes as ground squares around the bodies' box ``lo``-``hi``, and
-    a fixed camera that holds the whole box in the left ``room`` of the image's width (the rest is
-    the colour bar's)."""
+    """Background, the scene's planes as ground squares around the bodies' box ``lo``-``hi``
+    (seen from their open side only: the walls of a bin between the camera and the bodies are
+    not drawn), and a fixed camera that holds the whole box in the left ``room`` of the image's
+    width (the rest is the colour bar's)."""
     import pyvista as pv
 
     plotter.set_background("#f7f8fa", top="#dde4ec")
@@ -317,7 +318,8 @@ def _set_stage(plotter, lo, hi, planes, aspect, room=1.0):
     for point, normal in planes:
         foot = centre - np.dot(centre - point, normal) * normal
         ground = pv.Plane(center=foot, direction=normal, i_size=ground_size, j_size=ground_size)
-        plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0)
+        plotter.add_mesh(ground, color=GROUND_COLOR, ambient=0.45, diffuse=0.55, specular=0.0,
+                         culling="back")
     plotter.camera_position = camera_for_bounds(lo, hi, aspect * room)
     plotter.camera.view_angle = VIEW_ANGLE_DEG
     # the view's centre at the middle of that room: viewport x runs from -1 to 1
