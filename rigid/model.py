@@ -173,6 +173,14 @@ def kinetic_energy(model, state, velocity=None, omega=None):
     return 0.5 * m * np.einsum("bi,bi->b", v, v) + 0.5 * np.einsum("bi,bi->b", w, state.angular_momentum)
 
 
+def posed_points(vertices, owner, position, rotation):
+    """World positions ``(n, 3)`` of body-frame points ``vertices`` (n, 3) of bodies ``owner``
+    (n,) at positions (b, 3) and rotations ``rotation`` (b, 3, 3): ``x + R v`` for each."""
+    turn = rotation[owner]
+    return position[owner] + (turn[:, :, 0] * vertices[:, :1] + turn[:, :, 1] * vertices[:, 1:2]
+                              + turn[:, :, 2] * vertices[:, 2:])
+
+
 def body_pose_in_shape_frame(model, state):
     """World pose of each body's own (shape) frame: rotation (b,3,3) and origin (b,3)."""
     R = quat.to_matrix(state.orientation)

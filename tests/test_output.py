@@ -203,8 +203,8 @@ def test_a_piece_of_several_bodies_writes_each_cells_own_body_id(tmp_path):
 
 def test_frame_pieces_write_rigid_runs_as_the_bodies_own_surfaces():
     """frame_pieces puts each run of rigid bodies between FEM ones into one piece: every rigid
-    body's cells are its own surface turned and moved to its pose, with its scene index and
-    fragment_of, and the frame lists bodies in scene order."""
+    body's cells are its own surface turned and moved to its pose (by the writer: the points are
+    deferred), with its scene index and fragment_of, and the frame lists bodies in scene order."""
     import tomllib
     from pathlib import Path
     from hybrid import Simulation
@@ -252,6 +252,6 @@ angular_velocity = [0, 4, 0]
             mine = piece.body_id == k
             expected = state.rigid.position[i] + rm.surface_vertices[i] @ R[i].T
             used = np.unique(tri[mine])
-            np.testing.assert_allclose(piece.points[used], expected, rtol=0, atol=1e-15)
+            np.testing.assert_allclose(piece.points.value()[used], expected, rtol=0, atol=1e-15)
             np.testing.assert_array_equal(tri[mine] - used.min(), rm.surface_triangles[i])
             np.testing.assert_array_equal(piece.cell_data["fragment_of"][mine], k)

@@ -68,7 +68,11 @@ def children():
     return [p for p in multiprocessing.active_children()]
 
 
-def test_a_run_written_by_the_writer_process_equals_the_run_written_in_place(tmp_path, monkeypatch):
+@pytest.mark.parametrize("keep_bytes", [16 << 10, 0])
+def test_a_run_written_by_the_writer_process_equals_the_run_written_in_place(tmp_path, monkeypatch, keep_bytes):
+    """keep_bytes 0: every read-only array (the brick's surface) is sent once and kept."""
+    from hybrid.app import frame_input
+    monkeypatch.setattr(frame_input, "KEEP_BYTES", keep_bytes)
     inline = run_with(tmp_path, monkeypatch, False, "inline")
     process = run_with(tmp_path, monkeypatch, "process", "process")
     files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
@@ -253,3 +257,39 @@ def test_auto_stays_on_the_thread_in_a_daemonic_process_such_as_a_dask_worker(tm
     assert read_run(tmp_path / "run")[0] == [0.0, 0.01, 0.02]
     with pytest.raises(RuntimeError, match="daemonic"):
         RunWriter(tmp_path / "other", "drop", background="process").write_frame(0.0, [piece(0.0, rng)])
+
+
+def test_kept_arrays_go_over_once_while_they_stay_the_same_object():
+    """A large read-only array is pickled once and then by number while it comes again; a new
+    object (or a writable array) is pickled whole; each side forgets what a frame did not use."""
+    from hybrid.app.frame_input import KeptArrays
+    sender, receiver = KeptArrays(), KeptArrays()
+    surface = np.arange(30000.0).reshape(-1, 3).copy()      # owns its data
+    surface.flags.writeable = False
+    moving = np.ones((10000, 3))
+
+    def frame(*arrays):
+        """A frame job whose pieces hold ``arrays``: (payload bytes, the job received)."""
+        rows = [(0.1, "box", 1.0)] * 100
+        payload = sender.dumps(("frame", 0.1, "frame_00001.vtu", list(arrays), rows))
+        job = receiver.loads(payload)
+        assert job[:3] == ("frame", 0.1, "frame_00001.vtu") and job[4] == rows
+        for sent, got in zip(arrays, job[3]):
+            np.testing.assert_array_equal(got, sent)
+        return len(payload), job[3]
+
+    first, _ = frame(surface, moving)
+    second, job = frame(surface, moving)
+    assert first - second > 0.95 * surface.nbytes           # the surface went over once
+    assert job[0] is receiver.kept[next(iter(receiver.kept))]
+    receiver.loads(sender.dumps(("rows", "bodies.csv", (), [])))
+    third, _ = frame(surface, moving)                       # a job without arrays forgets nothing
+    assert third == second
+    other = surface.copy()
+    other.flags.writeable = False
+    fourth, _ = frame(other, moving)                        # another object: sent whole
+    assert fourth == first
+    frame(moving, moving)                                   # not used by a frame: forgotten
+    assert not sender.kept and not receiver.kept
+    writable = surface.copy()
+    assert frame(writable)[0] > surface.nbytes and frame(writable)[0] > surface.nbytes

@@ -1,13 +1,17 @@
-"""The checks of a frame's input on the stepping thread, before it is handed over to the writer
-(:mod:`hybrid.app.writer_process`): pieces, fields and rows, each refused with a ValueError that
-names what is wrong, and the copy a writer thread takes."""
+"""A frame on its way to the writer (:mod:`hybrid.app.writer_process`): the checks of its input
+on the stepping thread (pieces, fields and rows, each refused with a ValueError that names what
+is wrong), the copy a writer thread takes, and the arrays a writer process keeps from frame to
+frame (:class:`KeptArrays`)."""
 from __future__ import annotations
 
+import io
+import pickle
+import weakref
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .vtu import Deferred
+from .vtu import Deferred, owned_array
 
 
 def check_pieces(pieces: Sequence[Any], cell_fields: Mapping, point_fields: Mapping) -> tuple[list, dict, dict]:
@@ -19,9 +23,10 @@ def check_pieces(pieces: Sequence[Any], cell_fields: Mapping, point_fields: Mapp
     checked, cell_total = [], 0
     for piece in pieces:
         body_id, owner = _owner(piece)
-        points = np.asarray(piece.points, dtype=float)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{owner}: points have shape {points.shape}, expected (n, 3)")
+        points = piece.points if isinstance(piece.points, Deferred) else np.asarray(piece.points, dtype=float)
+        shape = (len(points), *points.trailing) if isinstance(points, Deferred) else points.shape
+        if len(shape) != 2 or shape[1] != 3:
+            raise ValueError(f"{owner}: points have shape {shape}, expected (n, 3)")
         blocks = []
         for cell_type, conn in piece.cells:
             conn = np.asarray(conn, dtype=np.int64)
@@ -94,10 +99,79 @@ def check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
 
 
 def owned(job: tuple) -> tuple:
-    """``job`` with its frame's arrays copied (a job run later by the writer thread)."""
+    """``job`` with its frame's arrays copied (a job run later by the writer thread); read-only
+    arrays that own their data (a model's surfaces, kept from frame to frame) cannot change and
+    are not copied."""
     if job[0] != "frame":
         return job
-    pieces = [(np.copy(body_id) if np.ndim(body_id) else body_id, points.copy(), [(t, c.copy()) for t, c in blocks],
-               {n: v.copy() for n, v in cdata.items()}, {n: v.copy() for n, v in pdata.items()})
+    pieces = [(_kept(body_id) if np.ndim(body_id) else body_id, _kept(points), [(t, _kept(c)) for t, c in blocks],
+               {n: _kept(v) for n, v in cdata.items()}, {n: _kept(v) for n, v in pdata.items()})
               for body_id, points, blocks, cdata, pdata in job[3]]
     return job[:3] + (pieces,) + job[4:]
+
+
+def _kept(value):
+    return value.copy() if isinstance(value, Deferred) else owned_array(value)
+
+
+# read-only arrays at least this large are sent once and kept by the writer process
+KEEP_BYTES = 16 << 10
+
+
+class KeptArrays:
+    """One side of the pipe's memory of large read-only arrays (a model's surfaces, handed over
+    with every frame): the stepping side pickles such an array once, then only its number while
+    the same array (the same object, read-only and owning its data, so unchanged) comes again in
+    the next frame; the writer side keeps them by number. Each side forgets what a frame did not
+    use, so both keep the same arrays, those of the last frame."""
+
+    def __init__(self):
+        self.kept: dict = {}            # stepping side: id -> (weak reference, number); writer: number -> array
+        self.count = 0
+
+    def dumps(self, job: tuple) -> bytes:
+        """``job`` pickled (the stepping side); a frame's pieces (``job[3]``) with their kept
+        arrays by number, pickled apart from the rest (the rows, thousands of small objects, go
+        through the plain pickler: a Python hook called for each costs more than it saves)."""
+        if job[0] != "frame":
+            return pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+        buffer = io.BytesIO()
+        pickler = pickle.Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL)
+        used, sending = {}, set()
+
+        def persistent_id(obj):
+            if type(obj) is not np.ndarray or obj.flags.writeable or obj.base is not None \
+                    or obj.nbytes < KEEP_BYTES or id(obj) in sending:
+                return None
+            known = used.get(id(obj)) or self.kept.get(id(obj))
+            if known is not None and known[0]() is obj:
+                used[id(obj)] = known
+                return ("kept", known[1])
+            sending.add(id(obj))        # pickled itself inside ("new", ...)
+            self.count += 1
+            used[id(obj)] = (weakref.ref(obj), self.count)
+            return ("new", self.count, obj)
+
+        pickler.persistent_id = persistent_id
+        pickler.dump(job[3])
+        payload = pickle.dumps(job[:3] + (buffer.getvalue(),) + job[4:], protocol=pickle.HIGHEST_PROTOCOL)
+        self.kept = used
+        return payload
+
+    def loads(self, payload: bytes) -> tuple:
+        """A job from :meth:`dumps` (the writer side)."""
+        job = pickle.loads(payload)
+        if job[0] != "frame":
+            return job
+        unpickler = pickle.Unpickler(io.BytesIO(job[3]))
+        used = {}
+
+        def persistent_load(pid):
+            array = used.get(pid[1], self.kept.get(pid[1])) if pid[0] == "kept" else pid[2]
+            used[pid[1]] = array
+            return array
+
+        unpickler.persistent_load = persistent_load
+        pieces = unpickler.load()
+        self.kept = used
+        return job[:3] + (pieces,) + job[4:]

@@ -5,7 +5,8 @@ from fem import dynamics as fem_dyn
 from fem.stress import element_stress, principal_stress_max
 from fem.plasticity import von_mises
 from rigid import quaternion as quat
-from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_energy, reported_velocity
+from rigid.model import (angular_velocity, body_pose_in_shape_frame, kinetic_energy, posed_points,
+                         reported_velocity)
 
 from hybrid.coupling.switch import fem_state
 
@@ -64,9 +65,8 @@ def frame_pieces(model, state):
         rs = state.rigid
         R = quat.to_matrix(rs.orientation)
         for vertices, vertex_body, triangles, cell_id, fragment_of in _rigid_runs(model, pieces):
-            turn = R[vertex_body]
-            points = rs.position[vertex_body] + (turn[:, :, 0] * vertices[:, :1] + turn[:, :, 1] * vertices[:, 1:2]
-                                                 + turn[:, :, 2] * vertices[:, 2:])
+            # the writer poses the surfaces: a frame hands over the poses, and the surfaces once
+            points = Deferred(posed_points, (vertices, vertex_body, rs.position, R), (3,), len(vertices))
             pieces.append(FramePiece(cell_id, points, [("triangle", triangles)],
                                      cell_data={"fragment_of": fragment_of}))
     pieces.sort(key=lambda p: int(np.min(p.body_id)))

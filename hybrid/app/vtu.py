@@ -133,25 +133,38 @@ Piece = tuple       # (body id or ids per cell, points (n, 3) float, [(cell type
 
 @dataclass
 class Deferred:
-    """A field computed by the writer: ``function(argument)``, one value (``trailing`` shape) per
-    row of ``argument``. ``function`` must be a module-level function (pickled by name for the
-    writer process), e.g. ``Deferred(fem.stress.principal_stress_max, sigma)``: the stepping
-    thread hands over the stresses and the writer computes their largest eigenvalues."""
+    """Values computed by the writer: ``function(argument)`` (or ``function(*argument)`` for a
+    tuple of arrays), ``rows`` rows (default ``len(argument)``) of ``trailing`` shape each.
+    ``function`` must be a module-level function (pickled by name for the writer process), e.g.
+    ``Deferred(fem.stress.principal_stress_max, sigma)``: the stepping thread hands over the
+    stresses and the writer computes their largest eigenvalues. A piece's fields and points may
+    be deferred."""
 
     function: Any
-    argument: np.ndarray
+    argument: Any
     trailing: tuple = ()
+    rows: int | None = None
 
     def __len__(self) -> int:
-        return len(self.argument)
+        return len(self.argument) if self.rows is None else self.rows
 
     def value(self) -> np.ndarray:
-        """The field's values."""
+        """The values."""
+        if isinstance(self.argument, tuple):
+            return np.asarray(self.function(*self.argument))
         return np.asarray(self.function(self.argument))
 
     def copy(self) -> "Deferred":
-        """The same field with its argument copied."""
-        return Deferred(self.function, np.array(self.argument), self.trailing)
+        """The same values with their arguments copied (read-only arrays that own their data,
+        which cannot change, are kept as they are)."""
+        argument = tuple(map(owned_array, self.argument)) if isinstance(self.argument, tuple) else owned_array(self.argument)
+        return Deferred(self.function, argument, self.trailing, self.rows)
+
+
+def owned_array(array):
+    """``array`` as a writer may keep it: a copy, unless it is read-only and owns its data."""
+    array = np.asarray(array)
+    return array if array.base is None and not array.flags.writeable else array.copy()
 
 
 def _value(field_value):
@@ -198,7 +211,7 @@ def merge_pieces(pieces: Sequence[Piece], cell_fields: Mapping[str, tuple[int, .
             else:
                 parts.append(value.astype(float))
         point_data[name] = np.concatenate(parts) if parts else np.zeros((0, *trailing))
-    points = np.concatenate([p[1] for p in pieces]) if pieces else np.zeros((0, 3))
+    points = np.concatenate([_value(p[1]) for p in pieces]) if pieces else np.zeros((0, 3))
     cell_data = {"body_id": np.concatenate(body_ids)} | {n: np.concatenate(v) for n, v in cell_parts.items()}
     return FrameMesh(points, conn, point_data, cell_data)
 

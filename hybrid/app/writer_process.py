@@ -33,6 +33,7 @@ import weakref
 from collections import deque
 from pathlib import Path
 
+from .frame_input import KeptArrays
 from .vtu import FrameFiles
 
 
@@ -121,6 +122,7 @@ class WriterProcess:
         self._error_raised = False
         self._gone = False                  # the child's end of the replies closed
         self._state: dict | None = None
+        self._keeping = KeptArrays()
         _LIVE.add(self)
         # a writer dropped without stop(): its process still writes what it has and ends
         self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox)
@@ -139,7 +141,7 @@ class WriterProcess:
             self._read(block=True)
         if self._error is not None and not always or self._gone:
             return
-        payload = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+        payload = self._keeping.dumps(job)
         self._in_flight.append(len(payload))
         self._in_flight_bytes += len(payload)
         self._sent += 1
@@ -220,7 +222,6 @@ class WriterProcess:
 
 
 _LIVE: "weakref.WeakSet[WriterProcess]" = weakref.WeakSet()
-
 
 def _feed(outbox, jobs) -> None:
     """The feeder thread: send the payloads put in ``outbox``, in order, until None."""
@@ -314,6 +315,7 @@ def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> No
     traceback)`` on ``replies``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     files = FrameFiles(out_dir, pvd_name, index_every)
+    keeping = KeptArrays()
     seconds, failed, done = 0.0, False, 0
     try:
         while True:
@@ -324,7 +326,7 @@ def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> No
             if not payload:
                 break
             result = None
-            job = pickle.loads(payload)
+            job = keeping.loads(payload)
             if not failed or job[0] == "state":
                 start = time.perf_counter()
                 try:
