@@ -148,6 +148,9 @@ BAD_SCENES = {
     "auto_thresholds": (SMALL_SCENE.replace('name = "box"', 'name = "box"\nmodel = "auto"\nyoung = 1e6\n'
                                             'auto = { rigidify_strain = 1e-3, elastify_strain = 1e-4 }'),
                         "auto.elastify_strain"),
+    "auto_threshold_above_the_default": (
+        SMALL_SCENE.replace('name = "box"', 'name = "box"\nmodel = "auto"\nyoung = 1e6\n'
+                            'auto = { rigidify_strain = 1e-2 }'), "got 0.001 (the default)"),
     "anchor_holds_nothing": (SMALL_SCENE + 'model = "fem"\nyoung = 1e6\n'
                              '[[bodies.anchors]]\nbox = [[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]\n', "[[bodies.anchors]] 0 box"),
     "mesh_too_fine": (SMALL_SCENE.replace("size = [0.2, 0.1, 0.1] }", "size = [0.2, 0.1, 0.1], resolution = 1e-4 }"),

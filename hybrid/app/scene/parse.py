@@ -169,8 +169,9 @@ def _parse_auto(table, values, given, where, problems):
     out = read_table(table, AUTO, where.nested("auto"), problems)
     low, high = out["rigidify_strain"], out["elastify_strain"]
     if valid(low, high) and high <= low:
+        default = "" if "elastify_strain" in table else " (the default)"
         problems.append(where.nested("auto").problem(
-            "elastify_strain", f"must exceed rigidify_strain ({toml_text(low)}), got {toml_text(high)}"))
+            "elastify_strain", f"must exceed rigidify_strain ({toml_text(low)}), got {toml_text(high)}{default}"))
         return Auto()
     return Auto(**out) if all(valid(v) for v in out.values()) else Auto()
 
