@@ -255,3 +255,24 @@ angular_velocity = [0, 4, 0]
             np.testing.assert_allclose(piece.points.value()[used], expected, rtol=0, atol=1e-15)
             np.testing.assert_array_equal(tri[mine] - used.min(), rm.surface_triangles[i])
             np.testing.assert_array_equal(piece.cell_data["fragment_of"][mine], k)
+
+
+def test_csv_rows_write_every_kind_of_value_as_csv_value_formats_it():
+    """Floats, ints and strings go to the csv module as they are (the fast path); the text is
+    the one csv_value's formatting of each value gives: floats at full precision, numpy scalars,
+    bools as 0/1, nan and inf, quoted strings, dict rows."""
+    import io
+    from hybrid.app.text_files import csv_rows, csv_value
+    rng = np.random.default_rng(2)
+    values = [0.1, 1 / 3, 7e-300, -0.0, 1e300, float("nan"), float("-inf"), 2**60, True, np.float64(0.2),
+              np.int64(5), 'say "a,b"', "x", np.bool_(False), 0.30000000000000004, 5e-324, np.float32(0.1)]
+    values += list(rng.normal(size=340) * 10.0 ** rng.integers(-300, 300, 340))
+    rows = [tuple(values[i:i + 3]) for i in range(0, len(values) - 3, 3)]
+    reference = io.StringIO()
+    writer = csv.writer(reference, lineterminator="\n")
+    for row in rows:
+        writer.writerow([csv_value(v) for v in row])
+    assert csv_rows(rows, ("a", "b", "c")) == reference.getvalue()
+    assert csv_rows([dict(zip("abc", rows[0]))], "abc") == reference.getvalue().splitlines(True)[0]
+    assert [float(v) for v in next(csv.reader(io.StringIO(csv_rows([(1 / 3, 2 / 3, 7e-300)], "abc"))))] \
+        == [1 / 3, 2 / 3, 7e-300]

@@ -1,13 +1,13 @@
-"""A frame on its way to the writer (:mod:`hybrid.app.writer_process`): the checks of its input
-on the stepping thread (pieces, fields and rows, each refused with a ValueError that names what
-is wrong), the copy a writer thread takes, and the arrays a writer process keeps from frame to
-frame (:class:`KeptArrays`)."""
+"""A frame on its way to the writer (:mod:`hybrid.app.writer_process`): the checks of its pieces
+and fields on the stepping thread (each refused with a ValueError that names what is wrong; its
+rows: :func:`hybrid.app.text_files.check_rows`), the copy a writer thread takes, and the arrays
+a writer process keeps from frame to frame (:class:`KeptArrays`)."""
 from __future__ import annotations
 
 import io
 import pickle
 import weakref
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -78,24 +78,6 @@ def check_field(name: str, value: Any, count: int, owner: str, registry: dict) -
         kind = owner.rsplit(" ", 1)[-1]
         raise ValueError(f"{kind} field {name!r} has row shape {trailing}, earlier pieces gave {known}")
     return array
-
-
-def check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
-    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
-    out = []
-    for row in rows:
-        if isinstance(row, Mapping):
-            if set(row) != set(columns):
-                missing = sorted(set(columns) - set(row))
-                extra = sorted(set(row) - set(columns))
-                raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
-            row = tuple(row[c] for c in columns)
-        else:
-            row = tuple(row)
-            if len(row) != len(columns):
-                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
-        out.append(row)
-    return out
 
 
 def owned(job: tuple) -> tuple:

@@ -36,9 +36,9 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from . import writer_process
-from .text_files import atomic_write_text as _atomic_write_text, plain as _plain
+from .text_files import atomic_write_text as _atomic_write_text, check_rows, plain as _plain
 from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
-from .frame_input import check_pieces, check_rows, owned
+from .frame_input import check_pieces, owned
 from .writer_process import WriterProcess
 from .writer_thread import WriterThread
 

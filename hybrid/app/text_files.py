@@ -50,23 +50,36 @@ def csv_value(value: Any) -> Any:
     return value
 
 
-def csv_rows(rows: Iterable[Any], columns: Sequence[str]) -> str:
-    """Format rows (tuples in column order, or dicts with exactly ``columns``) as CSV text."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
+def check_rows(rows: Iterable[Any], columns: Sequence[str]) -> list[tuple]:
+    """Rows as tuples in ``columns`` order (dicts must have exactly ``columns``; ValueError)."""
+    out = []
     for row in rows:
-        if isinstance(row, Mapping):
+        if type(row) is not tuple and isinstance(row, Mapping):      # (an ABC check: 1 us a row)
             if set(row) != set(columns):
                 missing = sorted(set(columns) - set(row))
                 extra = sorted(set(row) - set(columns))
                 raise ValueError(f"row keys do not match columns: missing {missing}, extra {extra}")
-            values = [row[c] for c in columns]
+            row = tuple(row[c] for c in columns)
         else:
-            values = list(row)
-            if len(values) != len(columns):
-                raise ValueError(f"row has {len(values)} values, expected {len(columns)}: {columns}")
-        writer.writerow([csv_value(v) for v in values])
+            row = tuple(row)
+            if len(row) != len(columns):
+                raise ValueError(f"row has {len(row)} values, expected {len(columns)}: {columns}")
+        out.append(row)
+    return out
+
+
+def csv_rows(rows: Iterable[Any], columns: Sequence[str]) -> str:
+    """Format rows (tuples in column order, or dicts with exactly ``columns``) as CSV text."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    for values in check_rows(rows, columns):
+        # Python floats, ints and strings go as they are (the csv module writes a float as its
+        # repr): most of a table's values, and a call each cost 20 ms a frame of 1,000 bodies
+        writer.writerow([v if type(v) in _AS_THEY_ARE else csv_value(v) for v in values])
     return buffer.getvalue()
+
+
+_AS_THEY_ARE = frozenset((float, int, str))
 
 
 def temporary_path(path: Path) -> Path:
