@@ -64,7 +64,7 @@ def frame_pieces(model, state):
     if model.rigid.body_count:
         rs = state.rigid
         R = quat.to_matrix(rs.orientation)
-        for vertices, vertex_body, triangles, cell_id, fragment_of in _rigid_runs(model, pieces):
+        for vertices, vertex_body, triangles, cell_id, fragment_of in _rigid_runs(model, pieces, origin):
             # the writer poses the surfaces: a frame hands over the poses, and the surfaces once
             points = Deferred(posed_points, (vertices, vertex_body, rs.position, R), (3,), len(vertices))
             pieces.append(FramePiece(cell_id, points, [("triangle", triangles)],
@@ -73,21 +73,22 @@ def frame_pieces(model, state):
     return pieces
 
 
-def _rigid_runs(model, fem_pieces):
+def _rigid_runs(model, fem_pieces, origin):
     """The rigid bodies' surfaces in runs of bodies with no FEM piece between them (by scene
     index; parked auto bodies are FEM pieces): per run ``(vertices (n, 3) body frame, their rigid
     body (n,), triangles (t, 3) into them, each triangle's scene index and fragment_of (t,))``,
-    read-only, built once per model and set of FEM pieces (``model.cache.rigid_frames``)."""
+    read-only, built once per model and set of FEM pieces (``model.cache.rigid_frames``).
+    ``origin``: the scene body each body came from, by scene index."""
     written = tuple(p.body_id for p in fem_pieces)
     memo = model.cache.rigid_frames
     if memo is not None and memo[0] == written:
         return memo[1]
     rm, ids = model.rigid, [int(k) for k in model.rigid_ids]
-    origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
     rigid = sorted((k, i) for i, k in enumerate(ids) if k not in model.parked)
+    run_of = np.searchsorted(np.sort(np.asarray(written, dtype=np.int64)), [k for k, _ in rigid])
     runs = {}
-    for k, i in rigid:
-        runs.setdefault(int(np.searchsorted(sorted(written), k)), []).append((k, i))
+    for (k, i), run in zip(rigid, run_of.tolist()):
+        runs.setdefault(run, []).append((k, i))
     out = []
     for members in runs.values():
         counts = [len(rm.surface_vertices[i]) for _, i in members]
