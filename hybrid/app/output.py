@@ -61,7 +61,8 @@ class FramePiece:
     body_id: integer id written as cell data ``body_id`` on every cell of the piece, or a
         ``(cell_count,)`` integer array of each cell's id (many rigid bodies in one piece: one
         check and one hand-over for all of them).
-    points: (n, 3) world coordinates in m.
+    points: (n, 3) world coordinates in m, or a :class:`hybrid.app.vtu.Deferred` of n rows the
+        writer computes (rigid surfaces posed by the writer).
     cells: list of (meshio cell type, (m, k) int array of indices into ``points``), e.g.
         ``[("triangle", faces)]`` for a rigid body, ``[("tetra", tets)]`` for an FEM body.
     cell_data: name -> (cell_count,) or (cell_count, k) array, one value or row per cell over
