@@ -29,6 +29,8 @@ class FemCache:
     mass_weights: ``(n,)`` kg row sums of a consistent mass matrix (``fem.dynamics.mass_weights``).
     point_gradients: shape-function data of the quadrature points
         (``fem.plastic_flow.point_gradients``).
+    mean_gradients: ``(t, b, 3)`` shape-function gradients averaged over each element
+        (``hybrid.app.peaks.mean_gradients``).
     rotations: ``(x, tet_R)``: positions ``(n, 3)`` m (a copy) and their read-only element rotations
         ``(t, 3, 3)`` (``fem.rotations.element_rotations``).
     elastic_energy: ``(x, plastic_strain, energy)``: positions, plastic strain (copies; None for an
@@ -49,6 +51,7 @@ class FemCache:
     gravity_force: tuple | None = None
     mass_weights: object = None
     point_gradients: object = None
+    mean_gradients: object = None
     rotations: tuple | None = None
     elastic_energy: tuple | None = None
     held: object = None

@@ -2,8 +2,8 @@
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.stress import element_stress, principal_stress_max
-from fem.plasticity import von_mises
+from fem.plasticity import elastic_stress
+from fem.stress import principal_stress_max
 from rigid import quaternion as quat
 from rigid.model import (angular_velocity, body_pose_in_shape_frame, kinetic_energy, posed_points,
                          reported_velocity)
@@ -11,6 +11,7 @@ from rigid.model import (angular_velocity, body_pose_in_shape_frame, kinetic_ene
 from hybrid.coupling.switch import fem_state
 
 from .output import FramePiece
+from .peaks import element_strains, strain_tensors
 from .vtu import Deferred
 
 
@@ -20,9 +21,10 @@ def tet_fields(fem_model, fem_state, deferred=False):
     the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1).
     ``deferred``: ``principal_stress`` as a :class:`hybrid.app.vtu.Deferred` of the stresses,
     computed by the run's writer (the batched eigenvalues are most of a frame's fields' time)."""
-    sigma = element_stress(fem_model, fem_state, fem_state.tet_plastic_strain)
+    e, vm, _ = element_strains(fem_model, fem_state)
+    sigma = elastic_stress(strain_tensors(e), 0.0, fem_model.mu, fem_model.lam)
     principal = Deferred(principal_stress_max, sigma) if deferred else principal_stress_max(sigma)
-    fields = {"von_mises": von_mises(sigma), "principal_stress": principal,
+    fields = {"von_mises": vm, "principal_stress": principal,
               "plastic_strain": 0.0, "yielded": 0}
     if fem_state.tet_peeq is not None:
         fields["plastic_strain"] = fem_state.tet_peeq.max(axis=1)

@@ -28,7 +28,6 @@ class Peaks:
 
     def __init__(self):
         self.bodies = {}
-        self._operators = {}    # per FEM model (by id, with the model): its mean_gradients
 
     def update(self, model, state):
         """Take in the step that ended in ``state`` (``model``: the coupled model it was taken
@@ -39,48 +38,14 @@ class Peaks:
         for k, m, s in zip(model.fem_ids, model.fem, state.fem):
             name = model.names[origin[int(k)]]
             peak = self.bodies.setdefault(name, {q: (0.0, 0.0) for q in QUANTITIES})
-            vm, mean, stress_of = self._stress(m, s)
+            e, vm, mean = element_strains(m, s)
             _raise(peak, "von_mises", vm, state.time)
             candidates = np.nonzero(mean + vm * (2.0 / 3.0) > peak["principal_stress"][0])[0]
             if len(candidates):
-                _raise(peak, "principal_stress", np.linalg.eigvalsh(stress_of(candidates))[:, -1],
-                       state.time)
+                stress = elastic_stress(strain_tensors(e[candidates]), 0.0, m.mu, m.lam)
+                _raise(peak, "principal_stress", np.linalg.eigvalsh(stress)[:, -1], state.time)
             if s.tet_peeq is not None:
                 _raise(peak, "plastic_strain", s.tet_peeq, state.time)
-
-    def _stress(self, m, s):
-        """``(von Mises (t,) Pa, mean stress (t,) Pa, stress of elements (k,) -> (k, 3, 3) Pa)``
-        of a body's element stresses, as fem.stress.element_stress gives them (to round-off), in
-        one compiled pass over its elements (the batched products of element_stress took 3 ms a
-        step for 7,680 tets in the floating frame, 5 ms for 9,600 corotated ones)."""
-        hit = self._operators.get(id(m))
-        if hit is None or hit[0] is not m:
-            if len(self._operators) > 64:
-                self._operators.clear()
-            hit = self._operators[id(m)] = (m, mean_gradients(m))
-        eps_p = _NO_PLASTIC
-        if s.tet_plastic_strain is not None:
-            rows, cols = [i for i, _ in _PAIRS], [j for _, j in _PAIRS]
-            eps_p = s.tet_plastic_strain[:, :, rows, cols]          # (t, q, 6)
-            if m.quadrature_count > 1:
-                w = m.elements.tet_weights
-                eps_p = np.einsum("tq,tqc->tc", w, eps_p) / w.sum(axis=1)[:, None]
-            else:
-                eps_p = eps_p[:, 0]
-        eps_p = np.ascontiguousarray(eps_p)
-        if m.frame == "corotated":
-            e, vm, mean = _element_strains_turned(s.x, element_rotations(m, s.x), m.rest_points,
-                                                  m.elements.tet_nodes, hit[1], eps_p, m.mu, m.lam)
-        else:
-            e, vm, mean = _element_strains(s.x, s.c, s.R, m.rest_offsets, m.elements.tet_nodes, hit[1],
-                                           eps_p, m.mu, m.lam)
-
-        def stress_of(rows):
-            eps = np.empty((len(rows), 3, 3))
-            for c, (i, j) in enumerate(_PAIRS):
-                eps[:, i, j] = eps[:, j, i] = e[rows, c]
-            return elastic_stress(eps, 0.0, m.mu, m.lam)
-        return vm, mean, stress_of
 
     def as_dict(self):
         """The summary's ``peaks`` section: ``{body: {quantity: {"value": v, "time": t}}}``."""
@@ -96,6 +61,39 @@ class Peaks:
         """Continue from a :meth:`snapshot`."""
         self.bodies = {name: {q: (float(v), float(t)) for q, (v, t) in peak.items()}
                        for name, peak in snapshot.items()}
+
+
+def element_strains(m, s):
+    """``(e (t, 6), von Mises (t,) Pa, mean stress (t,) Pa)`` of a body's elements (model ``m``,
+    state ``s``): each element's mean elastic strain (components ``_PAIRS``; the plastic strain
+    taken off), whose stress is fem.stress.element_stress's (to round-off), in one compiled pass
+    over the elements (the batched products of element_stress took 3 ms a step for 7,680 tets in
+    the floating frame, 5 ms for 9,600 corotated ones)."""
+    G = m.cache.mean_gradients
+    if G is None:
+        G = m.cache.mean_gradients = mean_gradients(m)
+    eps_p = _NO_PLASTIC
+    if s.tet_plastic_strain is not None:
+        rows, cols = [i for i, _ in _PAIRS], [j for _, j in _PAIRS]
+        eps_p = s.tet_plastic_strain[:, :, rows, cols]          # (t, q, 6)
+        if m.quadrature_count > 1:
+            w = m.elements.tet_weights
+            eps_p = np.einsum("tq,tqc->tc", w, eps_p) / w.sum(axis=1)[:, None]
+        else:
+            eps_p = eps_p[:, 0]
+    eps_p = np.ascontiguousarray(eps_p)
+    if m.frame == "corotated":
+        return _element_strains_turned(s.x, element_rotations(m, s.x), m.rest_points,
+                                       m.elements.tet_nodes, G, eps_p, m.mu, m.lam)
+    return _element_strains(s.x, s.c, s.R, m.rest_offsets, m.elements.tet_nodes, G, eps_p, m.mu, m.lam)
+
+
+def strain_tensors(e):
+    """The symmetric strains ``(k, 3, 3)`` of rows ``e`` ``(k, 6)`` of :func:`element_strains`."""
+    eps = np.empty((len(e), 3, 3))
+    for c, (i, j) in enumerate(_PAIRS):
+        eps[:, i, j] = eps[:, j, i] = e[:, c]
+    return eps
 
 
 def mean_gradients(m):
