@@ -239,6 +239,32 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
     assert not children()
 
 
+def test_auto_writes_from_the_first_frame_in_a_process_when_the_fork_server_is_up(tmp_path, monkeypatch):
+    """A later run of a process (the fork server up) writes through a writer process from its
+    first frame, nothing on the thread: the files are those written in place."""
+    from hybrid.app import writer_process
+    writer_process.fork_server.start()
+    for _ in range(600):
+        if writer_process.fork_server.ready():
+            break
+        time.sleep(0.01)
+    assert writer_process.fork_server.ready()
+    pids = []
+    for way in ("auto", False):
+        rng = np.random.default_rng(9)
+        with RunWriter(tmp_path / str(way), "drop", background=way) as writer:
+            for k in range(3):
+                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+                pids.append(writer.writer_pid)
+            assert writer._writer.pending() == 0 and writer._launch is None
+            writer.close({"frames": 3})
+    assert None not in pids[:3] and len(set(pids[:3])) == 1 and pids[3:] == [None] * 3
+    inline = tmp_path / "False"
+    for name in sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file()):
+        assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
+    assert not children()
+
+
 def test_auto_stays_on_the_thread_in_a_daemonic_process_such_as_a_dask_worker(tmp_path, monkeypatch):
     """A daemonic process (Dask's workers) cannot have children: ``auto`` writes on its thread."""
     from hybrid.app import writer_process

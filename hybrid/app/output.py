@@ -278,11 +278,20 @@ class RunWriter:
         writer.submit(lambda: files.run(job, idle=not writer.pending()))
 
     def _auto(self, now: float) -> None:
-        """``auto``: start the fork server once this run has written for ``auto_after`` s (a
-        shorter run would end before it is up); once it is up, start a writer process on a
-        thread (a few ms of waiting for the server's fork), and take over once it has started."""
+        """``auto``: with the fork server up at the first job (a later run of this process), a
+        writer process from that job on; otherwise start the fork server once this run has
+        written for ``auto_after`` s (a shorter run would end before it is up), then a writer
+        process on a thread (a few ms of waiting for the server's fork), which takes over the
+        files from the writer thread once it has started."""
         if self._auto_from == math.inf:
             self._auto_from = now + self.auto_after
+            if writer_process.fork_server.ready():
+                # the server is up (a later run of this process): the writer process from the
+                # first job, started here (a few ms), with nothing written on the thread to hand over
+                self._auto_from = None
+                self._start_process()
+                self._take_over()
+                return
         if now >= self._auto_from:
             writer_process.fork_server.start()
         if self._launch is None and writer_process.fork_server.ready():
