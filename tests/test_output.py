@@ -201,15 +201,11 @@ def test_a_piece_of_several_bodies_writes_each_cells_own_body_id(tmp_path):
     assert len(list((tmp_path / "run" / "frames").glob("*.vtu"))) == 1
 
 
-def test_frame_pieces_write_rigid_runs_as_the_bodies_own_surfaces():
+def test_frame_pieces_write_rigid_runs_as_the_bodies_own_surfaces(sim):
     """frame_pieces puts each run of rigid bodies between FEM ones into one piece: every rigid
     body's cells are its own surface turned and moved to its pose (by the writer: the points are
     deferred), with its scene index and fragment_of, and the frame lists bodies in scene order."""
-    import tomllib
-    from pathlib import Path
-    from hybrid import Simulation
     from hybrid.app.observe import frame_pieces
-    from hybrid.app.scene import parse_scene
     from rigid import quaternion as quat
     scene = """
 [simulation]
@@ -236,10 +232,10 @@ shape = { type = "capsule", radius = 0.05, height = 0.2 }
 position = [0, -1, 0]
 angular_velocity = [0, 4, 0]
 """
-    sim = Simulation(parse_scene(tomllib.loads(scene), "<runs>", Path(".")))
+    run = sim(scene)
     for _ in range(10):
-        sim.step()
-    model, state = sim.model, sim.state
+        run.step()
+    model, state = run.model, run.state
     pieces = frame_pieces(model, state)
     ids = [np.unique(p.body_id).tolist() for p in pieces]
     assert ids == [[0], [1], [2, 3]]
@@ -248,7 +244,7 @@ angular_velocity = [0, 4, 0]
     for piece in (pieces[0], pieces[2]):
         tri = piece.cells[0][1]
         for k in np.unique(piece.body_id):
-            i = list(model.rigid_ids).index(k)
+            i = run.rigid_index(model.names[k])
             mine = piece.body_id == k
             expected = state.rigid.position[i] + rm.surface_vertices[i] @ R[i].T
             used = np.unique(tri[mine])

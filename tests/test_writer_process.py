@@ -201,6 +201,30 @@ def _alive(pid):
         return False
 
 
+def write_auto_and_inline(tmp_path, frames, after_frame=lambda writer, k: None):
+    """``frames`` frames (and region rows) written the ``auto`` way and in place, into
+    ``tmp_path/auto`` and ``tmp_path/False``; ``after_frame(writer, k)`` runs after the auto way's
+    frame k. The writer process's pid after each frame, the auto way's then the in-place way's;
+    asserts the two ways wrote the same files, byte for byte."""
+    pids = []
+    for way in ("auto", False):
+        rng = np.random.default_rng(9)
+        with RunWriter(tmp_path / str(way), "drop", background=way) as writer:
+            for k in range(frames):
+                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+                writer.write_regions([(0.01 * k, "jelly", "anchor0", 1.0, 2.0, 3.0, 0.0, 0.0, k)])
+                if way == "auto":
+                    after_frame(writer, k)
+                pids.append(writer.writer_pid)
+            writer.close({"frames": frames})
+    inline = tmp_path / "False"
+    files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
+    assert len(files) == frames + 4
+    for name in files:
+        assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
+    return pids
+
+
 def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_seam(tmp_path, monkeypatch):
     """``auto`` writes on the thread until the fork server is up, then moves the files (open
     tables, index, frame count) to a writer process: the files are those written in place."""
@@ -216,30 +240,19 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
             self.calls += 1
             return self.calls > 6           # two submits (frame, regions) a frame
 
+    def launched(writer, k):
+        if k == 3:
+            writer._launch.join()           # started: the next frame's call hands over
+
     monkeypatch.setattr(writer_process, "fork_server", Server())
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
-    pids = []
-    for way in ("auto", False):
-        rng = np.random.default_rng(9)
-        with RunWriter(tmp_path / str(way), "drop", background=way) as writer:
-            for k in range(7):
-                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
-                writer.write_regions([(0.01 * k, "jelly", "anchor0", 1.0, 2.0, 3.0, 0.0, 0.0, k)])
-                if k == 3 and way == "auto":
-                    writer._launch.join()           # started: the next frame's call hands over
-                pids.append(writer.writer_pid)
-            writer.close({"frames": 7})
+    pids = write_auto_and_inline(tmp_path, 7, launched)
     # the process is launched at the fourth frame and has taken over by the fifth
     assert pids[:3] == [None] * 3 and None not in pids[4:7] and pids[7:] == [None] * 7
-    inline = tmp_path / "False"
-    files = sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file())
-    assert len(files) == 7 + 4
-    for name in files:
-        assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
     assert not children()
 
 
-def test_auto_writes_from_the_first_frame_in_a_process_when_the_fork_server_is_up(tmp_path, monkeypatch):
+def test_auto_writes_from_the_first_frame_in_a_process_when_the_fork_server_is_up(tmp_path):
     """A later run of a process (the fork server up) writes through a writer process from its
     first frame, nothing on the thread: the files are those written in place."""
     from hybrid.app import writer_process
@@ -249,19 +262,12 @@ def test_auto_writes_from_the_first_frame_in_a_process_when_the_fork_server_is_u
             break
         time.sleep(0.01)
     assert writer_process.fork_server.ready()
-    pids = []
-    for way in ("auto", False):
-        rng = np.random.default_rng(9)
-        with RunWriter(tmp_path / str(way), "drop", background=way) as writer:
-            for k in range(3):
-                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
-                pids.append(writer.writer_pid)
-            assert writer._writer.pending() == 0 and writer._launch is None
-            writer.close({"frames": 3})
+
+    def nothing_on_the_thread(writer, k):
+        assert writer._writer.pending() == 0 and writer._launch is None
+
+    pids = write_auto_and_inline(tmp_path, 3, nothing_on_the_thread)
     assert None not in pids[:3] and len(set(pids[:3])) == 1 and pids[3:] == [None] * 3
-    inline = tmp_path / "False"
-    for name in sorted(p.relative_to(inline) for p in inline.rglob("*") if p.is_file()):
-        assert (tmp_path / "auto" / name).read_bytes() == (inline / name).read_bytes(), name
     assert not children()
 
 

@@ -23,8 +23,12 @@ def check_pieces(pieces: Sequence[Any], cell_fields: Mapping, point_fields: Mapp
     checked, cell_total = [], 0
     for piece in pieces:
         body_id, owner = _owner(piece)
-        points = piece.points if isinstance(piece.points, Deferred) else np.asarray(piece.points, dtype=float)
-        shape = (len(points), *points.trailing) if isinstance(points, Deferred) else points.shape
+        if isinstance(piece.points, Deferred):        # posed by the writer
+            points = piece.points
+            shape = (len(points), *points.trailing)
+        else:
+            points = np.asarray(piece.points, dtype=float)
+            shape = points.shape
         if len(shape) != 2 or shape[1] != 3:
             raise ValueError(f"{owner}: points have shape {shape}, expected (n, 3)")
         blocks = []
