@@ -256,3 +256,35 @@ velocity = [0, 0, -1]
     assert np.array_equal(s.body("block").points, s.model.fem[0].rest_points)
     assert s.body("ball").position[2] == pytest.approx(0.07, abs=2e-3)
     assert abs(s.body("ball").velocity[2]) < 1e-6
+
+
+FLYBY = """
+[simulation]
+duration = 0.1
+dt = 0.005
+gravity = [0, 0, 0]
+[[bodies]]
+name = "ball"
+shape = {{ type = "sphere", radius = 0.05 }}
+velocity = [0, 0, {ball}]
+[[bodies]]
+name = "cube"
+model = "fem"
+young = 1e6
+shape = {{ type = "box", size = [0.1, 0.1, 0.1] }}
+position = [0.2, 0, 0]
+velocity = [0, 0, -40]
+"""
+
+
+@pytest.mark.parametrize("ball", [-40.0, 0.0])
+def test_bodies_passing_10_cm_apart_never_touch(sim, ball):
+    """A rigid ball and a soft cube 10 cm apart (gap between their surfaces), side by side, both
+    at 40 m/s, or the cube flying past the ball at rest: each moves 20 cm a step, so the cube's
+    nodes are found within reach of the ball, but nothing brings them closer than 10 cm. No
+    impulse passes: both keep their velocities, and nothing turns."""
+    s = sim(FLYBY.format(ball=ball)).advance(0.1)
+    assert s.body("ball").velocity == pytest.approx([0.0, 0.0, ball], abs=1e-9)
+    assert s.body("ball").angular_velocity == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert s.body("cube").velocity == pytest.approx([0.0, 0.0, -40.0], abs=1e-9)
+    assert s.body("cube").angular_velocity == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)

@@ -60,7 +60,7 @@ def detect_all(model, state, nodes, rigid_bodies, h, rotation=None):
                                                             rigid_sweep, margin, mu[k], e[k], toward))
     # at rigid edges along the node's own face normal (fem_contact.edge_normals); kept: met from
     # the front, and not an anchored node against static ground (nothing moves there)
-    c_nodes.normal, c_nodes.gap, front = edge_normals(c_nodes, own)
+    c_nodes.normal, c_nodes.gap, front = edge_normals(c_nodes, own, margin)
     anchored = np.concatenate([m.node_anchor[n] >= 0 for m, n in zip(model.fem, nodes.per_body)]) \
         if len(model.fem) != 1 else model.fem[0].node_anchor[nodes.per_body[0]] >= 0
     c_nodes = c_nodes.take(np.nonzero(front & ~(anchored[c_nodes.body_a] & static_side(rm, c_nodes.body_b)))[0])
