@@ -42,7 +42,7 @@ class FemCache:
         (``hybrid.coupling.fem_contact``).
     current_tree: k-d tree of the surface nodes at the positions it was built from (its ``data``)
         (``hybrid.coupling.fem_contact``).
-    extent: the rest shape's largest extent, m (``hybrid.coupling.auto.extent``).
+    extent: the rest shape's largest extent (m) and slenderness (``hybrid.coupling.auto.extent``).
     warped_places: where a corotated body's mass and free block sit in its stiffness pattern
         (``fem.system._warped_places``).
     """
@@ -58,5 +58,5 @@ class FemCache:
     surface_grid: object = None
     surface_index: tuple | None = None
     current_tree: object = None
-    extent: float | None = None
+    extent: tuple | None = None
     warped_places: tuple | None = None
