@@ -392,3 +392,16 @@ def test_the_calm_measure_of_a_ringing_anchored_body_reaches_its_vibration_strai
         squared = np.einsum("tqij,tqij->t", eps, eps) / eps.shape[1]
         strain.append(np.sqrt(volume @ squared / volume.sum()))
     assert 0.7 < max(measure) / max(strain) < 4.0
+
+
+def test_a_free_body_with_mass_damping_keeps_slowing_down_as_an_fem_one():
+    """Mass-proportional damping (alpha M) drags a free body's motion as a whole: backward Euler
+    takes its speed down by 1 / (1 + alpha h) a step. An auto body with it is never made rigid
+    (a rigid body would keep its speed: turned rigid, it flew on at 0.9 m/s)."""
+    alpha, h, steps = 10.0, 0.001, 200
+    block = BLOCK.format(model="auto", velocity="[1.0, 0, 0]", spin="[0, 0, 0]", beta=0.0,
+                         extra="").replace("damping = { stiffness = 0.0 }",
+                                           f"damping = {{ mass = {alpha} }}")
+    sim = Sim(ZERO_G + block).advance(steps * h)
+    assert not _events(sim, "rigidify")
+    assert sim.body("block").velocity[0] == pytest.approx((1.0 + alpha * h) ** -steps, rel=1e-6)

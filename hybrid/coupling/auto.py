@@ -151,10 +151,12 @@ def body_strain_measure(fem, x, v, h):
 
 def may_be_rigid(fem):
     """Whether the body can be stepped as a rigid body at all: anchors still (an anchored body
-    is then fixed) and, unless anchored, no load (a rigid body carries no applied force)."""
+    is then fixed) and, unless anchored, no load (a rigid body carries no applied force) and no
+    mass-proportional damping (which slows a free body's rigid motion too: a rigid body would
+    keep its speed)."""
     if fem.has_anchors:
         return not np.any(fem.anchor_velocity)
-    return not np.any(fem.load_force)
+    return not np.any(fem.load_force) and fem.damping_mass == 0.0
 
 
 def _may_turn(model, state, j):

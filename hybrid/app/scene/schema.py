@@ -185,8 +185,8 @@ AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body 
     _positive("rigidify_strain", 1e-4, "", "An FEM auto body becomes rigid once its measured strain "
               "(root mean square over its volume) stays below this for `window` steps (and "
               "nothing yields, its largest principal stress is below `fracture_margin` of "
-              "`fracture_stress`, its anchors are still and it has no load unless anchored). At "
-              "most a tenth of the elastify threshold in use."),
+              "`fracture_stress`, its anchors are still and, unless anchored, it has no load and "
+              "no mass damping). At most a tenth of the elastify threshold in use."),
     _positive("elastify_strain", 1e-3, "", "A rigid auto body becomes FEM again, before the step is "
               "taken, when the change of its contact load in that step (each partner's total) would "
               "strain it by more than this (predicted through its kept FEM factorisation); raise it "
