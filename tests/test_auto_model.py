@@ -270,12 +270,17 @@ def _dent(model):
 
 def test_a_resting_plastic_plate_struck_by_a_ball_dents_as_the_all_fem_one():
     auto, strain, depth = _dent("auto")
-    _, fem_strain, fem_depth = _dent("fem")
+    fem, fem_strain, fem_depth = _dent("fem")
     events = [e.event for e in auto.events]
-    assert events[:2] == ["rigidify", "elastify"], events     # rigid at rest, deformable for the blow
+    assert events[:3] == ["rigidify", "elastify", "rigidify"], events   # rigid at rest and after
+    assert auto.body("plate").kind == "rigid"
     assert fem_strain > 1e-4 and fem_depth > 0                # the blow does yield the plate
     assert strain == pytest.approx(fem_strain, rel=0.05)
     assert depth == pytest.approx(fem_depth, rel=0.05)
+    # the plastic work the dent took stays counted while the plate is rigid
+    dissipated = observe.plastic_dissipation(fem.model, fem.state)
+    assert dissipated > 0
+    assert observe.plastic_dissipation(auto.model, auto.state) == pytest.approx(dissipated, rel=0.05)
 
 
 def _crack(model):

@@ -183,8 +183,10 @@ def region_rows(model, state):
 
 
 def plastic_dissipation(model, state):
-    """Plastic work dissipated by all FEM bodies since the start (J); 0 without plastic bodies."""
-    return float(sum(s.plastic_dissipation for s in state.fem))
+    """Plastic work dissipated by all FEM bodies since the start (J), auto bodies stepped as rigid
+    now included (as it was when they became rigid); 0 without plastic bodies."""
+    return float(sum(s.plastic_dissipation for s in state.fem)
+                 + sum(p.state.plastic_dissipation for p in model.parked.values()))
 
 
 def momentum_scales(model, state):
