@@ -227,7 +227,7 @@ class Simulation:
                              (self.fem_time, self.stepped_time), self.peaks, self.impacts)
             if saver.stopped is not None:
                 result["status"] = "stopped"
-            for line in rigid_hints(self.model, recorder):
+            for line in rigid_hints(self.model, self.peaks.strains):
                 log(line)
             recorder.close(result)
         if failure is not None:

@@ -410,3 +410,55 @@ def test_a_free_body_with_mass_damping_keeps_slowing_down_as_an_fem_one():
     sim = Sim(ZERO_G + block).advance(steps * h)
     assert not _events(sim, "rigidify")
     assert sim.body("block").velocity[0] == pytest.approx((1.0 + alpha * h) ** -steps, rel=1e-6)
+
+
+STRUCK_BETWEEN_FRAMES = """
+[simulation]
+duration = 0.4
+dt = 0.001
+gravity = [0, 0, 0]
+output_fps = 5
+[[bodies]]
+name = "block"
+model = "fem"
+young = 1e6
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.025 }
+damping = { stiffness = 0.01 }
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.03 }
+density = 7800
+position = [0, 0, 0.09]
+velocity = [0, 0, -3]
+[[bodies]]
+name = "idle"
+model = "fem"
+young = 1e6
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }
+position = [1, 0, 0]
+[[bodies]]
+name = "pushed"
+model = "fem"
+young = 1e6
+shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }
+position = [-1, 0, 0]
+[[bodies.loads]]
+box = [[-0.06, -1, -1], [-0.04, 1, 1]]
+force = [1e-3, 0, 0]
+"""
+
+
+def test_largest_strain_and_the_rigid_hint_see_every_step_and_only_free_unloaded_bodies(tmp_path):
+    """A block struck by a steel ball between two frames (5 frames/s): the summary's largest
+    strain is the blow's, at least the deviatoric strain its peak von Mises gives
+    (von_mises / (sqrt(6) mu)), and the run log does not call it unstrained (read at the frames,
+    it said 1e-7 and suggested model = "rigid"). An idle free block gets the hint; a block with
+    a load does not (a rigid body carries no load)."""
+    sim = Sim(STRUCK_BETWEEN_FRAMES)
+    lines = []
+    summary = sim.run(out=tmp_path / "out", progress=False, log=lines.append)
+    mu = sim.model.fem[0].mu
+    peak = summary["peaks"]["block"]["von_mises"]["value"]
+    assert summary["models"]["block"]["largest_strain"] >= peak / (np.sqrt(6.0) * mu) > 1e-2
+    hints = [line for line in lines if "never strained" in line]
+    assert len(hints) == 1 and "'idle'" in hints[0], lines

@@ -160,18 +160,6 @@ def _parked_orientation(model, state, i, k):
     return quat.from_matrix(turn @ parked.state.R @ placed)
 
 
-def largest_strains(model, state):
-    """Per FEM or auto body (by name) its largest element strain now (-): the Frobenius norm of
-    the small strain in its frame, largest over its quadrature points (an auto body stepped as
-    rigid: as it was when it became rigid)."""
-    from fem.stress import quadrature_strain
-    out = {}
-    for k, m, s in fem_states(model, state):
-        eps = quadrature_strain(m, s)
-        out[model.names[k]] = float(np.sqrt(np.einsum("tqij,tqij->tq", eps, eps)).max())
-    return out
-
-
 def region_rows(model, state):
     """Rows ``time,body,region,fx,fy,fz,ux,uy,uz`` for every anchor and load region."""
     from fem.stress import region_table

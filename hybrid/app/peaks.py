@@ -5,7 +5,8 @@ two frames leaves no trace in them (a plate struck between frames showed a peak 
 8.7 kPa). :class:`Peaks` looks at every step instead (through the Simulation's per-step hook), and
 the summary reports, per scene body (its fracture fragments included), the largest element von
 Mises stress, largest principal stress and equivalent plastic strain, each with the time it was
-reached.
+reached; and per body (fragments by their own names) the largest elastic strain, which the
+``models`` section and the run log's ``model = "rigid"`` hints read.
 """
 import numba as nb
 import numpy as np
@@ -28,6 +29,9 @@ class Peaks:
 
     def __init__(self):
         self.bodies = {}
+        # per body stepped as FEM, by its own name: the largest element strain (elastic, Frobenius
+        # norm) over every step
+        self.strains = {}
 
     def update(self, model, state):
         """Take in the step that ended in ``state`` (``model``: the coupled model it was taken
@@ -40,6 +44,8 @@ class Peaks:
             peak = self.bodies.setdefault(name, {q: (0.0, 0.0) for q in QUANTITIES})
             e, vm, mean = element_strains(m, s)
             _raise(peak, "von_mises", vm, state.time)
+            own = model.names[int(k)]
+            self.strains[own] = max(self.strains.get(own, 0.0), largest_strain(m, vm, mean))
             candidates = np.nonzero(mean + vm * (2.0 / 3.0) > peak["principal_stress"][0])[0]
             if len(candidates):
                 stress = elastic_stress(strain_tensors(e[candidates]), 0.0, m.mu, m.lam)
@@ -54,13 +60,33 @@ class Peaks:
 
     def snapshot(self):
         """Plain data a checkpoint keeps (see :meth:`restore`)."""
-        return {name: {q: [float(v), float(t)] for q, (v, t) in peak.items()}
-                for name, peak in self.bodies.items()}
+        return {"peaks": {name: {q: [float(v), float(t)] for q, (v, t) in peak.items()}
+                          for name, peak in self.bodies.items()},
+                "strains": dict(self.strains)}
 
     def restore(self, snapshot):
-        """Continue from a :meth:`snapshot`."""
+        """Continue from a :meth:`snapshot` (or one of the peaks alone, as checkpoints without
+        the strains held them: the strains then start from those steps on)."""
+        peaks, strains = snapshot, {}
+        if set(snapshot) == {"peaks", "strains"} and isinstance(snapshot["strains"], dict) \
+                and all(isinstance(v, (int, float)) for v in snapshot["strains"].values()):
+            peaks, strains = snapshot["peaks"], snapshot["strains"]
         self.bodies = {name: {q: (float(v), float(t)) for q, (v, t) in peak.items()}
-                       for name, peak in snapshot.items()}
+                       for name, peak in peaks.items()}
+        self.strains = {name: float(v) for name, v in strains.items()}
+
+
+def largest_strain(m, von_mises, mean):
+    """The largest elastic strain (-, Frobenius norm) of body ``m``'s elements, from their von
+    Mises and mean stresses (:func:`element_strains`): an isotropic linear-elastic strain's
+    deviator has norm ``von_mises / (sqrt(6) mu)`` and its trace is ``mean / K`` (bulk modulus
+    ``K = lam + 2 mu / 3``), so the square of its norm is their sum of squares with the trace's
+    over 3."""
+    if len(von_mises) == 0:
+        return 0.0
+    bulk = m.lam + 2.0 * m.mu / 3.0
+    squared = (von_mises / (np.sqrt(6.0) * m.mu)) ** 2 + (mean / bulk) ** 2 / 3.0
+    return float(np.sqrt(squared.max()))
 
 
 def element_strains(m, s):

@@ -119,7 +119,6 @@ class Recorder:
         self.writer = ResumableWriter(out_dir, scene_name) if out_dir is not None else None
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.frames = 0
-        self.strains = {}       # per FEM or auto body: its largest strain over the frames
         self.watched = None     # (Peaks, ImpactWatch) of the run's steps, kept in checkpoints
 
     def watch(self, peaks, impacts):
@@ -146,8 +145,6 @@ class Recorder:
         e, p, l = observe.totals(model, state)
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
         self.carried.append(observe.momentum_scales(model, state))
-        for name, strain in observe.largest_strains(model, state).items():
-            self.strains[name] = max(strain, self.strains.get(name, 0.0))
         self.frames += 1
 
     def snapshot(self):
@@ -155,7 +152,6 @@ class Recorder:
         totals so far and where the files stand."""
         return {"energies": list(self.energies), "momenta": list(self.momenta),
                 "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
-                "strains": dict(self.strains),
                 "files": None if self.writer is None else self.writer.snapshot(),
                 "watched": None if self.watched is None else [w.snapshot() for w in self.watched]}
 
@@ -164,7 +160,7 @@ class Recorder:
         (hybrid.app.output_resume.ResumableWriter.resume)."""
         self.energies, self.momenta = list(snapshot["energies"]), list(snapshot["momenta"])
         self.angular, self.carried = list(snapshot["angular"]), list(snapshot["carried"])
-        self.frames, self.strains = snapshot["frames"], dict(snapshot["strains"])
+        self.frames = snapshot["frames"]
         if self.watched is not None and snapshot.get("watched") is not None:
             for watcher, kept in zip(self.watched, snapshot["watched"]):
                 watcher.restore(kept)
@@ -194,31 +190,37 @@ class Recorder:
         }
 
 
-def stepping(model, recorder, fem_time, simulated):
-    """The summary's ``models`` section: per FEM or auto body how it was modelled, the fraction
-    of the run's simulated time (``simulated`` s) it was stepped as FEM (``fem_time``: seconds by
-    name) and the largest strain it reached over the written frames."""
+def stepping(model, strains, fem_time, simulated):
+    """The summary's ``models`` section: per body stepped as FEM (by name, ``strains``: the
+    largest elastic strain it reached over every step, hybrid.app.peaks.Peaks.strains) how it was
+    modelled, the fraction of the run's simulated time (``simulated`` s) it was stepped as FEM
+    (``fem_time``: seconds by name) and that strain."""
     scene_models = {b.name: b.model for b in model.scene.bodies}
     return {name: {"model": scene_models.get(name, "fem"),
                    "fem_time_fraction": fem_time.get(name, 0.0) / simulated if simulated > 0 else None,
                    "largest_strain": strain}
-            for name, strain in recorder.strains.items()}
+            for name, strain in strains.items()}
 
 
-def rigid_hints(model, recorder):
+def rigid_hints(model, strains):
     """Log lines suggesting ``model = "rigid"`` for FEM or auto bodies whose largest strain over
-    the frames stayed below the strain an auto body would turn deformable at (its elastify
-    threshold; the default for an FEM body)."""
+    every step (``strains``, as for :func:`stepping`) stayed below the strain an auto body would
+    turn deformable at (its elastify threshold; the default for an FEM body). Only for free bodies
+    without loads: a rigid body carries none, and a fixed one would not show an anchored body's
+    deflection, which is what a small strain there is usually wanted for."""
     from hybrid.coupling.auto import elastify_threshold
     lines = []
     for body in model.scene.bodies:
-        strain = recorder.strains.get(body.name)
-        if body.model in ("fem", "auto") and strain is not None and model.fragment_of[
-                model.names.index(body.name)] == model.names.index(body.name):
-            limit = elastify_threshold(body)
-            if strain < limit:
-                lines.append(f"note: '{body.name}' never strained beyond {limit:.0e} (largest "
-                             f"{strain:.1e}): model = \"rigid\" would step it as fast as a rigid body")
+        strain = strains.get(body.name)
+        if body.model not in ("fem", "auto") or strain is None or model.fragment_of[
+                model.names.index(body.name)] != model.names.index(body.name):
+            continue
+        if body.loads or body.anchors:
+            continue
+        limit = elastify_threshold(body)
+        if strain < limit:
+            lines.append(f"note: '{body.name}' never strained beyond {limit:.0e} (largest "
+                         f"{strain:.1e}): model = \"rigid\" would step it as fast as a rigid body")
     return lines
 
 
@@ -244,7 +246,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
                                     "yield_stress, since the start; 0 when no body has one",
         "conservation": recorder.conservation(model),
         "events": [e.as_dict() for e in events],
-        "models": stepping(model, recorder, *(fem_time or ({}, 0.0))),
+        "models": stepping(model, {} if peaks is None else peaks.strains, *(fem_time or ({}, 0.0))),
         "peaks": {} if peaks is None else peaks.as_dict(),
         "peaks_note": "per FEM or auto body (fragments counted with the body they broke from): "
                       "the largest element von Mises stress (Pa), largest principal stress (Pa) "
