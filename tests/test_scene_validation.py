@@ -504,3 +504,12 @@ def test_mesh_errors_name_the_file(tmp_path):
 def test_committed_scene_reference_matches_the_schema():
     committed = (ROOT / "docs" / "scene_reference.md").read_text()
     assert committed == reference_markdown(), "run: python -m hybrid.app.scene > docs/scene_reference.md"
+
+
+@pytest.mark.parametrize("model", ["fem", "auto"])
+def test_fixed_on_a_deformable_body_is_refused_and_the_anchors_named(tmp_path, model):
+    """``fixed`` holds a rigid body only: on a deformable body it was ignored (the body fell)."""
+    path = write_scene(tmp_path, BODY + f'model = "{model}"\nyoung = 1e6\nfixed = true\n')
+    assert only_problem(path) == (f"{path}: [bodies] \"box\" (bodies[0]): field 'fixed' needs "
+                                  f"model = \"rigid\" (this body has model = \"{model}\"; a "
+                                  "deformable body is held by [[bodies.anchors]])")

@@ -117,6 +117,10 @@ def _parse_body(table, source, index, base_dir, problems):
             if f.fem and f.name in given:
                 problems.append(where.problem(f.name, f"needs model = \"fem\" or \"auto\" "
                                                       f"(this body has model = \"{model}\")"))
+    if fem_model and values["fixed"] is True:
+        problems.append(where.problem("fixed", f"needs model = \"rigid\" (this body has model = "
+                                               f"\"{model}\"; a deformable body is held by "
+                                               f"[[bodies.anchors]])"))
     if fem_model and values["young"] is None:
         problems.append(where.problem("young", f"is required for model = \"{model}\": "
                                                f"{describe(BODY.field('young'))} (Pa)"))

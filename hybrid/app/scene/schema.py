@@ -239,7 +239,7 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world frame)."),
     _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
     _unit_interval("restitution", 0.0, "Coefficient of restitution."),
-    Field("fixed", "boolean", False, "", "Immovable (infinite mass)."),
+    Field("fixed", "boolean", False, "", "Immovable (infinite mass). Rigid bodies only: a deformable body is held by `[[bodies.anchors]]`."),
     _positive("young", None, "Pa", "Young's modulus.", fem=True, default_text="required for FEM"),
     Field("poisson", "number", 0.3, "", "Poisson's ratio.", low=-1.0, high=0.5, low_open=True,
           high_open=True, fem=True),
