@@ -19,7 +19,8 @@ from .app.build import build
 from .app.deformable import mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
-from .app.run import Progress, Recorder, forwarded, overlapping_bodies, rigid_hints, summary
+from .app.run import (Progress, Recorder, below_planes, forwarded, overlapping_bodies, rigid_hints,
+                      summary)
 from .app.scene import SceneError, load_scene
 from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
@@ -85,6 +86,11 @@ class Simulation:
             raise SceneError([f"{scene.source_path}: {error}"]) from None
         self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
                                           for a, b in overlapping_bodies(self.model, self.state)]
+        kinds = {b.name: b.model for b in self.scene.bodies}
+        self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
+                          + ("in its first steps" if kinds[name] == "rigid" else
+                             "in its first step, its nodes hard enough to throw it")
+                          for name, depth in below_planes(self.model, self.state)]
         self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)

@@ -74,6 +74,30 @@ def overlapping_bodies(model, state, tolerance=1e-4):
     return sorted(pairs)
 
 
+def below_planes(model, state, tolerance=1e-4):
+    """``(name, depth m)`` of each body that starts more than ``tolerance`` m inside a plane (the
+    deepest of its rigid contact points or deformable surface nodes), in scene order."""
+    rm, rs = model.rigid, state.rigid
+    if rm.plane_point.shape[0] == 0:
+        return []
+    R = quat.to_matrix(rs.orientation)
+    depth = {}
+    if rm.body_count:
+        c = detect(rm, rs.position, R, np.zeros(rm.body_count), 0.0)
+        for a, gap in zip(c.body_a[c.body_b < 0], c.gap[c.body_b < 0]):
+            k = int(model.rigid_ids[a])
+            depth[k] = max(depth.get(k, 0.0), -float(gap))
+    for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        x = s.x[m.surface_nodes]
+        k = len(x)
+        hits = detect_points(rm, rs.position, R, x, np.zeros(k), np.zeros(rm.body_count), 0.0,
+                             np.zeros(k), np.zeros(k))
+        on_plane = hits.gap[hits.body_b < 0]
+        if len(on_plane):
+            depth[int(model.fem_ids[j])] = -float(on_plane.min())
+    return [(model.names[k], d) for k, d in sorted(depth.items()) if d > tolerance]
+
+
 def _drift(values, reference, scales=()):
     """max |q(t) - q(0)| over the largest |q| of the run, or the largest of ``scales`` (how much of
     q the bodies carry without cancellations, see observe.momentum_scales) when larger: a body
