@@ -13,6 +13,33 @@ def test_out_below_a_file_is_refused_naming_the_file(tmp_path, capsys):
     assert blocker.read_text() == "mine"
 
 
+def test_out_that_cannot_be_created_is_refused_before_the_run(capsys):
+    """A folder the system will not make (/proc takes no new entries) is bad input, said before
+    anything runs; it was an OSError traceback with exit code 1 after "running"."""
+    assert main(["run", "default", "--out", "/proc/hybrid-no-such-folder", "--quiet"]) == 2
+    captured = capsys.readouterr()
+    assert "--out /proc/hybrid-no-such-folder: cannot create the folder" in captured.err
+    assert "Traceback" not in captured.err and "running" not in captured.out
+
+
+def test_an_unknown_writer_in_the_environment_is_bad_input_naming_the_variable(tmp_path, capsys,
+                                                                                monkeypatch):
+    monkeypatch.setenv("HYBRID_WRITER", "bogus")
+    assert main(["run", "default", "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "HYBRID_WRITER='bogus': must be one of auto, process, thread, inline" in err
+    assert "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_the_render_hint_is_quoted_for_the_shell(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene = tmp_path / "short.toml"
+    scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "b"\n'
+                     'shape = { type = "sphere", radius = 0.1 }\n')
+    assert main(["run", str(scene), "--out", "out dir", "--quiet"]) == 0
+    assert "render it with: hybrid render 'out dir'" in capsys.readouterr().out
+
+
 def test_render_size_must_be_drawable(tmp_path, capsys):
     assert main(["render", str(tmp_path), "--size", "0", "-5"]) == 2
     assert "at least 16 pixels" in capsys.readouterr().err

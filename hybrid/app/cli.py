@@ -8,6 +8,7 @@ checkpoint first and says how to resume).
 """
 import argparse
 import math
+import os
 import shlex
 import sys
 from importlib import metadata
@@ -82,6 +83,16 @@ def _run(args):
     except (MeshError, ValueError, CheckpointError) as err:
         print(f"{path}: {err}", file=sys.stderr)
         return 2
+    from .output_resume import writer_from_environment
+    try:
+        writer_from_environment()
+    except ValueError as err:
+        print(f"{err}", file=sys.stderr)
+        return 2
+    unwritable = _unwritable(out)
+    if unwritable is not None:
+        print(f"{path}: --out {out}: {unwritable}", file=sys.stderr)
+        return 2
     print(f"{'resuming' if args.resume else 'running'} '{scene.name}' ({len(scene.bodies)} bodies, "
           f"{scene.simulation.duration} s at dt = {scene.simulation.dt:g} s"
           f"{f', from t = {sim.time:.6g} s' if args.resume else ''}) -> {out}")
@@ -103,8 +114,20 @@ def _run(args):
           f"(largest change of total energy over the frames, relative to the largest |energy|; "
           f"friction, inelastic contact, damping, plastic flow and fracture lower it)")
     print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv, summary.json")
-    print(f"render it with: hybrid render {out}")
+    print(f"render it with: hybrid render {shlex.quote(str(out))}")
     return 0
+
+
+def _unwritable(out):
+    """Why the run folder ``out`` cannot take the run's files (created here if missing), or None
+    when it can."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create the folder: {err.strerror or err}"
+    if not os.access(out, os.W_OK | os.X_OK):
+        return "cannot write in this folder (no permission, or a read-only file system)"
+    return None
 
 
 def _stopped(args, out, stopped):

@@ -21,6 +21,20 @@ class ResumeError(ValueError):
     """The run folder no longer holds what the checkpoint wrote (the message names the file)."""
 
 
+WRITERS = ("auto", "process", "thread", "inline")
+
+
+def writer_from_environment():
+    """The writer the environment variable ``HYBRID_WRITER`` asks for (any case; ``true`` and
+    ``false`` as ``thread`` and ``inline``), ``auto`` when it is not set. Raises ValueError naming
+    the variable and the values allowed."""
+    given = os.environ.get("HYBRID_WRITER", "auto")
+    mode = {"true": "thread", "false": "inline"}.get(given.strip().lower(), given.strip().lower())
+    if mode not in WRITERS:
+        raise ValueError(f"HYBRID_WRITER={given!r}: must be one of {', '.join(WRITERS)} (or unset: auto)")
+    return mode
+
+
 class ResumableWriter(RunWriter):
     """A :class:`hybrid.app.output.RunWriter` whose files can be continued after a checkpoint;
     a new run also removes an earlier run's checkpoint with its other files. It writes with
@@ -30,10 +44,7 @@ class ResumableWriter(RunWriter):
     :class:`hybrid.app.output.RunWriter`)."""
 
     def __init__(self, out_dir, scene_name, background=None):
-        if background is None:
-            background = os.environ.get("HYBRID_WRITER", "auto")
-            background = {"true": True, "false": False}.get(background.lower(), background)
-        super().__init__(out_dir, scene_name, background)
+        super().__init__(out_dir, scene_name, writer_from_environment() if background is None else background)
 
     def _start(self):
         """Create the run folder on first output, clearing an earlier run's files and checkpoint."""
