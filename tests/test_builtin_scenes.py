@@ -177,7 +177,7 @@ def test_pull_bar_flattens_at_yield_stress_times_area_longer():
 # ----------------------------------------------------------------------------- tear
 
 def test_tear_bar_yields_flows_then_tears_in_two_longer():
-    """Longer: 0.55 s of pulling, past the tear (measured at 0.48 s)."""
+    """Longer: 0.55 s of pulling, past the tear (measured at 0.31 s)."""
     rows = []
 
     def record(sim):
