@@ -179,6 +179,22 @@ def test_render_refuses_a_size_it_cannot_draw(tmp_path):
         render_run(run_dir, size=(0, -5))
 
 
+@pytest.mark.parametrize("damage", ["missing", "cut short"])
+def test_a_damaged_frame_is_named_with_exit_code_2_and_no_parser_noise(tmp_path, capfd, damage):
+    from hybrid.app.cli import main
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    frame = read_run(run_dir)[1][1]
+    if damage == "missing":
+        frame.unlink()
+    else:
+        frame.write_bytes(frame.read_bytes()[:300])
+    assert main(["render", str(run_dir)]) == 2
+    err = capfd.readouterr().err
+    assert f"frame file {frame}" in err and ("missing" if damage == "missing" else "cut short") in err
+    assert "Traceback" not in err and "vtkXMLParser" not in err
+
+
 def write_block_and_cube_run(run_dir, stresses=(1.0e6, 2.0e6)):
     """A deformable two-tet block (von Mises ``stresses`` in the two frames) beside a rigid cube,
     with the ``deformable`` cell flags a simulation writes."""

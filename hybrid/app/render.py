@@ -36,23 +36,34 @@ def _read_points_and_range(path: Path, field: str | None):
     """Frame points and (values, "cell" or "point") of ``field`` (magnitude for vectors; the
     deformable bodies' cells only when the frame marks them), None without values.
 
-    Only the points and that one array are read.
+    Only the points and that one array are read. Raises ValueError naming the file when it is
+    missing or holds no points (damaged: VTK's own parser messages are kept quiet).
     """
     from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkObject
     from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridReader
 
+    if not Path(path).is_file():
+        raise ValueError(f"frame file {path} is missing")
     reader = vtkXMLUnstructuredGridReader()
     reader.SetFileName(str(path))
-    reader.UpdateInformation()
-    for selection in (reader.GetPointDataArraySelection(), reader.GetCellDataArraySelection()):
-        selection.DisableAllArrays()
-        if field:
-            selection.EnableArray(field)
-    reader.GetCellDataArraySelection().EnableArray(DEFORMABLE)
-    reader.Update()
+    shown = vtkObject.GetGlobalWarningDisplay()
+    vtkObject.GlobalWarningDisplayOff()
+    try:
+        reader.UpdateInformation()
+        for selection in (reader.GetPointDataArraySelection(), reader.GetCellDataArraySelection()):
+            selection.DisableAllArrays()
+            if field:
+                selection.EnableArray(field)
+        reader.GetCellDataArraySelection().EnableArray(DEFORMABLE)
+        reader.Update()
+    finally:
+        vtkObject.SetGlobalWarningDisplay(shown)
     grid = reader.GetOutput()
     points = grid.GetPoints()
-    xyz = vtk_to_numpy(points.GetData()) if points is not None else np.zeros((0, 3))
+    if points is None or points.GetNumberOfPoints() == 0:
+        raise ValueError(f"frame file {path} holds no points (damaged or cut short)")
+    xyz = vtk_to_numpy(points.GetData())
     value_range = None
     if field:
         for association, data in (("cell", grid.GetCellData()), ("point", grid.GetPointData())):
