@@ -60,6 +60,17 @@ class Body:
     plastic_strain: np.ndarray = None
 
 
+def _uneven_duration(duration, dt):
+    """A warning (in a list) when ``duration`` is no whole number of steps of ``dt``: the run
+    takes the nearest number of steps, ending early or late."""
+    steps = duration / dt
+    n = round(steps)
+    if abs(steps - n) <= 1e-6 * max(1.0, steps):
+        return []
+    return [f"duration {duration:g} s is {steps:.4g} steps of dt = {dt:g} s: the run takes {n} "
+            f"steps and ends at {n * dt:.6g} s (make duration a whole number of steps)"]
+
+
 class Simulation:
     """A scene being simulated: ``Simulation(scene)`` builds its bodies (raises
     :class:`hybrid.app.scene.SceneError` for problems only the built bodies show, such as an anchor
@@ -86,6 +97,7 @@ class Simulation:
             raise SceneError([f"{scene.source_path}: {error}"]) from None
         self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
                                           for a, b in overlapping_bodies(self.model, self.state)]
+        self.warnings += _uneven_duration(scene.simulation.duration, scene.simulation.dt)
         kinds = {b.name: b.model for b in self.scene.bodies}
         self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
                           + ("in its first steps" if kinds[name] == "rigid" else

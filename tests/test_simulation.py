@@ -129,3 +129,18 @@ def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):
     assert {"dent", "pull", "shatter", "tear", "fragments", "pile"} <= set(builtin_names())
     assert main(["run", "no_such_scene", "--quiet"]) == 2
     assert "built-in scenes: " in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("duration, dt, end", [(0.1, 0.003, 0.099), (0.1, 0.06, 0.12), (0.1, 0.001, None)])
+def test_a_duration_that_is_no_whole_number_of_steps_is_warned_of_with_where_the_run_ends(
+        duration, dt, end):
+    text = (f"[simulation]\nduration = {duration}\ndt = {dt}\n[[bodies]]\nname = \"b\"\n"
+            "shape = { type = \"sphere\", radius = 0.1 }\n")
+    sim = Simulation(parse_scene(tomllib.loads(text), "<scene>", Path(".")))
+    said = [w for w in sim.warnings if w.startswith(f"duration {duration:g} s")]
+    sim.run(progress=False, log=lambda message: None)
+    if end is None:
+        assert not said and sim.time == pytest.approx(duration)
+    else:
+        assert len(said) == 1 and f"ends at {end:g} s" in said[0]
+        assert sim.time == pytest.approx(end)
