@@ -115,7 +115,8 @@ SIMULATION = Section("simulation", "[simulation]",
                      "Time stepping and global settings. The table is optional.", (
     Field("name", "string", None, "", "Scene name; output goes to `outputs/<name>/`.",
           default_text="file name without extension"),
-    _positive("duration", 2.0, "s", "Simulated time; a run takes the nearest whole number of steps of `dt` (the run log warns when that is not `duration` itself)."),
+    _positive("duration", 2.0, "s", "Simulated time; a run takes the nearest whole number of "
+              "steps of `dt` (the run log warns when that is not `duration` itself)."),
     _positive("dt", 0.001, "s", "Time step."),
     Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
     _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
