@@ -108,6 +108,28 @@ def test_a_bad_set_is_an_exit_2_error_naming_the_key_and_nothing_runs(tmp_path, 
     assert not (tmp_path / "out" / "runs").exists()
 
 
+def test_a_scheduler_that_cannot_be_reached_leaves_no_files_and_excludes_workers(tmp_path, capsys,
+                                                                                monkeypatch):
+    """Nothing is written before Dask is reached (the variant's scene file was, though the run
+    said "nothing was run"); --workers and --scheduler are one or the other."""
+    from hybrid.app import study
+
+    def unreachable(workers, scheduler):
+        raise OSError(f"Timed out trying to connect to {scheduler}")
+    monkeypatch.setattr(study, "_client", unreachable)
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    code = main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--scheduler",
+                 "tcp://127.0.0.1:1", "--out", str(out), "--quiet"])
+    assert code == 2 and "nothing was run" in capsys.readouterr().err
+    assert not out.exists()
+    with pytest.raises(SystemExit) as exit_code:
+        main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--workers", "1", "--scheduler",
+              "tcp://127.0.0.1:1", "--out", str(out)])
+    assert exit_code.value.code == 2 and "not allowed with" in capsys.readouterr().err
+
+
 def test_set_values_and_variant_files_round_trip():
     assert parse_value("0;0;1.5") == [0, 0, 1.5]
     assert parse_value("[1, 2]") == [1, 2]

@@ -185,8 +185,8 @@ def converge(scene, out, dt_levels=3, refine_levels=0, meshes=None, across=(), q
     rungs = ladder(base, dt_levels, refine_levels, meshes, [parse_setting(s) for s in across])
     variants = make_variants(path, [r.settings for r in rungs])
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     records = execute(variants, out, workers, scheduler, progress)
+    out.mkdir(parents=True, exist_ok=True)
     rows = _rows(base, rungs, records, names, tol, refine_levels)
     write_table(rows, out / "convergence.csv")
     if plot:

@@ -99,7 +99,7 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
     skipping those finished before. Returns one record per variant, in order: ``id``, ``folder``,
     ``scene_file``, ``status``, ``error``, ``wall_s``, ``kept`` (finished before)."""
     runs = Path(out) / "runs"
-    records, todo = [], []
+    records, todo, texts = [], [], []
     for v in variants:
         folder = runs / v.id
         scene_file = folder / v.file_name
@@ -109,17 +109,17 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
             summary = read_summary(folder)
             record.update(status="ok", error=None, wall_s=summary["wall_time"], kept=True)
         else:
-            folder.mkdir(parents=True, exist_ok=True)
-            (folder / "summary.json").unlink(missing_ok=True)
-            scene_file.write_text(text)
             todo.append(record)
+            texts.append(text)
         records.append(record)
-    _dispatch(todo, len(records), workers, scheduler, progress)
+    _dispatch(todo, texts, len(records), workers, scheduler, progress)
     return records
 
 
-def _dispatch(todo, total, workers, scheduler, progress):
-    """Run the records' scene files on Dask, filling in status, error and wall time."""
+def _dispatch(todo, texts, total, workers, scheduler, progress):
+    """Run the records' scene files (written from ``texts`` once Dask is reached: a scheduler
+    that cannot be reached leaves nothing behind) on Dask, filling in status, error and wall
+    time."""
     bar = StudyProgress(total, 1, enabled=progress)
     bar.done = bar.skipped = total - len(todo)
     if not todo:
@@ -128,6 +128,11 @@ def _dispatch(todo, total, workers, scheduler, progress):
     from dask.distributed import as_completed
     client, cluster = _client(workers, scheduler)
     try:
+        for record, text in zip(todo, texts):
+            folder = Path(record["folder"])
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "summary.json").unlink(missing_ok=True)
+            Path(record["scene_file"]).write_text(text)
         bar.slots = max(1, sum(client.nthreads().values()))
         futures = {client.submit(run_variant, r["scene_file"], r["folder"], pure=False,
                                  key=f"hybrid-run-{r['id']}-{os.urandom(4).hex()}"): r for r in todo}
@@ -217,8 +222,8 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     rows = combinations(pairs, zipped)
     variants = make_variants(path, rows)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     records = execute(variants, out, workers, scheduler, progress)
+    out.mkdir(parents=True, exist_ok=True)
     table = [result_row(r, v.settings) for r, v in zip(records, variants)]
     write_table(table, out / "results.csv")
     if plot:

@@ -49,10 +49,11 @@ def add_commands(sub):
 
 def _common(p, default_out):
     p.add_argument("--out", help=f"study folder (default {default_out}/)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="local worker processes (default: the number of cores)")
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                   help="an existing Dask scheduler instead (its workers must see the study folder)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="local worker processes (default: the number of cores)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="an existing Dask scheduler instead (its workers must see the study folder)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
