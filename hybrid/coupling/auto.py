@@ -224,20 +224,16 @@ def _approaching(model, state, j, rigidify):
 def rigid_due(model, state):
     """``(calm, due)``: every FEM auto body's count of calm steps in a row (scene index ->
     steps) and the FEM bodies (indices into model.fem) to turn rigid now: those calm for their
-    ``window`` (stretched by ``state.backoff``), and fracture pieces smaller than
-    ``rigid_fragment_tets`` at once when they are made, else ``window`` steps after they last
-    turned deformable (the size hint of ``fragment_model = "auto"``: a few elements flying off
-    are not worth an FEM body)."""
+    ``window`` (stretched by ``state.backoff``), and fracture pieces smaller than ``rigid_fragment_tets`` at once (the size hint
+    of ``fragment_model = "auto"``: a few elements flying off are not worth an FEM body)."""
     calm, due = {}, []
     for j, k in enumerate(model.fem_ids):
         auto = settings(model, k)
         if auto is None:
             continue
         calm[k] = _calm_count(model, state, j, auto.window)
-        # (a small piece turned deformable by a blow waits its window, as any switch does)
         small = model.fragment_of is not None and model.fragment_of[k] != k \
-            and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets \
-            and state.steps - state.fem_since.get(k, -10 ** 9) >= auto.window
+            and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets
         if calm[k] >= auto.window * state.backoff.get(k, 1) or (small and _may_turn(model, state, j)):
             due.append(j)
     return calm, due
