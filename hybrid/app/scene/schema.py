@@ -196,7 +196,8 @@ AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body 
               "`fracture_stress / young`), so it is deformable before anything yields or cracks. "
               "Must exceed `rigidify_strain`."),
     Field("window", "integer", 10, "", "Steps the strain rate must stay low before rigidifying; "
-          "also the fewest steps between two switches of a body.", low=1),
+          "also the fewest steps between two switches of a body (but a fragment under "
+          "`rigid_fragment_tets`).", low=1),
     Field("fracture_margin", "number", 0.5, "", "A breakable body rigidifies only while its largest "
           "principal stress is below this fraction of `fracture_stress`.", low=0.0, high=1.0,
           low_open=True),
@@ -279,7 +280,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "`rigid_fragment_tets` elements rigid at once). An auto body's fragments are auto.",
           choices=("fem", "rigid", "auto"), fem=True),
     Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
-          "turns rigid at once.", low=1, fem=True),
+          "turns rigid at once, and again at the first check after a blow made it deformable "
+          "(not after a `window`).", low=1, fem=True),
     Field("max_cracks_per_step", "integer", 16, "", "Most elements that crack in one step (the most "
           "overstressed first).", low=1, fem=True),
     Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
