@@ -90,3 +90,44 @@ def test_a_rest_shape_update_without_a_finite_shape_names_the_body(sim, monkeypa
     assert err.value.body == "block" and "rest-shape update" in err.value.quantity
     assert err.value.time == pytest.approx(0.003)
     assert s.state is before
+
+
+BOUNCING_BAR = """
+[simulation]
+duration = 0.3
+dt = 0.01
+output_fps = 20
+[[planes]]
+restitution = 0.5
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = {{ type = "box", size = [0.3, 0.05, 0.05], resolution = 0.025 }}
+position = [0.0, 0.0, 0.3]
+density = 7800.0
+young = {young}
+integrator = "newmark"
+angular_velocity = [3.0, 20.0, 5.0]
+velocity = [1.0, 0.0, -3.0]
+"""
+
+
+def test_a_run_whose_energy_grows_with_nothing_doing_work_stops_naming_the_body(sim, tmp_path):
+    """A steel bar spinning onto the ground at a 10 ms step (Newmark, floating frame) gains
+    energy on each landing, from 39 J to thousands, finite all the way: the run stops at the
+    first frame that has gained more than the energy in play, as unstable, naming the bar."""
+    s = sim(BOUNCING_BAR.format(young=2e11))
+    with pytest.raises(InstabilityError) as error:
+        s.run(out=tmp_path / "out", progress=False, log=lambda message: None)
+    assert error.value.body == "bar" and "total energy gained" in error.value.quantity
+    assert error.value.value > 39.0
+    summary = (tmp_path / "out" / "summary.json").read_text()
+    assert '"status": "unstable"' in summary
+
+
+def test_a_run_that_loses_energy_is_not_stopped(sim):
+    """The same bar, soft (E = 1 MPa), bounces, loses energy at each landing, and runs to its
+    end: the watchdog does not stop what only dissipates."""
+    s = sim(BOUNCING_BAR.format(young=1e6))
+    summary = s.run(progress=False, log=lambda message: None)
+    assert summary["status"] == "ok" and s.time == pytest.approx(0.3)

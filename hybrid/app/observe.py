@@ -196,6 +196,18 @@ def momentum_scales(model, state):
     return linear, angular
 
 
+def body_energies(model, state):
+    """Per body (by name) its kinetic energy, plus its elastic energy for an FEM body (J)."""
+    out = {}
+    rm, rs = model.rigid, state.rigid
+    if rm.body_count:
+        ke = kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity))
+        out = {model.names[k]: float(e) for k, e in zip(model.rigid_ids, ke)}
+    for k, m, s in zip(model.fem_ids, model.fem, state.fem):
+        out[model.names[k]] = fem_dyn.kinetic_energy(m, s) + fem_dyn.elastic_energy(m, s)
+    return out
+
+
 def totals(model, state):
     """Total energy (kinetic + gravitational + elastic, J), linear momentum (kg m/s) and angular
     momentum about the origin (kg m^2/s) of the moving bodies."""

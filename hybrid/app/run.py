@@ -14,7 +14,7 @@ import numpy as np
 from rigid.contacts import detect, detect_points
 from rigid import quaternion as quat
 
-from . import observe
+from . import energy_watch, observe
 from .output_resume import ResumableWriter
 
 
@@ -142,6 +142,7 @@ class Recorder:
     def __init__(self, out_dir, scene_name):
         self.writer = ResumableWriter(out_dir, scene_name) if out_dir is not None else None
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
+        self.kinetic = []       # the frames' kinetic energies (J), for the energy watchdog
         self.frames = 0
         self.watched = None     # (Peaks, ImpactWatch) of the run's steps, kept in checkpoints
 
@@ -168,14 +169,17 @@ class Recorder:
                 self.writer.write_regions(regions)
         e, p, l = observe.totals(model, state)
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
+        self.kinetic.append(energy_watch.kinetic_total(model, state))
         self.carried.append(observe.momentum_scales(model, state))
         self.frames += 1
+        energy_watch.check(model, state, self.energies, self.kinetic)
 
     def snapshot(self):
         """What :meth:`restore` needs to continue this recorder (a checkpoint keeps it): the
         totals so far and where the files stand."""
         return {"energies": list(self.energies), "momenta": list(self.momenta),
                 "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
+                "kinetic": list(self.kinetic),
                 "files": None if self.writer is None else self.writer.snapshot(),
                 "watched": None if self.watched is None else [w.snapshot() for w in self.watched]}
 
@@ -185,6 +189,7 @@ class Recorder:
         self.energies, self.momenta = list(snapshot["energies"]), list(snapshot["momenta"])
         self.angular, self.carried = list(snapshot["angular"]), list(snapshot["carried"])
         self.frames = snapshot["frames"]
+        self.kinetic = list(snapshot.get("kinetic", [0.0] * len(self.energies)))
         if self.watched is not None and snapshot.get("watched") is not None:
             for watcher, kept in zip(self.watched, snapshot["watched"]):
                 watcher.restore(kept)

@@ -1,0 +1,63 @@
+"""The energy watchdog of a run: a scene in which nothing does work cannot gain energy.
+
+Contacts, friction, damping, plastic flow and fracture only take energy out, and backward Euler
+damps; so in a scene without loads and moving anchors the total energy (kinetic, elastic,
+gravitational) of a frame exceeding the first frame's by more than the energy in play is a
+divergence the finiteness checks do not see (a Newmark bar bouncing on the ground at a large step
+climbed from 56 J to 7e12 J at 127 m/s, and the run ended "ok"). The run then stops as unstable,
+naming the body with the most energy. The energy in play is the largest of: the largest kinetic
+energy of a frame so far, the energy released so far (the first frame's less the least since),
+and the bodies' weight times their size (a body started a little inside the ground rises by its
+overlap when pushed out).
+"""
+import numpy as np
+
+from fem import dynamics as fem_dyn
+from hybrid.coupling.stability import InstabilityError
+from rigid.model import kinetic_energy, reported_velocity
+
+from . import observe
+
+# the most a frame's total energy may exceed the first frame's, in units of the energy in play
+GAIN_LIMIT = 1.0
+
+
+def does_work(model):
+    """Whether something in the scene adds energy: a load, or an anchor that moves."""
+    return any(len(m.load_force) and np.any(m.load_force) or np.any(m.anchor_velocity)
+               for m in model.fem)
+
+
+def kinetic_total(model, state):
+    """The kinetic energy of every moving body (J)."""
+    rm, rs = model.rigid, state.rigid
+    total = float(kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity)).sum()) \
+        if rm.body_count else 0.0
+    return total + sum(fem_dyn.kinetic_energy(m, s) for m, s in zip(model.fem, state.fem))
+
+
+def weight_scale(model):
+    """The bodies' weight times their size, summed (J): |g| m L per body (L: a rigid body's
+    bounding diameter, an FEM body's largest rest extent)."""
+    g = float(np.linalg.norm(model.gravity))
+    rm = model.rigid
+    free = ~rm.body_fixed if rm.body_count else np.zeros(0, bool)
+    total = float((rm.body_mass[free] * 2.0 * rm.body_radius[free]).sum()) if rm.body_count else 0.0
+    for m in model.fem:
+        total += float(m.node_mass.sum() * np.ptp(m.rest_points, axis=0).max())
+    return g * total
+
+
+def check(model, state, energies, kinetic):
+    """Raise InstabilityError when the last of the frames' total ``energies`` (J; the first is
+    the run's start) exceeds the first by more than GAIN_LIMIT times the energy in play
+    (``kinetic``: the frames' kinetic energies); nothing in a scene that does work."""
+    if len(energies) < 2 or does_work(model):
+        return
+    start = energies[0]
+    in_play = max(max(kinetic), start - min(energies), weight_scale(model))
+    gain = energies[-1] - start
+    if in_play > 0.0 and gain > GAIN_LIMIT * in_play:
+        body, _ = max(observe.body_energies(model, state).items(), key=lambda item: item[1])
+        raise InstabilityError(body, state.time, f"total energy gained over the start (J; energy "
+                               f"in play {in_play:.3g} J, nothing in the scene does work)", gain)
