@@ -141,9 +141,12 @@ def test_bad_input_raises_at_once_and_writes_nothing_of_that_frame(tmp_path):
     assert times == [0.0, 0.2] and [p.name for p in paths] == ["frame_00000.vtu", "frame_00001.vtu"]
 
 
-def test_a_run_stopped_by_ctrl_c_keeps_its_frames_and_leaves_no_process(tmp_path):
-    """SIGINT to the whole process group, as Ctrl-C sends it: the writer process ignores it, the
-    run stops after its step and closes its writer, which writes every frame handed over."""
+@pytest.mark.parametrize("stop, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_run_stopped_by_ctrl_c_keeps_its_frames_and_leaves_no_process(tmp_path, stop, code):
+    """SIGINT to the whole process group, as Ctrl-C sends it (or SIGTERM, as a job scheduler
+    may): the writer process ignores it, the run stops after its step, writes its checkpoint and
+    closes its writer, which writes every frame handed over (SIGTERM ended the writer process,
+    and the run with it as unstable, without a checkpoint)."""
     scene = tmp_path / "long.toml"
     scene.write_text(SCENE.format(brick_z=0.3).replace("duration = 0.06", "duration = 30.0"))
     out = tmp_path / "out"
@@ -157,14 +160,15 @@ def test_a_run_stopped_by_ctrl_c_keeps_its_frames_and_leaves_no_process(tmp_path
             assert run.poll() is None and time.monotonic() < deadline, run.communicate()
             time.sleep(0.05)
         writers = _descendants(run.pid)         # the fork server and the writer process
-        os.killpg(run.pid, signal.SIGINT)
+        os.killpg(run.pid, stop)
         _, err = run.communicate(timeout=60)
     finally:
         if run.poll() is None:
             os.killpg(run.pid, signal.SIGKILL)
-    assert run.returncode == 130, err.decode()
+    assert run.returncode == code, err.decode()
     times, paths, summary = read_run(out)
     assert summary["status"] == "stopped" and len(times) == summary["frames"] >= 5
+    assert (out / "checkpoint.npz").is_file()
     assert sorted(p.name for p in (out / "frames").glob("frame_*.vtu")) == [p.name for p in paths]
     assert len((out / "bodies.csv").read_text().splitlines()) == 1 + 2 * len(times)
     assert len(writers) >= 2

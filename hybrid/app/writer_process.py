@@ -312,8 +312,11 @@ fork_server = ForkServer()
 def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
     """The writer process: run the jobs received on ``jobs`` until an empty message (stop) or
     the end of the pipe, replying ``("done", jobs done, seconds, result)`` or ``("error", error,
-    traceback)`` on ``replies``."""
+    traceback)`` on ``replies``. Ctrl-C and SIGTERM are the run's to handle (sent to the whole
+    process group, they reach this process too): it keeps writing until the run stops it, or
+    until the run's process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     files = FrameFiles(out_dir, pvd_name, index_every)
     keeping = KeptArrays()
     seconds, failed, done = 0.0, False, 0
