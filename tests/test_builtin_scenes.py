@@ -169,7 +169,7 @@ def test_pull_bar_flattens_at_yield_stress_times_area_longer():
     Run("pull").advance(0.6, each=lambda sim: forces.append(pull_force(sim)[0]))
     YA = 100e6 * 0.01 ** 2
     plateau = np.array(forces[-200:])                      # the last 0.2 s
-    assert np.all(np.abs(plateau / YA - 1.0) < 0.02)       # measured 1.006 YA
+    assert np.all(np.abs(plateau / YA - 1.0) < 0.02)       # measured 1.0003-1.0010 YA
     assert np.ptp(plateau) < 0.005 * YA                    # flat: no hardening
     assert max(forces) < 1.02 * YA
 
