@@ -130,6 +130,15 @@ def test_a_scheduler_that_cannot_be_reached_leaves_no_files_and_excludes_workers
     assert exit_code.value.code == 2 and "not allowed with" in capsys.readouterr().err
 
 
+def test_a_key_set_twice_is_an_exit_2_error_and_nothing_runs(tmp_path, capsys):
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    code = main(["sweep", str(scene), "--set", "bodies.ball.restitution=0,0.5", "--set",
+                 "bodies.ball.restitution=0.2", "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 2 and "bodies.ball.restitution: given more than once" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_set_values_and_variant_files_round_trip():
     assert parse_value("0;0;1.5") == [0, 0, 1.5]
     assert parse_value("[1, 2]") == [1, 2]
@@ -191,3 +200,10 @@ def test_sweep_through_a_real_scheduler_and_worker_records_a_failed_run_and_runs
             if process is not None:
                 process.terminate()
                 process.wait(timeout=30)
+
+
+@pytest.mark.parametrize("tol", ["-1", "0", "1.5"])
+def test_converge_refuses_a_tolerance_that_is_no_relative_error(tmp_path, capsys, tol):
+    assert main(["converge", "default", "--tol", tol, "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "give a relative error between 0 and 1" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

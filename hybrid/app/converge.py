@@ -21,7 +21,7 @@ import numpy as np
 
 from . import quantities as qty
 from .study import execute, write_table
-from .variants import SettingError, combinations, make_variants, parse_setting
+from .variants import SettingError, combinations, make_variants, parse_settings
 
 RICHARDSON, FINEST = "richardson", "finest-difference"
 
@@ -182,7 +182,7 @@ def converge(scene, out, dt_levels=3, refine_levels=0, meshes=None, across=(), q
     path = scene_path(scene)
     base = load_scene(path)
     names = check_quantities(base, quantities)
-    rungs = ladder(base, dt_levels, refine_levels, meshes, [parse_setting(s) for s in across])
+    rungs = ladder(base, dt_levels, refine_levels, meshes, parse_settings(across))
     variants = make_variants(path, [r.settings for r in rungs])
     out = Path(out)
     records = execute(variants, out, workers, scheduler, progress)

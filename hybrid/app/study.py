@@ -19,7 +19,7 @@ import traceback
 from pathlib import Path
 
 from .output import BODIES_CSV, read_summary
-from .variants import combinations, make_variants, parse_setting
+from .variants import combinations, make_variants, parse_settings
 
 # one BLAS / OpenMP / numba thread per worker process: workers do not oversubscribe the cores
 PINNED_THREADS = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
@@ -213,7 +213,7 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     ``plot``: ``"FIGURE"`` or ``"FIGURE:KEY"`` draws ``out/FIGURE.png`` against the first (or
     that) swept key. Raises SettingError or SceneError before anything runs for bad input."""
     from ..simulation import scene_path
-    pairs = [parse_setting(s) for s in settings] if isinstance(settings, (list, tuple)) \
+    pairs = parse_settings(settings) if isinstance(settings, (list, tuple)) \
         else [(k, list(v) if isinstance(v, (list, tuple)) else [v]) for k, v in settings.items()]
     path = scene_path(scene)
     if plot:

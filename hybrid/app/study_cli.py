@@ -68,6 +68,9 @@ def run_command(args):
     from .variants import SettingError
     if args.workers is not None and args.workers < 1:
         return _bad(args.scene, f"--workers {args.workers}: give at least 1")
+    tol = getattr(args, "tol", None)
+    if tol is not None and not 0.0 < tol < 1.0:
+        return _bad(args.scene, f"--tol {tol:g}: give a relative error between 0 and 1 (for example 0.01)")
     try:
         out = _out(args, args.command)
         return (_sweep if args.command == "sweep" else _converge)(args, out)

@@ -83,6 +83,18 @@ def parse_setting(text):
     return key, [parse_value(p) for p in parts]
 
 
+def parse_settings(texts):
+    """:func:`parse_setting` of each ``--set`` text; a KEY given twice is a SettingError (the later
+    values would silently replace the earlier)."""
+    pairs = [parse_setting(t) for t in texts]
+    keys = [k for k, _ in pairs]
+    for key in keys:
+        if keys.count(key) > 1:
+            raise SettingError(f"--set {key}: given more than once; give all its values in one "
+                               f"--set {key}=V1,V2,...")
+    return pairs
+
+
 def _child(node, part, key, walked):
     """The table ``part`` names inside ``node`` (a table or a list of tables), created empty when
     it is a table the scene left out."""
