@@ -70,6 +70,8 @@ def test_two_by_two_sweep_on_two_workers_matches_each_variant_run_alone(study, t
         assert main(["run", str(folder / "drop.toml"), "--out", str(alone), "--quiet"]) == 0
         assert (alone / "bodies.csv").read_bytes() == (folder / "bodies.csv").read_bytes()
         heights[row["bodies.ball.restitution"]] = float(row["ball.z"])
+        # its cost is its stepping time, as for a run kept from before (not the worker's start)
+        assert row["wall_s"] == json.loads((folder / "summary.json").read_text())["wall_time"]
     # the sweep changed what it says it changed: the livelier ball is higher when it ends
     assert heights[0.8] > heights[0.2] + 0.01
 

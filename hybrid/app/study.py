@@ -30,8 +30,10 @@ FIGURES = ("wall_s", "steps_per_s", "simulated_time", "energy_drift", "linear_mo
 
 def run_variant(scene_file, out_dir):
     """Run the scene file ``scene_file`` into ``out_dir`` as ``hybrid run`` does (a worker's task).
-    Returns ``{"status": "ok" | "unstable" | "failed", "error": message or None, "wall_s"}``;
-    never raises for a failed run."""
+    Returns ``{"status": "ok" | "unstable" | "failed", "error": message or None, "wall_s"}``
+    (``wall_s``: the run's stepping time, its summary's ``wall_time``, as for a run kept from
+    before, so that runs compare alike; the whole task's time when it wrote no summary); never
+    raises for a failed run."""
     from hybrid.coupling.step import InstabilityError
     from ..simulation import Simulation
     start = clock.perf_counter()
@@ -39,6 +41,7 @@ def run_variant(scene_file, out_dir):
         summary = Simulation.from_toml(scene_file).run(out=out_dir, progress=False,
                                                        log=lambda message: None)
         status, error = summary["status"], summary["error"]
+        return {"status": status, "error": error, "wall_s": summary["wall_time"]}
     except InstabilityError as failure:
         status, error = "unstable", str(failure)
     except Exception as failure:        # noqa: BLE001 (one run's failure must not end the study)
