@@ -120,3 +120,10 @@ position = [0.0, 0.0, 0.2]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "unstable" and summary["steps"] == 29
     assert len(list((out / "frames").glob("*.vtu"))) == summary["frames"] == 3
+
+
+def test_validate_takes_a_built_in_scene_name_as_run_does(capsys):
+    assert main(["validate", "dent"]) == 0
+    assert "dent.toml: 4 bodies" in capsys.readouterr().out
+    assert main(["validate", "no-such-scene"]) == 2
+    assert "no such scene file or built-in scene" in capsys.readouterr().err

@@ -227,14 +227,21 @@ def main(argv=None):
                    help="the field's colour scale: the run's smallest to largest value (default), its "
                         "2nd to 98th percentile, or each frame's own range")
     sub.add_parser("scenes", help="list the built-in scenes")
-    p = sub.add_parser("validate", help="check a scene file and report every problem")
-    p.add_argument("scene")
+    p = sub.add_parser("validate", help="check a scene file (or built-in scene) and report every problem")
+    p.add_argument("scene", help="a .toml scene file, or a built-in scene's name")
     from .study_cli import add_commands, run_command
     add_commands(sub)                   # sweep, converge: batch studies on Dask
     args = parser.parse_args(argv)
     if args.command == "validate":
+        from ..simulation import scene_path
         from .build import build     # meshes and regions are checked on the built bodies
-        return validate_command(args.scene, check=build)
+        try:
+            path = scene_path(args.scene)       # a file, or a built-in scene's name as for run
+        except KeyError as err:
+            print(f"{args.scene}: no such scene file or built-in scene; {err.args[0].split('; ', 1)[1]}",
+                  file=sys.stderr)
+            return 2
+        return validate_command(path, check=build)
     try:
         return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
                 "converge": run_command}[args.command](args)
