@@ -222,20 +222,19 @@ def _mass_matrices(M_scalar, mass):
 
 
 def with_rest_points(model, points, dt=None, **changes):
-    """A new model with rest shape ``points`` ``(n, 3)`` m (same mesh, material, anchors, loads).
-
-    K, element data and shape-matching offsets are rebuilt for the new shape; the masses (M and
-    the lumped node masses) are the material's and stay as they were: the same material in a new
-    rest shape (rebuilt from the new volumes, a bar pulled to 10% lost 4% of its mass and its
-    momentum with it). The new model has its own (empty) cache, its system factorised now for
-    ``dt`` s if given and the frame is floating. Other models keep theirs. ``changes`` replace
-    further fields. Loads keep their node forces. Used by events such as reference-shape updates
-    (``fem.reference``).
+    """A new model with rest shape ``points`` ``(n, 3)`` m (same mesh, material, anchors, loads):
+    K, M, element data, lumped masses and shape-matching offsets are rebuilt for the new shape,
+    the density scaled to keep the body's mass (new volumes need not add up to the old: a bar
+    pulled to 10% lost 4% of its mass); its own cache, its system factorised now for ``dt`` s if
+    given (floating frame). ``changes`` replace further fields. Used by reference-shape updates.
     """
     points = np.asarray(points, dtype=float)
-    K, _, elements = assemble(points, model.tets, model.young, model.poisson, model.density)
-    rest_center = model.node_mass @ points / model.node_mass.sum()
-    new = replace(model, rest_points=points, K=K, elements=elements, rest_center=rest_center,
+    K, M_scalar, elements = assemble(points, model.tets, model.young, model.poisson, model.density)
+    scale = model.node_mass.sum() / M_scalar.sum()
+    node_mass, M = _mass_matrices(M_scalar * scale, model.mass_kind)
+    rest_center = node_mass @ points / node_mass.sum()
+    new = replace(model, rest_points=points, K=K, M=M, elements=elements, node_mass=node_mass,
+                  density=model.density * scale, rest_center=rest_center,
                   rest_offsets=points - rest_center, cache=FemCache(), **changes)
     if dt is not None and new.frame == "floating":
         system_factorisation(new, dt)
