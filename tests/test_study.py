@@ -209,3 +209,23 @@ def test_converge_refuses_a_tolerance_that_is_no_relative_error(tmp_path, capsys
     assert main(["converge", "default", "--tol", tol, "--out", str(tmp_path / "out"), "--quiet"]) == 2
     assert "give a relative error between 0 and 1" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_variant_whose_mesh_file_changed_is_not_taken_as_finished(tmp_path):
+    """A study run again keeps a run only if its inputs are the same: the mesh a body reads as
+    well as the scene text (it kept results made from an older mesh)."""
+    import shutil
+    from hybrid.app.study import finished
+    from hybrid.app.variants import make_variants
+    root = Path(__file__).resolve().parents[1]
+    shutil.copy(root / "meshes" / "ball_r10cm.vtu", tmp_path / "m.vtu")
+    scene = tmp_path / "m.toml"
+    scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "thing"\nmesh = "m.vtu"\n')
+    variant = make_variants(scene, [{"bodies.thing.restitution": 0.5}])[0]
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / variant.file_name).write_text(variant.text())
+    (run / "summary.json").write_text(json.dumps({"status": "ok", "wall_time": 0.1}))
+    assert finished(run, variant.text(), variant.file_name)
+    (tmp_path / "m.vtu").write_bytes((tmp_path / "m.vtu").read_bytes() + b"\n")
+    assert not finished(run, variant.text(), variant.file_name)

@@ -36,8 +36,25 @@ class Variant:
     file_name: str
 
     def text(self):
-        """The variant's scene file (TOML text)."""
-        return toml_text(self.data)
+        """The variant's scene file (TOML text), opening with a comment line per mesh file it
+        reads giving the file's SHA-256: a study run again reruns the variants whose meshes
+        changed, as it does those whose scene text did (:func:`hybrid.app.study.finished`)."""
+        return "".join(f"# {path}: sha256 {_file_digest(path)}\n" for path in _mesh_paths(self.data)) \
+            + toml_text(self.data)
+
+
+def _mesh_paths(data):
+    """The mesh files ``data``'s bodies read (absolute paths, in body order)."""
+    bodies = data.get("bodies") if isinstance(data.get("bodies"), list) else []
+    return [b["mesh"] for b in bodies if isinstance(b, dict) and isinstance(b.get("mesh"), str)]
+
+
+def _file_digest(path):
+    """SHA-256 of the file at ``path`` (hex), or ``missing``."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return "missing"
 
 
 def split_values(text):
