@@ -229,3 +229,12 @@ def test_a_variant_whose_mesh_file_changed_is_not_taken_as_finished(tmp_path):
     assert finished(run, variant.text(), variant.file_name)
     (tmp_path / "m.vtu").write_bytes((tmp_path / "m.vtu").read_bytes() + b"\n")
     assert not finished(run, variant.text(), variant.file_name)
+
+
+def test_a_plot_against_a_vector_key_is_refused_before_anything_runs(tmp_path, capsys):
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    code = main(["sweep", str(scene), "--set", "bodies.ball.position=0;0;0.55,0;0;0.85", "--out",
+                 str(tmp_path / "out"), "--plot", "ball.z:bodies.ball.position", "--quiet"])
+    assert code == 2 and "takes values that are not numbers" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -21,15 +21,20 @@ def _plot_parts(plot, keys):
     return figure, key or (keys[0] if keys else "")
 
 
-def check_sweep_plot(plot, keys):
+def check_sweep_plot(plot, keys, values=None):
     """SettingError unless ``plot`` (``FIGURE`` or ``FIGURE:KEY``) names a figure of
-    ``results.csv`` (or ``<body>.x|y|z``) and one of the swept ``keys``."""
+    ``results.csv`` (or ``<body>.x|y|z``) and one of the swept ``keys`` whose ``values`` (a list
+    per key, if given) are numbers, which an axis can carry."""
     figure, key = _plot_parts(plot, keys)
     if figure not in SWEEP_FIGURES and not re.fullmatch(r".+\.[xyz]", figure):
         raise SettingError(f"--plot {plot}: give one of {', '.join(SWEEP_FIGURES)} or <body>.x|y|z, "
                            f"optionally :KEY")
     if key not in keys:
         raise SettingError(f"--plot {plot}: '{key}' is not a swept key; swept: {', '.join(keys) or 'none'}")
+    if values is not None and not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                       for v in values[keys.index(key)]):
+        raise SettingError(f"--plot {plot}: '{key}' takes values that are not numbers (vectors, "
+                           f"words); plot against a swept key with number values")
 
 
 def plot_sweep(rows, keys, plot, out):

@@ -221,7 +221,7 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     path = scene_path(scene)
     if plot:
         from .plots import check_sweep_plot
-        check_sweep_plot(plot, [k for k, _ in pairs])
+        check_sweep_plot(plot, [k for k, _ in pairs], [v for _, v in pairs])
     rows = combinations(pairs, zipped)
     variants = make_variants(path, rows)
     out = Path(out)
