@@ -237,3 +237,31 @@ def test_refine_must_be_a_whole_number_of_at_least_one(tmp_path):
     scene.write_text('[[bodies]]\nname = "b"\nshape = { type = "box", size = [1, 1, 1], refine = 0 }\n')
     code = main(["validate", str(scene)])
     assert code == 2
+
+
+def test_a_mesh_ladder_needs_refine_and_replaces_a_shape(tmp_path, capsys):
+    """--mesh without --refine ran one run on the shape and never looked at the files; with it,
+    a body given by a shape failed ("needs exactly one of shape or mesh"): each rung's mesh
+    takes the shape's place."""
+    import shutil
+    import tomllib
+    from hybrid.app.converge import ladder
+    from hybrid.app.scene import parse_scene
+    from hybrid.app.variants import apply_setting
+    root = Path(__file__).resolve().parents[1]
+    for name in ("coarse.vtu", "fine.vtu"):
+        shutil.copy(root / "meshes" / "cylinder_r5cm_h20cm.vtu", tmp_path / name)
+    text = ('[simulation]\nduration = 0.01\ndt = 0.001\n[[bodies]]\nname = "can"\nmodel = "fem"\n'
+            'young = 1e6\nshape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    (tmp_path / "s.toml").write_text(text)
+    code = main(["converge", str(tmp_path / "s.toml"), "--mesh",
+                 f"can={tmp_path / 'coarse.vtu'},{tmp_path / 'fine.vtu'}", "--out", str(tmp_path / "o")])
+    assert code == 2 and "needs --refine N" in capsys.readouterr().err
+    meshes = {"can": [str(tmp_path / "coarse.vtu"), str(tmp_path / "fine.vtu")]}
+    rungs = ladder(parse_scene(tomllib.loads(text), "s.toml", tmp_path), 1, 2, meshes)
+    for rung, mesh in zip(rungs, meshes["can"]):
+        data = tomllib.loads(text)
+        for key, value in rung.settings.items():
+            apply_setting(data, key, value)
+        body = parse_scene(data, "s.toml", tmp_path).bodies[0]
+        assert body.shape is None and str(body.mesh) == mesh

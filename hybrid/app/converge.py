@@ -103,6 +103,9 @@ def _mesh_settings(scene, levels, meshes):
     its long sides, and its default element order is kept)."""
     from .deformable import default_resolution
     if levels < 2:
+        if meshes:
+            raise SettingError(f"--mesh {next(iter(meshes))}: needs --refine N, N the number of "
+                               f"meshes in the ladder (at least 2)")
         return {}
     out = {}
     bodies = {b.name: b for b in scene.bodies}
