@@ -52,6 +52,17 @@ def test_richardson_falls_back_to_the_finest_level_when_differences_do_not_shrin
     assert estimate.reference[0, 0] == 1.45
 
 
+def test_richardson_distrusts_runs_that_swing_about_the_limit_and_trusts_round_off_agreement():
+    """Differences that shrink while the runs swing from one side of the limit to the other
+    (1.0, 1.53, 1.3, 1.51: |Q2 - Q3| < |Q1 - Q2|, yet the finest three are not one-sided) give no
+    trusted order; runs equal to round-off have converged, with no erratic order to report."""
+    swinging = [np.array([[v]]) for v in (1.0, 1.53, 1.3, 1.51)]
+    assert richardson(swinging).method == FINEST
+    same = [np.array([[1.0 + k * 1e-16, -2.0]]) for k in (0, 3, 1, 2)]
+    estimate = richardson(same)
+    assert estimate.method == RICHARDSON and np.array_equal(estimate.reference, same[-1])
+
+
 def test_pareto_keeps_the_runs_nothing_beats_in_both_cost_and_error():
     assert pareto([(1, 0.5), (2, 0.1), (3, 0.2), (4, 0.01), (1, 0.6)]) == [0, 1, 3]
 
@@ -100,7 +111,7 @@ def test_cube_sliding_down_an_incline_estimated_error_is_within_3x_of_the_closed
 def test_bouncing_ball_estimate_agrees_with_the_exact_bounces_through_the_command_line(tmp_path, capsys,
                                                                                        scheduler):
     """The rigid ball's bounces (restitution 0.5) are exact to round-off at every time step; the
-    estimate says so (errors below a nanometre) and calls the round-off order erratic."""
+    estimate says so (errors below a nanometre: the runs agree to round-off)."""
     h, r, e = 0.5, 0.05, 0.5
     (tmp_path / "ball.toml").write_text(f"""[simulation]
 duration = 0.8

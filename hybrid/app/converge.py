@@ -46,16 +46,22 @@ def observed_orders(levels, ratio=2.0):
 def richardson(levels, ratio=2.0):
     """Extrapolate ``levels`` (arrays of one shape, coarse to fine, each step refined by
     ``ratio``) from the finest three. The order is trusted when every difference shrinks, the
-    finest order is between 0.5 and 6 and, with four or more levels, the last two orders agree
-    within 0.6; otherwise the reference is the finest level (method ``finest-difference``)."""
+    finest three approach the limit from one side (the coarsest of them is as far from the finest
+    as the two differences add up to, within 20%: runs that swing about the limit can shrink their
+    differences too), the finest order is between 0.5 and 6 and, with four or more levels, the
+    last two orders agree within 0.6; otherwise the reference is the finest level (method
+    ``finest-difference``). Runs that agree to round-off (1e-12 of the largest value) have
+    converged."""
     finest = levels[-1]
     if len(levels) < 3:
         return Estimate(finest, (), FINEST)
     orders, d = observed_orders(levels, ratio)
-    if d[-1] == 0.0 and d[-2] == 0.0:
+    round_off = 1e-12 * max(float(np.max(np.abs(np.asarray(level, float)))) for level in levels)
+    if d[-1] <= round_off and d[-2] <= round_off:
         return Estimate(finest, orders, RICHARDSON)       # converged exactly
     p = orders[-1]
-    steady = all(a > b for a, b in zip(d, d[1:]))
+    one_sided = qty.distance(levels[-3], finest) >= 0.8 * (d[-2] + d[-1])
+    steady = one_sided and all(a > b for a, b in zip(d, d[1:]))
     agree = len(orders) < 2 or (orders[-2] is not None and abs(orders[-2] - p) <= 0.6)
     if p is None or not (0.5 <= p <= 6.0) or not steady or not agree:
         return Estimate(finest, orders, FINEST)

@@ -129,8 +129,9 @@ def report(rows, tol):
     for name in names:
         methods = {r[f"estimate:{name}"] for r in rows}
         if methods != {"richardson"}:
-            lines.append(f"{name}: the observed order is erratic (contact events, fracture): its "
-                         f"errors are differences from the finest run, not an extrapolation")
+            lines.append(f"{name}: the observed order is erratic (contact events, fracture, runs "
+                         f"swinging about the limit): its errors are differences from the finest "
+                         f"run, not an extrapolation")
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"{r['id']}: {r['status']} (left out of the estimates)")
