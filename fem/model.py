@@ -33,8 +33,7 @@ class FemModel:
     order: 1 (linear tets) or 2 (quadratic tets).
     density: kg/m^3. young: Young's modulus E (Pa). poisson: Poisson ratio nu (-).
     mu, lam: Lame parameters (Pa).
-    damping_mass: Rayleigh alpha (1/s), C = alpha M + beta K.
-    damping_stiffness: Rayleigh beta (s).
+    damping_mass, damping_stiffness: Rayleigh alpha (1/s) and beta (s), C = alpha M + beta K.
     frame: "floating" (one best-fit frame per body, factorised once) or "corotated" (per-element
         rotations, stiffness warping, matrix rebuilt each step). A body with anchors uses the
         world frame (R = I) when floating.
@@ -171,13 +170,11 @@ class FemModel:
 class FemState:
     """Everything about a deformable body that changes in time (SI units).
 
-    x: ``(n, 3)`` node positions (m), world coordinates.
-    v: ``(n, 3)`` node velocities (m/s).
+    x, v: ``(n, 3)`` node positions (m, world coordinates) and velocities (m/s).
     R: ``(3, 3)`` best-fit rotation of the body (shape matching), identity for anchored bodies.
     c: ``(3,)`` mass-weighted centre of the nodes (m); X_c for anchored bodies.
     node_reaction: ``(n, 3)`` force the anchors exerted on each anchored node over the last step
-        (N), zero elsewhere.
-    time: simulated time (s).
+        (N), zero elsewhere. time: simulated time (s).
     Plastic bodies only (None / 0 for elastic ones, see ``fem.plastic_flow``):
     tet_plastic_strain: ``(t, q, 3, 3)`` plastic strain eps_p at each quadrature point (-), rest
         (material) coordinates; q = 1 for P1.
@@ -188,6 +185,8 @@ class FemState:
         (IMPL-EX, ``fem.plastic_flow``); zeros for corotated bodies, whose stored strain is
         rotated per element in ``predict`` (the predicted part only is kept here).
     plastic_dissipation: plastic work dissipated since the start (J).
+    node_rest_shift: ``(n, 3)`` plastic displacement the reference updates have baked into the
+        rest shape so far (m, rest coordinates), None before the first.
     energy_slack: Newmark bodies only, how far (J) the body's energy (kinetic and elastic) is
         below what it may hold: its energy when created plus the work done on it by its steps
         (``fem.dynamics.finish`` takes any excess out). Its energy may rise by this much more than
@@ -204,6 +203,7 @@ class FemState:
     tet_yielded: np.ndarray | None = None
     node_plastic_force: np.ndarray | None = None
     plastic_dissipation: float = 0.0
+    node_rest_shift: np.ndarray | None = None
     energy_slack: float = 0.0
 
     def replace(self, **changes):

@@ -100,7 +100,9 @@ def update_reference(model, state, dt=None):
     force = rest_frame_plastic_force(new_model, eps_p_new)
     if state.node_plastic_force is not None:
         force += state.node_plastic_force - rest_frame_plastic_force(model, eps_p)
-    return new_model, state.replace(R=R, c=c, tet_plastic_strain=eps_p_new, node_plastic_force=force)
+    shift = u_p if state.node_rest_shift is None else state.node_rest_shift + u_p
+    return new_model, state.replace(R=R, c=c, tet_plastic_strain=eps_p_new, node_plastic_force=force,
+                                    node_rest_shift=shift)
 
 
 def apply_reference_updates(models, states, dt):

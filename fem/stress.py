@@ -94,9 +94,13 @@ def region_table(model, state):
 
     Anchors (``anchor0``, ...): f is the force the anchor exerted on the body during the last step
     (N). Loads (``load0``, ...): f is the applied total force (N). u is the mean displacement
-    ``x - X`` of the region's nodes (m), world frame.
+    ``x - X`` of the region's nodes (m), world frame, X the rest shape the body was built with
+    (the plastic displacement reference updates baked into the rest shape added back: a load-
+    deflection curve runs on through them).
     """
     u = state.x - model.rest_points
+    if state.node_rest_shift is not None:
+        u = u + state.node_rest_shift
     rows = [(*state.node_reaction[nodes].sum(axis=0), *u[nodes].mean(axis=0))
             for nodes in model.anchor_nodes]
     rows += [(*model.load_force[i], *u[nodes].mean(axis=0)) for i, nodes in enumerate(model.load_nodes)]
