@@ -202,6 +202,16 @@ def test_an_unknown_quantity_is_an_exit_2_error_naming_it(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("name", ["box.plastic_strain", "cracks"])
+def test_a_quantity_the_scene_cannot_give_is_an_exit_2_error(tmp_path, capsys, name):
+    """No yield stress, nothing breakable: these were accepted and reported at 0, as erratic."""
+    (tmp_path / "s.toml").write_text('[[bodies]]\nname = "box"\nmodel = "fem"\nyoung = 1e6\n'
+                                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    code = main(["converge", str(tmp_path / "s.toml"), "--quantity", name, "--out", str(tmp_path / "o")])
+    assert code == 2 and f"--quantity {name}: no such quantity in this scene" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_box_meshed_by_default_is_refined_by_splitting_its_default_cells(tmp_path):
     """``--refine`` on a plate with no ``resolution``: each rung splits the default mesh's cells
     (two quadratic layers through the thin side, longer cells along the long sides) 2, 4, ...

@@ -212,8 +212,9 @@ def check_quantities(scene, names):
     known = qty.available(scene)
     for name in names:
         if name.removesuffix("@end") not in known:
-            raise SettingError(f"--quantity {name}: no such quantity; for example: "
-                               + ", ".join(qty.defaults(scene) + ["cracks"]))
+            raise SettingError(f"--quantity {name}: no such quantity in this scene (plastic_strain "
+                               f"needs a yield_stress, cracks a breakable body); for example: "
+                               + ", ".join(qty.defaults(scene)))
     return list(names)
 
 

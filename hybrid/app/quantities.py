@@ -40,10 +40,13 @@ def _body_regions(body):
 
 
 def available(scene):
-    """Every quantity name the scene's runs can give (for messages and ``--quantity``)."""
-    names = ["cracks"]
+    """Every quantity name the scene's runs can give (for messages and ``--quantity``): the
+    plastic strain of bodies with a yield stress only, ``cracks`` only when a body can break."""
+    names = ["cracks"] if _breakable(scene) else []
     for body in scene.bodies:
-        names += [f"{body.name}.com", f"{body.name}.plastic_strain"]
+        names += [f"{body.name}.com"]
+        if body.model != "rigid" and body.yield_stress is not None:
+            names.append(f"{body.name}.plastic_strain")
         names += [f"{body.name}.{c}" for c in BODY_VALUES]
         for region in _body_regions(body):
             names += [f"{body.name}.{region}.force"] + [f"{body.name}.{region}.{c}" for c in REGION_VALUES]
@@ -61,10 +64,15 @@ def defaults(scene):
         names += [f"{body.name}.anchor{k}.force" for k in range(len(body.anchors))]
         if body.model != "rigid" and body.yield_stress is not None:
             names.append(f"{body.name}.plastic_strain")
-    if any(b.model != "rigid" and (b.fracture_stress is not None or b.tearing_strain is not None)
-           for b in scene.bodies):
+    if _breakable(scene):
         names.append("cracks")
     return names
+
+
+def _breakable(scene):
+    """Whether some body of ``scene`` can crack (a fracture stress or a tearing strain)."""
+    return any(b.model != "rigid" and (b.fracture_stress is not None or b.tearing_strain is not None)
+               for b in scene.bodies)
 
 
 def _table(path, key_columns):
