@@ -92,16 +92,12 @@ def test_momentum_summed_from_bodies_csv_is_constant_through_an_impact(tmp_path,
     assert drift < 1e-6, f"{pair}: momentum summed from bodies.csv drifts by {drift:.2e}"
 
 
-def test_a_ball_falling_through_the_origin_reports_no_angular_momentum_drift(tmp_path):
+def test_a_ball_falling_through_the_origin_reports_no_angular_momentum_drift():
     """Its angular momentum about the origin is round-off (1e-19) throughout: the drift is
     measured against the momentum it carries at its own size, not against that round-off
     (which read 0.99)."""
-    from hybrid import Simulation
-    from hybrid.app.scene import parse_scene
-    import tomllib
-    text = ('[simulation]\nduration = 0.3\n[[bodies]]\nname = "ball"\n'
-            'shape = { type = "sphere", radius = 0.05 }\nposition = [0, 0, 1]\n')
-    sim = Simulation(parse_scene(tomllib.loads(text), "<scene>", tmp_path))
+    sim = Sim('[simulation]\nduration = 0.3\n[[bodies]]\nname = "ball"\n'
+              'shape = { type = "sphere", radius = 0.05 }\nposition = [0, 0, 1]\n')
     summary = sim.run(progress=False, log=lambda message: None)
     assert summary["conservation"]["angular_momentum_relative_drift"] < 1e-9
 
@@ -130,15 +126,12 @@ velocity = [3.0, 0.0, -30.0]
 """
 
 
-def test_a_free_pane_shedding_rigid_pieces_keeps_its_angular_momentum(tmp_path):
+def test_a_free_pane_shedding_rigid_pieces_keeps_its_angular_momentum():
     """Zero gravity, a ball through a free brittle pane whose pieces turn rigid and stay pressed
     against it: the rigid side of a node contact takes its friction impulse where the node takes
     the opposite one, so the total angular momentum stays (a gap away, at the rigid surface, it
     drifted by 6%; with FEM pieces 9e-5)."""
-    from hybrid import Simulation
-    from hybrid.app.scene import parse_scene
-    import tomllib
-    sim = Simulation(parse_scene(tomllib.loads(PANE_RIGID_PIECES), "<scene>", tmp_path))
+    sim = Sim(PANE_RIGID_PIECES)
     summary = sim.run(progress=False, log=lambda message: None)
     assert summary["fracture"]["fragments"] >= 1 and sim.model.rigid.body_count >= 2
     assert summary["conservation"]["momentum_conserved_expected"]

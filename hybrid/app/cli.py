@@ -55,13 +55,22 @@ def _rejected(path, err):
     return 2
 
 
-def _run(args):
-    from ..simulation import Simulation, scene_path
+def _scene_file(name):
+    """The scene file ``name`` names (a path, or a built-in scene's name; the default scene for
+    None), or None after saying on stderr that it is neither."""
+    from ..simulation import scene_path
     try:
-        path = scene_path(args.scene) if args.scene else _default_scene_path()
+        return scene_path(name) if name else _default_scene_path()
     except KeyError as err:             # a bare name that is no built-in scene
-        print(f"{args.scene}: no such scene file or built-in scene; {err.args[0].split('; ', 1)[1]}",
+        print(f"{name}: no such scene file or built-in scene; {err.args[0].split('; ', 1)[1]}",
               file=sys.stderr)
+        return None
+
+
+def _run(args):
+    from ..simulation import Simulation
+    path = _scene_file(args.scene)
+    if path is None:
         return 2
     try:
         scene = load_scene(path)
@@ -233,15 +242,9 @@ def main(argv=None):
     add_commands(sub)                   # sweep, converge: batch studies on Dask
     args = parser.parse_args(argv)
     if args.command == "validate":
-        from ..simulation import scene_path
         from .build import build     # meshes and regions are checked on the built bodies
-        try:
-            path = scene_path(args.scene)       # a file, or a built-in scene's name as for run
-        except KeyError as err:
-            print(f"{args.scene}: no such scene file or built-in scene; {err.args[0].split('; ', 1)[1]}",
-                  file=sys.stderr)
-            return 2
-        return validate_command(path, check=build)
+        path = _scene_file(args.scene)          # a file, or a built-in scene's name as for run
+        return 2 if path is None else validate_command(path, check=build)
     try:
         return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
                 "converge": run_command}[args.command](args)
