@@ -12,9 +12,7 @@ overlap when pushed out).
 """
 import numpy as np
 
-from fem import dynamics as fem_dyn
 from hybrid.coupling.stability import InstabilityError
-from rigid.model import kinetic_energy, reported_velocity
 
 from . import observe
 
@@ -26,14 +24,6 @@ def does_work(model):
     """Whether something in the scene adds energy: a load, or an anchor that moves."""
     return any(len(m.load_force) and np.any(m.load_force) or np.any(m.anchor_velocity)
                for m in model.fem)
-
-
-def kinetic_total(model, state):
-    """The kinetic energy of every moving body (J)."""
-    rm, rs = model.rigid, state.rigid
-    total = float(kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity)).sum()) \
-        if rm.body_count else 0.0
-    return total + sum(fem_dyn.kinetic_energy(m, s) for m, s in zip(model.fem, state.fem))
 
 
 def weight_scale(model):

@@ -212,6 +212,14 @@ def body_energies(model, state):
     return out
 
 
+def kinetic(model, state):
+    """The kinetic energy of every moving body (J), at the state's time."""
+    rm, rs = model.rigid, state.rigid
+    total = float(kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity)).sum()) \
+        if rm.body_count else 0.0
+    return total + sum(fem_dyn.kinetic_energy(m, s) for m, s in zip(model.fem, state.fem))
+
+
 def totals(model, state):
     """Total energy (kinetic + gravitational + elastic, J), linear momentum (kg m/s) and angular
     momentum about the origin (kg m^2/s) of the moving bodies."""

@@ -169,7 +169,7 @@ class Recorder:
                 self.writer.write_regions(regions)
         e, p, l = observe.totals(model, state)
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
-        self.kinetic.append(energy_watch.kinetic_total(model, state))
+        self.kinetic.append(observe.kinetic(model, state))
         self.carried.append(observe.momentum_scales(model, state))
         self.frames += 1
         energy_watch.check(model, state, self.energies, self.kinetic)
