@@ -148,9 +148,8 @@ def apply_setting(data, key, value):
         raise SettingError(f"--set {key}: '{walked}' is a list of tables; name an entry and a field")
     node[parts[-1]] = copy.deepcopy(value)
     # a body has one of a shape or a mesh: setting one replaces the other
-    other = {"mesh": "shape", "shape": "mesh"}.get(parts[-1]) if parts[0] == "bodies" and len(parts) == 3 else None
-    if other is not None:
-        node.pop(other, None)
+    if parts[0] == "bodies" and len(parts) == 3 and parts[-1] in ("mesh", "shape"):
+        node.pop("shape" if parts[-1] == "mesh" else "mesh", None)
 
 
 def combinations(settings, zipped=False):
