@@ -244,6 +244,13 @@ def apply_contact_impulses(model, state, step, dt, nodes, impulse):
     return replace(step, v=add_free_response(step.v, dv, _response_rows(model), R), impulse=total)
 
 
+def impulse_velocity_change(model, state, step, dt, nodes, impulse):
+    """Velocity change ``(n, 3)`` m/s (world) that impulses ``(k, 3)`` N s (world) on ``nodes``
+    would give the body in ``step`` (:func:`apply_contact_impulses` from rest)."""
+    start = replace(step, v=np.zeros_like(step.v), impulse=np.zeros_like(step.impulse))
+    return apply_contact_impulses(model, state, start, dt, nodes, impulse).v
+
+
 def _response_rows(model):
     """The DOFs the rows of a body's kept response columns stand for: its free ones (every DOF of
     a body without prescribed nodes)."""

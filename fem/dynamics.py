@@ -31,7 +31,7 @@ from fem.momentum import (angular_momentum, center_of_mass, linear_momentum, mas
 from fem.plastic_flow import elastic_energy as plastic_elastic_energy
 from fem.plastic_flow import plastic_update
 from fem.rotations import element_rotations
-from fem.spin_frame import predict_spin_frame
+from fem.spin_frame import impulse_turn, predict_spin_frame, shift_turned
 from fem.step_kernels import anchor_reaction, fit_moment, rotate_back
 from fem.system import (LazyMatrix, StepData, elastic_force, gravity_force, implicitness,
                         internal_forces_and_solver, right_hand_side, system_coefficients, system_factorisation,
@@ -188,27 +188,42 @@ def finish(model, state, step, dt, shift=None):
     ``shift``: ``(nodes (k,), dx (k, 3) m)``, moves of some nodes' end positions made after all
     that (a contact's penetration recovery, positions only), the frame fitted to the moved nodes.
     """
-    x = step.x_base + step.x_rate * step.v
+    x, v = step.x_base + step.x_rate * step.v, step.v
+    if step.v_free is not None and step.impulse.any():
+        x, v = impulse_turn(model, state, step)        # (the rigid turn of its impulses, exactly)
+        step = replace(step, v=v)
     late = shift is not None and (step.allowance is not None or model.plastic)
     if shift is not None and not late:      # nothing below reads the positions: move them now
-        x[shift[0]] += shift[1]
+        x, v = _shifted(model, state, step, x, v, shift)
     if model.anchored:
         # A v+ - rhs - impulse on the prescribed DOFs is dt times the force the anchors applied
         reaction = _anchor_reaction(model, step, dt)
     else:
         reaction = np.zeros_like(x)
     R, c = body_frame(model, x)
-    new = state.replace(x=x, v=step.v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
+    new = state.replace(x=x, v=v.copy(), R=R, c=c, node_reaction=reaction, time=state.time + dt)
     if step.allowance is not None:
         new = _cap_energy(model, state, step, new, dt)
     if model.plastic:
         new = plastic_update(model, new)
     if late:
-        x = new.x.copy()
-        x[shift[0]] += shift[1]
+        x, v = _shifted(model, state, step, new.x, new.v, shift)
         R, c = body_frame(model, x)
-        new = new.replace(x=x, R=R, c=c)
+        new = new.replace(x=x, v=v, R=R, c=c)
     return new
+
+
+def _shifted(model, state, step, x, v, shift):
+    """End positions and velocities after the ``shift`` of :func:`finish` (for a body stepped in
+    its spinning frame, its turn taken exactly: ``fem.spin_frame.shift_turned``)."""
+    nodes, dx = shift
+    if step.v_free is not None:
+        full = np.zeros_like(x)
+        full[nodes] = dx
+        return shift_turned(model, state, x, v, full)
+    x = x.copy()
+    x[nodes] += dx
+    return x, v
 
 
 def energy(model, state):

@@ -61,7 +61,7 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
     v_new = V_new + (u_new + y_new @ skew(w_new).T) @ turn.T
     return StepData(v=v_new, x_base=x_new - theta * h * v_new, x_rate=theta * h, rhs=rhs,
                     impulse=np.zeros_like(state.v), R=R, matrix=LazyMatrix(model, dt) if A is None else A,
-                    solve=solve, iterations=iterations, load=external, allowance=allowance)
+                    solve=solve, iterations=iterations, load=external, allowance=allowance, v_free=v_new)
 
 
 class _SpinFrame(NamedTuple):
@@ -120,3 +120,71 @@ def _end_spin(model, h, L_new, w, u_new, y_new):
     y_new = y_new + 0.5 * h * y_new @ skew(spin_change).T
     inertia, moment = mass_moments(model, y_new, u_new)
     return u_new, y_new, np.linalg.solve(inertia, L_new - moment)
+
+
+def impulse_turn(model, state, step):
+    """End positions and velocities ``(x, v)`` ``(n, 3)`` of a free body's ``step`` whose contact
+    impulses turned it, with the turn taken exactly.
+
+    ``x_base + x_rate v`` moves the nodes along chords by the impulses' velocity change, whose
+    rigid part turns the body: a steel bar landing tilted at dt = 10 ms turned 6.5 degrees in
+    its landing step and was stretched by about ``(w h)^2 / 2`` (thousands of joules). And the
+    response's rigid part turns the body about its shape at the start of the step, not its end:
+    at the end it is not rigid. So the velocity change is split into a rigid part, about the
+    rest shape in the start's best-fit frame (where the system's rigid modes are), and the
+    deformation ``d`` that remains; the body's predicted end (before impulses) takes ``x_rate d``
+    and its centre's move and turns exactly by ``x_rate`` times the spin the impulses' angular
+    momentum gives it, its end spin what the angular momentum (predicted plus the impulses')
+    gives the turned shape. Linear and angular momentum are those of the chord step.
+    """
+    x_free = step.x_base + step.x_rate * step.v_free
+    dv = step.v - step.v_free
+    move, _, d = _rigid_split(model, state, dv)
+    y = x_free - centre(model, x_free)
+    inertia, L_free = mass_moments(model, y, step.v_free)
+    L_turn = mass_moments(model, y, dv)[1]
+    turn = _rotation(step.x_rate * np.linalg.solve(inertia, L_turn))
+    return _turned(model, x_free + step.x_rate * (move + d), step.v_free + move + d, turn, L_free + L_turn)
+
+
+def shift_turned(model, state, x, v, dx):
+    """Positions and velocities ``(x, v)`` of a free body moved by ``dx`` ``(n, 3)`` m (positions
+    only: penetration recovery), its rigid turn taken exactly: moved along ``dx``, a body turned
+    by it is stretched as by a chord, and its velocities are no longer a rigid spin about it
+    (a steel bar spinning at 20 rad/s gained 190 J from a 0.5 mm push). The turn is the rigid
+    part of ``dx`` about the rest shape in the start's best-fit frame; the velocities' deformation
+    part turns with the body and its spin keeps the angular momentum."""
+    move, rotation, d = _rigid_split(model, state, dx)
+    y = x - centre(model, x)
+    return _turned(model, x + move + d, v, _rotation(rotation), mass_moments(model, y, v)[1])
+
+
+def centre(model, x):
+    """Centre of mass ``(3,)`` m of node positions ``x`` ``(n, 3)`` (the body's mass weights)."""
+    m = mass_weights(model)
+    return m @ x / m.sum()
+
+
+def _rigid_split(model, state, field):
+    """A node field ``(n, 3)`` (velocities or moves) as ``(mean (3,), rotation (3,), rest (n, 3))``:
+    its mass-weighted mean, the small rotation of its rigid part about the centre (``I^-1`` of
+    its angular moment), and what remains, each about the rest shape in the start's best-fit frame
+    (where the system's rigid modes lie): the rest carries no momentum."""
+    rest = model.rest_offsets - centre(model, model.rest_offsets)
+    rest = rest @ np.asarray(state.R, float).T
+    inertia, moment = mass_moments(model, rest, field)
+    mean, rotation = centre(model, field), np.linalg.solve(inertia, moment)
+    return mean, rotation, field - mean - rest @ skew(rotation).T
+
+
+def _turned(model, x, v, turn, L):
+    """Positions and velocities ``(x, v)`` turned about their centre of mass by the rotation matrix
+    ``turn`` (3, 3), the velocities' deformation part turned along and their spin the one that
+    gives angular momentum ``L`` (3,) about the centre with the turned shape."""
+    c, V = centre(model, x), centre(model, v)
+    y = x - c
+    inertia, moment = mass_moments(model, y, v)
+    u = v - V - y @ skew(np.linalg.solve(inertia, moment)).T
+    y_end, u_end = y @ turn.T, u @ turn.T
+    inertia_end, moment_end = mass_moments(model, y_end, u_end)
+    return c + y_end, V + u_end + y_end @ skew(np.linalg.solve(inertia_end, L - moment_end)).T

@@ -35,6 +35,8 @@ class StepData:
     allowance: under Newmark, the most energy (kinetic and elastic, J) the body may hold at the
         start of the step: its energy and its ``FemState.energy_slack`` (see ``fem.dynamics._cap_energy``);
         None under backward Euler.
+    v_free: for a body stepped in its spinning frame (``fem.spin_frame``), ``v`` before any
+        impulse (m/s, world); its impulses' rigid turn is then taken exactly (``fem.spin_frame.turn``).
     """
     v: np.ndarray
     x_base: np.ndarray
@@ -47,6 +49,7 @@ class StepData:
     iterations: list
     load: np.ndarray
     allowance: float | None
+    v_free: np.ndarray | None = None
 
 
 def system_coefficients(model, dt):

@@ -92,7 +92,10 @@ class Resolution:
     pseudo-velocities that remove penetration (positions only), the part of the velocity change
     due to impacts (m/s), angular momentum corrections (kg m^2/s) that keep L exact; per contact
     (c, 3): the collision impulse and the contact-pass impulse on side a (world, N s), and the
-    contact pass's accumulated impulses in its contact basis (to warm-start a repeat solve)."""
+    contact pass's accumulated impulses in its contact basis (to warm-start a repeat solve), and
+    the penetration recovery's pseudo-impulses on side a (world, N s times s: a deformable body
+    moves its positions by its response to them) with the share ``(c, 2)`` each side took (0 on a
+    side shock propagation froze, else 1)."""
     velocity: np.ndarray
     angular: np.ndarray
     shift: np.ndarray
@@ -104,6 +107,8 @@ class Resolution:
     collision_impulse: np.ndarray = None
     contact_impulse: np.ndarray = None
     contact_lambda: np.ndarray = None
+    pseudo_impulse: np.ndarray = None
+    pseudo_share: np.ndarray = None
 
 
 def _finite(impulse):
@@ -179,7 +184,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     # 1. collisions: restitution at each impact's time within the step
     if previous is not None:     # position-level results belong to the first solve of the step
         for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
-                     "momentum_fix", "collision_impulse"):
+                     "momentum_fix", "collision_impulse", "pseudo_impulse", "pseudo_share"):
             setattr(out, name, getattr(previous, name))
     else:
         impact, tau, approach = _impacts(problem, on_particle, h, gravity, settings)
@@ -215,8 +220,10 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     deep = contacts.gap < -settings.slop
     if deep.any() and previous is None:
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
-        problem.solve(target_p, np.zeros(c), scale_a, scale_b, deep, np.zeros((c, 3)),
-                      out.pseudo_velocity, out.pseudo_angular, settings.iterations)
+        out.pseudo_impulse = _finite(problem.solve(
+            target_p, np.zeros(c), scale_a, scale_b, deep, np.zeros((c, 3)), out.pseudo_velocity,
+            out.pseudo_angular, settings.iterations))
+        out.pseudo_share = np.stack([scale_a, scale_b], axis=1)
     return out
 
 

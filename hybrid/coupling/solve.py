@@ -5,7 +5,7 @@ import numba as nb
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.contact_response import apply_contact_impulses
+from fem.contact_response import apply_contact_impulses, impulse_velocity_change
 from rigid import step as rigid_step
 
 from .nodes import moving
@@ -71,23 +71,40 @@ def _settled(model, state, predicted, nodes, problem, res, h):
     return False
 
 
-def integrate(model, state, fems, predicted, nodes, parts, res, v, h):
+def integrate(model, state, fems, predicted, nodes, problem, res, v, h):
     """The step's end: rigid bodies drift with their resolved velocities (``v``: the kicked ones);
-    deformable bodies finish their steps, touched nodes taking their share of penetration recovery
-    (positions only; a place's share reached its nodes in the solver). Returns (rigid state,
-    FEM states)."""
+    deformable bodies finish their steps, those the penetration recovery pushed moving their
+    positions by their response to its pseudo-impulses. Returns (rigid state, FEM states)."""
     nb = model.rigid.body_count
     rigid_res = rigid_step.Resolution(*(a[:nb] for a in (
         res.velocity, res.angular, res.shift, res.shift_rotation, res.pseudo_velocity,
         res.pseudo_angular, res.impact_dv, res.momentum_fix)))
     new_rigid = rigid_step.drift(model.rigid, state.rigid, rigid_res, h, v)
-    new_fem = []
-    pseudo = res.pseudo_velocity[nb:nb + len(parts.nodes)]
-    for j, (m, s, pr) in enumerate(zip(fems, state.fem, predicted)):
-        sel = parts.body == j
-        shift = (nodes.local[parts.nodes[sel]], h * pseudo[sel]) if sel.any() and np.any(pseudo[sel]) else None
-        new_fem.append(fem_dyn.finish(m, s, pr, h, shift))
+    shifts = _recovery_shifts(model, state, fems, predicted, nodes, problem, res, h)
+    new_fem = [fem_dyn.finish(m, s, pr, h, shift) for m, s, pr, shift in zip(fems, state.fem, predicted, shifts)]
     return new_rigid, new_fem
+
+
+def _recovery_shifts(model, state, fems, predicted, nodes, problem, res, h):
+    """Each deformable body's move out of penetration, ``(nodes, dx (k, 3) m)`` or None: its
+    whole response (positions only) to the recovery's pseudo-impulses on its touched nodes, the
+    moves the solver saw at those nodes. Shifting the touched nodes alone strained a stiff body:
+    a steel bar landing at dt = 10 ms took 3 kJ of strain energy from a 0.5 mm push on one node."""
+    shifts = [None] * len(fems)
+    parts, pseudo = problem.parts, res.pseudo_impulse
+    if pseudo is None or not parts.count or not pseudo.any():
+        return shifts
+    # each side takes its share (none where shock propagation froze it: it did not move)
+    c, nb, none = problem.contacts, model.rigid.body_count, np.full(problem.contacts.count, -1)
+    push = particle_impulses(c.body_a, none, pseudo * res.pseudo_share[:, :1], nb, parts.count) \
+        + particle_impulses(c.body_b, none, -pseudo * res.pseudo_share[:, 1:], nb, parts.count)
+    node_push = parts.spread(push, nodes.count)
+    for j in problem.touched_bodies:
+        at = parts.nodes_of(j)
+        if node_push[at].any():
+            shifts[j] = (np.arange(fems[j].node_count), predicted[j].x_rate * impulse_velocity_change(
+                fems[j], state.fem[j], predicted[j], h, nodes.local[at], node_push[at]))
+    return shifts
 
 
 @nb.njit(cache=True)

@@ -108,7 +108,7 @@ def coupled_step(model, state, h):
     res = solve(model, state, fems, predicted, nodes, problem, h)
 
     # 4. rigid drift; deformable bodies finish their steps
-    new_rigid, new_fem = integrate(model, state, fems, predicted, nodes, problem.parts, res, v, h)
+    new_rigid, new_fem = integrate(model, state, fems, predicted, nodes, problem, res, v, h)
 
     # 5. held nodes: the impulses they took must push and stick, else the step is taken again;
     #    the impulses of node contacts are remembered for the next step, resting sets watched
