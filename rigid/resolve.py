@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .patches import share_loads, spinning_patches
 from .shock import STACK_COS, sweep_levels
 from .solver import arms, contact_basis, normal_velocity, solve_groups, solver_groups
 from .step_kernels import contact_targets, impact_kinematics
@@ -204,6 +205,7 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     ones = np.ones(c)
     contact_imp = problem.solve(target, contacts.friction, ones, ones, np.ones(c, dtype=bool), lam,
                                 v, w, sweeps, apply_lam)
+    _share_spinning_patches(problem, ~on_particle, target, lam, v, w, settings.iterations, contact_imp)
 
     # 3. shock propagation: sweep stacks bottom-up with the lower side frozen (Guendelman 2003)
     scale_a = scale_b = ones
@@ -261,6 +263,36 @@ def _contact_target(problem, out, h):
     c = problem.contacts
     return contact_targets(c.body_a, c.body_b, problem.ra, problem.rb, c.normal, c.gap,
                            out.shift, out.shift_rotation, float(h))
+
+
+# rounds of sharing and sweeping at most, done once no normal impulse moves by SHARE_TOL of the largest
+SHARE_ROUNDS = 4
+SHARE_TOL = 1e-3
+
+
+def _share_spinning_patches(problem, rigid_pair, target, lam, v, w, iterations, impulse):
+    """Flat patches that turn about their normal (rigid.patches): their normal impulses shared
+    out over the patch (same total force and moment: the velocities stay), then their contacts
+    swept again so friction acts at every point's arm; their impulses replace theirs in
+    ``impulse`` (c, 3)."""
+    contacts = problem.contacts
+    patches = spinning_patches(contacts.body_a, contacts.body_b, contacts.point, contacts.normal,
+                               rigid_pair, w)
+    if patches is None:
+        return
+    rows, starts = patches
+    active = np.zeros(contacts.count, dtype=bool)
+    active[rows] = True
+    ones = np.ones(contacts.count)
+    for _ in range(SHARE_ROUNDS):
+        load = np.ascontiguousarray(lam[:, 0])
+        share_loads(contacts.point, contacts.normal, rows, starts, load)
+        lam[:, 0] = load
+        again = problem.solve(target, contacts.friction, ones, ones, active, lam, v, w, iterations)
+        # done once the sweeps keep the shared split (a patch that friction holds still)
+        if np.abs(lam[rows, 0] - load[rows]).max() <= SHARE_TOL * load[rows].max():
+            break
+    impulse[active] = again[active]
 
 
 def _contact_start(contacts, previous, warm):

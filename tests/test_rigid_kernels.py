@@ -238,3 +238,33 @@ def test_world_inverse_inertia_gives_einsums_numbers_bit_for_bit():
         q, _, inv_inertia, _ = _bodies(rng, n)
         got = world_inverse_inertia(SimpleNamespace(body_inv_inertia=inv_inertia), q)
         np.testing.assert_array_equal(got, _world(quat.to_matrix(q), inv_inertia))
+
+
+def test_shared_loads_keep_the_patch_total_and_moment_and_push_only():
+    """rigid.patches.share_loads: on random flat patches (tilted, points scattered on them) the
+    shared normal impulses have the same total and moment about the patch as the loads given,
+    none below zero, and where none would pull they are the least-squares (linear) split."""
+    from rigid.patches import share_loads
+    rng = np.random.default_rng(3)
+    for trial in range(50):
+        k = rng.integers(3, 40)
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        t1 = np.cross(n, rng.normal(size=3))
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        uv = rng.uniform(-1.0, 1.0, size=(k, 2))
+        points = uv[:, :1] * t1 + uv[:, 1:] * t2 + 5.0
+        load = np.zeros(k)
+        load[rng.integers(k)] = 2.0          # the sweeps' answer: all on one point
+        if trial % 2:
+            load += rng.uniform(0.0, 1.0, k)
+        shared = load.copy()
+        share_loads(points, np.tile(n, (k, 1)), np.arange(k), np.array([0, k]), shared)
+        assert shared.min() >= 0.0
+        for weights in (np.ones(k), uv[:, 0], uv[:, 1]):
+            assert weights @ shared == pytest.approx(weights @ load, rel=1e-9, abs=1e-12)
+        if shared.min() > 0.0:          # linear in the place on the patch
+            basis = np.column_stack([np.ones(k), uv])
+            fit = np.linalg.lstsq(basis, shared, rcond=None)[0]
+            assert np.abs(basis @ fit - shared).max() < 1e-9

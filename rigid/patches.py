@@ -1,0 +1,108 @@
+"""Flat contact patches that spin: their normal load shared over the patch, so friction resists
+the spin.
+
+A rigid body resting on a face touches through many coplanar points, and how its weight is
+shared among them is not determined: any split with the same total force and moment holds it.
+Gauss-Seidel sweeps put it all on the first point they visit; when that is the middle of the
+face (a cylinder's end fanned from its centre), friction there has no arm, and a puck spun on a
+table turned at 20 rad/s for good. So for each flat patch between two rigid bodies (or a body
+and a plane) that turns about its normal, the normal impulses are shared out again as equal
+springs at the points would share them: the least-squares split with the same total force and
+moment (linear in the points' place on the patch, none pulling). The sharing itself changes no
+velocity; the patch's contacts are then swept again from it, friction acting at every point's
+arm, in a few rounds of sharing and sweeping (the sweeps alone drift back to some other split,
+and friction on it pushed a spinning puck 1 cm sideways).
+"""
+import numba as nb
+import numpy as np
+
+# a patch: at least this many contacts of one pair of bodies, their normals within this of each other
+MIN_POINTS = 3
+SAME_NORMAL = 1e-9
+# relative speed (m/s) of the patch's farthest point from turning about the normal below which it
+# is taken to be at rest (the sweeps' own answer is kept)
+SPIN_SPEED = 1e-3
+# rounds of taking out points the linear split would have pulling
+ROUNDS = 8
+
+
+def spinning_patches(body_a, body_b, point, normal, rigid_pair, angular):
+    """The flat patches that turn about their normal, as ``(rows, starts)``: contact indices
+    grouped by patch, patch p being ``rows[starts[p]:starts[p + 1]]``; None if there are none.
+    ``rigid_pair`` (c,): the contacts between rigid bodies or a rigid body and a plane
+    (``body_b`` < 0); ``angular`` (n, 3) rad/s: the solver bodies' angular velocities."""
+    rows = np.nonzero(rigid_pair)[0]
+    if len(rows) < MIN_POINTS:
+        return None
+    low = int(min(0, body_b[rows].min()))
+    pair = body_a[rows].astype(np.int64) * (len(angular) - low + 1) + (body_b[rows] - low)
+    order = np.argsort(pair, kind="stable")
+    rows = rows[order]
+    starts = np.flatnonzero(np.r_[True, np.diff(pair[order]) != 0])
+    size = np.diff(np.r_[starts, len(rows)])
+    first = rows[starts]
+    n = normal[first]
+    deviation = np.maximum.reduceat(np.abs(normal[rows] - np.repeat(n, size, axis=0)).max(axis=1), starts)
+    a, b = body_a[first], body_b[first]
+    spin = np.einsum("pd,pd->p", angular[a] - np.where((b >= 0)[:, None], angular[np.maximum(b, 0)], 0.0), n)
+    centre = np.add.reduceat(point[rows], starts) / size[:, None]
+    arm = np.maximum.reduceat(np.linalg.norm(point[rows] - np.repeat(centre, size, axis=0), axis=1), starts)
+    spinning = (size >= MIN_POINTS) & (deviation <= SAME_NORMAL) & (np.abs(spin) * arm > SPIN_SPEED)
+    if not spinning.any():
+        return None
+    keep = np.repeat(spinning, size)
+    return rows[keep], np.r_[0, np.cumsum(size[spinning])]
+
+
+@nb.njit(cache=True)
+def share_loads(point, normal, rows, starts, load):
+    """For each patch (``rows[starts[p]:starts[p + 1]]``, normal that of its first contact) the
+    normal impulses ``load`` (c,) of its contacts replaced by the least-squares split with the
+    same total and moment, linear over the patch, with none below zero (points it would have
+    pulling take none, the rest share it again); in place. A patch whose points lie on a line
+    (not every moment can be met) keeps its loads."""
+    for p in range(len(starts) - 1):
+        group = rows[starts[p]:starts[p + 1]]
+        k = len(group)
+        n = normal[group[0]]
+        t1 = _cross(n, np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = _cross(n, t1)
+        mean = np.zeros(3)
+        for i in range(k):
+            mean += point[group[i]]
+        mean /= k
+        basis = np.ones((k, 3))
+        for i in range(k):
+            d = point[group[i]] - mean
+            basis[i, 1], basis[i, 2] = d @ t1, d @ t2
+        wanted = basis.T @ load[group]
+        scale = max(abs(wanted[0]), 1e-300)
+        keep = np.ones(k, dtype=np.bool_)
+        for _ in range(ROUNDS):
+            B = basis[keep]
+            G = B.T @ B
+            if abs(np.linalg.det(G)) <= 1e-12 * max(G[1, 1] * G[2, 2] * G[0, 0], 1e-300):
+                break                           # (points on a line)
+            c = np.linalg.solve(G, wanted)
+            shared = basis @ c
+            low = 0.0
+            for i in range(k):
+                if not keep[i]:
+                    shared[i] = 0.0
+                low = min(low, shared[i])
+            if low >= -1e-12 * scale:
+                for i in range(k):
+                    load[group[i]] = max(shared[i], 0.0)
+                break
+            count = 0
+            for i in range(k):
+                keep[i] = keep[i] and shared[i] > 0.0
+                count += keep[i]
+            if count < MIN_POINTS:
+                break
+
+
+@nb.njit(cache=True)
+def _cross(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
