@@ -442,7 +442,7 @@ def test_a_scene_without_bodies_names_the_field(tmp_path, capsys):
     ('shape = { type = "cylinder", radius = 0.05, height = 8246 }',
      "field 'shape.resolution' is not given, and its default (0.00982 m for this shape) would mesh"),
     ('model = "fem"\nyoung = 1e6\nshape = { type = "box", size = [1e5, 0.1, 0.1] }',
-     "field 'shape.resolution' is not given, and its default (0.0333 m for this shape)"),
+     "field 'shape.resolution' is not given, and its default (0.05 m for this shape)"),
     # volumes overflowed to nan (numpy warnings, then an error naming no field)
     ('shape = { type = "box", size = [1e299, 1, 1] }', "field 'shape.size' must be at most 1e+12 m"),
     # errors of the builders named no body and no field

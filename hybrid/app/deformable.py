@@ -13,8 +13,8 @@ from . import geometry
 from .scene.describe import toml_text
 
 
-# an FEM box without a `resolution` is meshed in cubic cells a third of its shortest side when it
-# is compact; when its longest side is at least SLENDER_RATIO times its shortest it bends, and
+# an FEM box without a `resolution` is meshed in cells about a third of its shortest side when it
+# is compact (an even number along each side: see default_box_mesh); when its longest side is at least SLENDER_RATIO times its shortest it bends, and
 # that mesh was both too stiff (linear tets locking) and too large (a 30 x 30 x 1 cm plate was
 # 145,800 tets, a 0.6 s run tens of minutes): see default_box_mesh
 SLENDER_RATIO = 4.0
@@ -51,26 +51,36 @@ def _cell_counts(size, h):
     return np.maximum(1.0, np.ceil(np.minimum(size / h, 1e18) - 1e-9))
 
 
+def _even(cells):
+    """Cell counts (3,) rounded up to even ones: the box mesh has the box's mirror symmetries only
+    with even counts (fem.mesh.box_tet_mesh), and a rubber cube meshed 3 x 3 x 3 dropped flat
+    drifted 14 mm sideways and tilted 3.6 degrees."""
+    return 2.0 * np.ceil(0.5 * np.asarray(cells, float))
+
+
 def default_box_mesh(size, order=None):
     """:class:`DefaultMesh` of an FEM box of ``size`` (3,) m with no ``resolution`` (``order``:
     the scene's, None when not given).
 
-    A compact box (longest side under SLENDER_RATIO times its shortest): cubic cells a third of
+    A compact box (longest side under SLENDER_RATIO times its shortest): cells about a third of
     its shortest side, linear tets unless ``order = 2`` is given, as always. A slender box bends:
     quadratic tets unless ``order = 1`` is given (linear tets a few layers thick lock in bending,
-    far too stiff), in two layers through a plate's thin side (three across a bar's small sides,
-    and for linear tets), with cells along the long sides as fine as NODE_BUDGET nodes allow but
-    at most MAX_CELL_ASPECT times the layers' thickness (beyond that the budget gives way)."""
+    far too stiff), in two layers through its thin side (and across a bar's other small side;
+    four for linear tets), with cells along the long sides as fine as NODE_BUDGET nodes allow but
+    at most MAX_CELL_ASPECT times the layers' thickness (beyond that the budget gives way). Every
+    count is even (:func:`_even`), so the mesh keeps the box's mirror symmetries."""
     size = np.broadcast_to(np.asarray(size, float), (3,))
     shortest, middle, longest = (float(v) for v in np.sort(size))
     if longest < SLENDER_RATIO * shortest:
-        cubic = _cell_counts(size, shortest / 3)
+        cubic = _even(_cell_counts(size, shortest / 3))
         order = 1 if order is None else order
-        return DefaultMesh(tuple(int(c) for c in cubic), order, shortest / 3,
-                           "a compact box: cubic cells a third of its shortest side")
+        return DefaultMesh(tuple(int(c) for c in cubic), order, float(np.min(size / cubic)),
+                           "a compact box: cells a third of its shortest side or a little "
+                           "less, an even number along each side (the mesh keeps the box's "
+                           "mirror symmetries)")
     order = 2 if order is None else order
     plate = shortest <= PLATE_RATIO * middle
-    layers = 2 if plate and order == 2 else 3
+    layers = 2 if order == 2 else 4
     thin = shortest / layers
     thin_axis = int(np.argmin(size))
 
@@ -79,7 +89,7 @@ def default_box_mesh(size, order=None):
         # other small side)
         n = np.maximum(_cell_counts(size, h), np.minimum(layers, _cell_counts(size, thin)))
         n[thin_axis] = layers
-        return n
+        return _even(n)
 
     # the finest long cells, from the layers' thickness to the aspect cap, within the budget
     sides = np.geomspace(thin, MAX_CELL_ASPECT * thin, 64)
@@ -93,7 +103,8 @@ def default_box_mesh(size, order=None):
     why = (f"a {'plate' if plate else 'slender box'}: {layers} layers through its "
            f"{shortest * 1e3:.3g} mm side, {kind}, cells up to {side * 1e3:.3g} mm along its "
            f"long sides ({budget})")
-    return DefaultMesh(tuple(int(c) for c in cells(side)), order, float(min(thin, side)), why)
+    counts = cells(side)
+    return DefaultMesh(tuple(int(c) for c in counts), order, float(np.min(size / counts)), why)
 
 
 def default_resolution(shape):

@@ -145,9 +145,10 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
     _positive("height", REQUIRED, "m", "Length along the body's z axis (capsule: total, caps included).",
               shapes=("cylinder", "capsule")),
     _positive("resolution", None, "m", "Target edge length when meshing the shape; optional. "
-              "Without it a deformable box is meshed in cubic cells a third of its shortest side "
-              "while that makes at most 4,000 nodes; a larger (thin) box in two layers through a "
-              "plate's thin side (three across a bar's), cells along its long sides up to 4 times "
+              "Without it a deformable box is meshed in cells a third of its shortest side (an even "
+              "count along each side, so the mesh keeps the box's mirror symmetries) while that "
+              "makes at most 4,000 nodes; a larger (thin) box in two layers through its thin side "
+              "(and across a bar's other small side), cells along its long sides up to 4 times "
               "longer to stay within 4,000 nodes, and quadratic tets unless `order = 1` is given "
               "(docs/scenes.md, default meshes); a sphere or cylinder at half its radius. The run log "
               "states each body's mesh and why. A rigid box's surface vertices are its contact "
