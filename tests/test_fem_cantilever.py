@@ -161,3 +161,17 @@ def test_cantilever_loaded_straight_down_does_not_bend_sideways(order):
     model, tip = cantilever(order, (20, 2, 2))
     u = static_displacement(model)[tip].mean(axis=0)
     assert abs(u[1]) < 1e-9 * abs(u[2])
+
+
+def test_a_tetra10_mesh_without_an_order_is_built_with_quadratic_tets(sim):
+    """The built-in cantilever's mesh file has tetra10 cells; without `order` in the scene the
+    body is built from them as they are (its corner nodes alone gave a tip deflection of 0.60 of
+    the quadratic mesh's), the same body as with `order = 2`."""
+    from hybrid.scenes import builtin_path
+    text = builtin_path("cantilever").read_text()
+    assert "order = 2" in text
+    base = builtin_path("cantilever").parent
+    quadratic = sim(text, base_dir=base).model.fem[0]
+    unasked = sim(text.replace("order = 2", ""), base_dir=base).model.fem[0]
+    assert unasked.order == 2 and unasked.node_count == quadratic.node_count
+    assert np.array_equal(unasked.rest_points, quadratic.rest_points)

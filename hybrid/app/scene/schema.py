@@ -251,9 +251,9 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("frame", "choice", "floating", "", "`floating`: linear FEM in the shape-matched frame (fast); "
           "`corotated`: per-element rotations (large bending).", choices=("floating", "corotated"), fem=True),
     Field("order", "choice", None, "", "Element order: 1 (linear tets) or 2 (quadratic tets).",
-          choices=(1, 2), fem=True, default_text="1; 2 for a thin box meshed by default (no "
-          "`resolution`) that the former cubic cells would mesh into more than 4,000 nodes "
-          "(docs/scenes.md, default meshes)"),
+          choices=(1, 2), fem=True, default_text="the mesh file's (2 for tetra10 cells); 2 for "
+          "a thin box meshed by default (no `resolution`) that the former cubic cells would mesh "
+          "into more than 4,000 nodes (docs/scenes.md, default meshes); else 1"),
     Field("mass_matrix", "choice", "lumped", "", "Mass matrix.", choices=("lumped", "consistent"), fem=True),
     Field("integrator", "choice", "backward_euler", "", "`backward_euler` (stable, dissipative) or "
           "`newmark` (no numerical damping; a body's energy never exceeds its start energy plus the "
