@@ -454,6 +454,11 @@ def test_a_scene_without_bodies_names_the_field(tmp_path, capsys):
      "field 'shape' cannot be meshed: FEM bodies support box, sphere and cylinder shapes"),
     ('model = "fem"\nyoung = 1e6\nshape = { type = "box", size = [0.1, 0.1, 0.1] }\n'
      '[[bodies.anchors]]\nbox = [[5, 5, 5], [6, 6, 6]]', "(bodies[0]): field 'anchors': [[bodies.anchors]] 0 box"),
+    # two anchors on one face with different velocities: the second won, the first reported moving
+    ('model = "fem"\nyoung = 1e6\nshape = { type = "box", size = [0.1, 0.1, 0.1] }\n'
+     '[[bodies.anchors]]\nbox = [[-1, -1, -1], [1, 1, -0.04]]\n'
+     '[[bodies.anchors]]\nbox = [[-1, -1, -1], [1, 1, -0.04]]\nvelocity = [0.0, 0.0, 1.0]',
+     "(bodies[0]): field 'anchors': [[bodies.anchors]] 0 and 1 both hold 25 node(s)"),
 ])
 def test_shapes_that_cannot_be_built_are_refused_naming_the_field(tmp_path, capsys, body, message):
     scene = tmp_path / "scene.toml"

@@ -269,4 +269,14 @@ def _regions(body, label, what, points):
             raise ValueError(f"{label}: field '{what}': [[bodies.{what}]] {k} box "
                              f"{list(map(list, regions[k].box))} contains no mesh node (boxes are in "
                              f"the body's own coordinates, where its mesh spans {low} to {high})")
+    if what == "anchors":
+        owner = np.full(len(points), -1)
+        for k, (nodes, _) in enumerate(found):
+            taken = owner[nodes] >= 0
+            if taken.any():
+                first = int(owner[nodes][taken][0])
+                raise ValueError(f"{label}: field 'anchors': [[bodies.anchors]] {first} and {k} both "
+                                 f"hold {int(taken.sum())} node(s); a node follows one anchor (each "
+                                 f"anchor's reaction is its own nodes'): make the boxes disjoint")
+            owner[nodes] = k
     return found
