@@ -8,6 +8,8 @@
 The command line (``hybrid run``), the tests and the benchmarks all step scenes through this
 class, so a scene gives the same numbers whichever of them runs it.
 """
+import math
+import os
 import time as clock
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,8 +73,20 @@ def _uneven_duration(duration, dt):
             f"steps and ends at {n * dt:.6g} s (make duration a whole number of steps)"]
 
 
+def _ignored_motion(scene):
+    """Warnings for fixed bodies given a velocity or angular velocity, which they ignore."""
+    said = []
+    for b in scene.bodies:
+        given = [f for f in ("velocity", "angular_velocity") if b.fixed and np.any(getattr(b, f))]
+        if given:
+            said.append(f"body '{b.name}' is fixed: its {' and '.join(given)} "
+                        f"{'has' if len(given) == 1 else 'have'} no effect")
+    return said
+
+
 class Simulation:
-    """A scene being simulated: ``Simulation(scene)`` builds its bodies (raises
+    """A scene being simulated: ``Simulation(scene)`` builds its bodies (``scene``: a parsed
+    scene, or a scene file's path or a built-in scene's name as :meth:`from_toml` takes; raises
     :class:`hybrid.app.scene.SceneError` for problems only the built bodies show, such as an anchor
     box that holds no node); :meth:`step` and :meth:`run` advance it.
 
@@ -89,6 +103,8 @@ class Simulation:
     """
 
     def __init__(self, scene):
+        if isinstance(scene, (str, os.PathLike)):       # a scene file or a built-in scene's name
+            scene = load_scene(scene_path(scene))
         self.scene = scene
         try:
             with geometry.caught_mesh_warnings() as repaired:
@@ -103,6 +119,7 @@ class Simulation:
                           + ("in its first steps" if kinds[name] == "rigid" else
                              "in its first step, its nodes hard enough to throw it")
                           for name, depth in below_planes(self.model, self.state)]
+        self.warnings += _ignored_motion(scene)
         self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
@@ -215,7 +232,10 @@ class Simulation:
         checkpoint and the summary (status ``stopped``) and raises
         :class:`hybrid.app.checkpoint.Stopped`. Messages (warnings, events) go to ``log``.
         Returns the summary (a dict). On instability the frames so far and the summary are kept
-        and the InstabilityError is raised again."""
+        and the InstabilityError is raised again. ValueError for an ``until`` that is no time at
+        or after :attr:`time`, an ``out`` that is (or lies in) a file, or the folder this
+        simulation's last run wrote (a run into it again would replace that run's frames)."""
+        out = self._checked_out(out)
         position, snapshot = self._position(until)
         for message in getattr(self, "notes", []):
             log(message)
@@ -255,6 +275,20 @@ class Simulation:
         saver.finished()
         return result
 
+    def _checked_out(self, out):
+        """``out`` as a Path (None stays None), refused as :meth:`run` says."""
+        if out is None:
+            return None
+        out = Path(out)
+        blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            raise ValueError(f"out {out}: {blocking} is a file; give a folder (it is created if missing)")
+        if self.resumed is None and getattr(self, "_last_out", None) == out.resolve():
+            raise ValueError(f"out {out}: this simulation's last run wrote there; a run from "
+                             f"t = {self.time:.6g} s would replace its frames: give another folder")
+        self._last_out = out.resolve()
+        return out
+
     def _position(self, until):
         """``(Position, recorder snapshot)`` the run starts from: a new run's (snapshot None),
         or the checkpoint's of a resumed simulation."""
@@ -263,7 +297,13 @@ class Simulation:
             self.resumed = None
             return position, snapshot
         sim = self.scene.simulation
-        until = sim.duration if until is None else float(until)
+        if until is None:
+            until = sim.duration
+        elif isinstance(until, bool) or not isinstance(until, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(until) or until < self.time - 0.5 * sim.dt:
+            raise ValueError(f"until must be a time (s) at or after the simulation's time "
+                             f"{self.time:.6g} s, got {until!r}")
+        until = float(until)
         end_step = self.steps + int(round((until - self.time) / sim.dt))
         return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,
                                    len(self.events)), None

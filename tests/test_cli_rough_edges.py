@@ -127,3 +127,33 @@ def test_validate_takes_a_built_in_scene_name_as_run_does(capsys):
     assert "dent.toml: 4 bodies" in capsys.readouterr().out
     assert main(["validate", "no-such-scene"]) == 2
     assert "no such scene file or built-in scene" in capsys.readouterr().err
+
+
+def test_validate_gives_the_warnings_a_run_would(tmp_path, capsys):
+    """A scene whose run warns (two bodies overlapping, one 5 cm inside the ground, a fixed body
+    given a velocity, which it ignores) validates with those warnings, still OK: they are not
+    errors, but validate said "OK" alone while the run warned."""
+    scene = tmp_path / "warned.toml"
+    scene.write_text("""
+[[planes]]
+[[bodies]]
+name = "a"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "b"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0.05, 0.0, 0.0]
+[[bodies]]
+name = "post"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [1.0, 0.0, 0.5]
+fixed = true
+velocity = [1.0, 0.0, 0.0]
+""")
+    assert main(["validate", str(scene)]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("OK")
+    assert "warning: bodies 'a' and 'b' overlap at the start" in err
+    assert "warning: body 'a' starts 0.05 m inside a plane" in err
+    assert "warning: body 'post' is fixed: its velocity has no effect" in err

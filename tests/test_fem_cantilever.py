@@ -175,3 +175,30 @@ def test_a_tetra10_mesh_without_an_order_is_built_with_quadratic_tets(sim):
     unasked = sim(text.replace("order = 2", ""), base_dir=base).model.fem[0]
     assert unasked.order == 2 and unasked.node_count == quadratic.node_count
     assert np.array_equal(unasked.rest_points, quadratic.rest_points)
+
+
+def test_anchors_sharing_nodes_report_the_weight_they_hold_once(sim):
+    """A block held at rest by two anchor boxes that overlap along an edge of its base (the same
+    velocity, zero): the anchors' reactions add up to its weight (the shared nodes' reaction
+    was counted in both)."""
+    from hybrid.app.observe import region_rows
+    s = sim("""
+[simulation]
+dt = 0.01
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.2, 0.2], resolution = 0.05 }
+young = 1e7
+density = 1000.0
+damping = { mass = 20.0 }
+[[bodies.anchors]]
+box = [[-1, -1, -1], [0.01, 1, -0.099]]
+[[bodies.anchors]]
+box = [[-0.01, -1, -1], [1, 1, -0.099]]
+""")
+    s.advance(2.0)
+    rows = region_rows(s.model, s.state)
+    assert len(rows) == 2
+    weight = 1000.0 * 0.2 ** 3 * 9.81
+    assert sum(r[5] for r in rows) == pytest.approx(weight, rel=1e-3)

@@ -458,7 +458,7 @@ def test_a_scene_without_bodies_names_the_field(tmp_path, capsys):
     ('model = "fem"\nyoung = 1e6\nshape = { type = "box", size = [0.1, 0.1, 0.1] }\n'
      '[[bodies.anchors]]\nbox = [[-1, -1, -1], [1, 1, -0.04]]\n'
      '[[bodies.anchors]]\nbox = [[-1, -1, -1], [1, 1, -0.04]]\nvelocity = [0.0, 0.0, 1.0]',
-     "(bodies[0]): field 'anchors': [[bodies.anchors]] 0 and 1 both hold 25 node(s)"),
+     "(bodies[0]): field 'anchors': [[bodies.anchors]] 0 and 1 both hold 25 node(s) at different velocities"),
 ])
 def test_shapes_that_cannot_be_built_are_refused_naming_the_field(tmp_path, capsys, body, message):
     scene = tmp_path / "scene.toml"

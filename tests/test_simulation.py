@@ -119,6 +119,27 @@ def test_bodies_read_through_the_api_follow_free_fall_and_rest():
 def test_built_in_scene_runs_by_name():
     sim = Simulation.from_toml("default")
     assert sim.scene.name == "default" and "ball" in sim.body_names
+    assert Simulation("default").body_names == sim.body_names      # a name or path works as well
+
+
+def test_run_refuses_times_and_folders_it_cannot_honour(tmp_path):
+    """run(until=...) must be a time at or after the simulation's (nan, inf, a string or an
+    earlier time raised deep errors or did nothing and reported ok); out must be a folder, and
+    not the one this simulation's last run wrote (its frames were silently replaced)."""
+    sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
+    for until in (float("nan"), float("inf"), "0.3", -1.0, True):
+        with pytest.raises(ValueError, match="until must be a time"):
+            sim.run(until=until, progress=False, log=lambda m: None)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="is a file"):
+        sim.run(until=0.004, out=tmp_path / "file" / "run", progress=False, log=lambda m: None)
+    sim.run(until=0.004, out=tmp_path / "run", progress=False, log=lambda m: None)
+    with pytest.raises(ValueError, match="last run wrote there"):
+        sim.run(until=0.008, out=tmp_path / "run", progress=False, log=lambda m: None)
+    with pytest.raises(ValueError, match="until must be a time"):
+        sim.run(until=0.0, progress=False, log=lambda m: None)
+    summary = sim.run(until=0.008, out=tmp_path / "later", progress=False, log=lambda m: None)
+    assert summary["status"] == "ok" and sim.time == pytest.approx(0.008)
 
 
 def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):

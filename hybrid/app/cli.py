@@ -242,9 +242,9 @@ def main(argv=None):
     add_commands(sub)                   # sweep, converge: batch studies on Dask
     args = parser.parse_args(argv)
     if args.command == "validate":
-        from .build import build     # meshes and regions are checked on the built bodies
+        from ..simulation import Simulation     # meshes and regions are checked on the built bodies
         path = _scene_file(args.scene)          # a file, or a built-in scene's name as for run
-        return 2 if path is None else validate_command(path, check=build)
+        return 2 if path is None else validate_command(path, check=lambda scene: Simulation(scene).warnings)
     try:
         return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
                 "converge": run_command}[args.command](args)

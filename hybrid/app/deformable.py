@@ -258,6 +258,26 @@ def _culprit(points, tets, body, source):
             f"tets lose their volume in double precision)")
 
 
+def _disjoint_anchors(found, label):
+    """Anchor regions ``(nodes, velocity)`` with each node in the first that holds it: anchors
+    that share nodes (a plate clamped on edges that meet at its corners) must prescribe them the
+    same velocity, and each reports the reaction of its own nodes (shared ones were counted
+    twice); ValueError naming the two anchors when they disagree (the second won, the first
+    reported its nodes moving)."""
+    owner, out = {}, []
+    for k, (nodes, velocity) in enumerate(found):
+        held = np.array([int(i) in owner for i in nodes], dtype=bool)
+        for first in sorted({owner[int(i)] for i in nodes[held]}):
+            if not np.allclose(found[first][1], velocity, rtol=0.0, atol=0.0):
+                shared = int(sum(owner[int(i)] == first for i in nodes[held]))
+                raise ValueError(f"{label}: field 'anchors': [[bodies.anchors]] {first} and {k} both "
+                                 f"hold {shared} node(s) at different velocities; a node follows "
+                                 f"one velocity: make the boxes disjoint or their velocities equal")
+        owner.update((int(i), k) for i in nodes[~held])
+        out.append((nodes[~held], velocity))
+    return out
+
+
 def _regions(body, label, what, points):
     """(nodes, vector) of each anchor or load box; ValueError for a box holding no node."""
     regions = getattr(body, what)
@@ -270,13 +290,5 @@ def _regions(body, label, what, points):
                              f"{list(map(list, regions[k].box))} contains no mesh node (boxes are in "
                              f"the body's own coordinates, where its mesh spans {low} to {high})")
     if what == "anchors":
-        owner = np.full(len(points), -1)
-        for k, (nodes, _) in enumerate(found):
-            taken = owner[nodes] >= 0
-            if taken.any():
-                first = int(owner[nodes][taken][0])
-                raise ValueError(f"{label}: field 'anchors': [[bodies.anchors]] {first} and {k} both "
-                                 f"hold {int(taken.sum())} node(s); a node follows one anchor (each "
-                                 f"anchor's reaction is its own nodes'): make the boxes disjoint")
-            owner[nodes] = k
+        found = _disjoint_anchors(found, label)
     return found

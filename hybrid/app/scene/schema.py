@@ -294,8 +294,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "FEM fields (marked FEM) need `model = \"fem\"` or `\"auto\"`; `young` is then required.",
           "`tearing_strain` needs `yield_stress`.",
           "`plastic_update_strain` and `max_plastic_strain` need `yield_stress`.",
-          "Each anchor and load box must hold a mesh node, and no node may lie in two anchor "
-          "boxes (a node follows one anchor, and each anchor's reaction is its own nodes').",
+          "Each anchor and load box must hold a mesh node; anchor boxes that share nodes must give "
+          "them the same velocity (each shared node counts in the first anchor's reaction).",
           "A mesh must be readable and closed; an FEM body's mesh must contain tetra or tetra10 "
           "cells: `order = 2` on a tetra mesh adds a node at the middle of every (straight) edge, "
           "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "

@@ -9,18 +9,19 @@ from .parse import SceneError, load_scene
 def validate_command(path, check=None):
     """``hybrid validate <path>``: print "OK: ..." (stdout) or every problem (stderr); return 0 or 2.
 
-    ``check(scene)``, when given, runs on a scene that parsed and raises ValueError for problems
-    only the built bodies show (an anchor box holding no node, say): what ``hybrid run`` would
-    reject, ``validate`` rejects too."""
+    ``check(scene)``, when given, runs on a scene that parsed and raises ValueError (or
+    SceneError) for problems only the built bodies show (an anchor box holding no node, say): what
+    ``hybrid run`` would reject, ``validate`` rejects too; it returns the warnings a run would give
+    (bodies overlapping or inside a plane, say), printed as ``hybrid run`` prints them."""
     try:
         scene = load_scene(path)
         if check is not None:
             try:
                 with geometry.caught_mesh_warnings() as repaired:
-                    check(scene)
+                    said = check(scene) or []
             except (ValueError, geometry.MeshError) as error:
                 raise SceneError([f"{path}: {error}"]) from None
-            for message in repaired:
+            for message in [*repaired, *said]:
                 print(f"warning: {message}", file=sys.stderr)
     except SceneError as error:
         for problem in error.problems:
