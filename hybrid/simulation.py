@@ -196,6 +196,7 @@ class Simulation:
             model, state, happened = advance_in_substeps(self.model, self.state, count,
                                                          self.timings, self._took)
             self.impacts.substepped_step(count, self.model.dt)
+            self.impacts.keep_resolving(model, state)
         self.model, self.state = model, state
         self.events.extend(happened)
         return happened
