@@ -329,3 +329,44 @@ def test_kept_arrays_go_over_once_while_they_stay_the_same_object():
     assert not sender.kept and not receiver.kept
     writable = surface.copy()
     assert frame(writable)[0] > surface.nbytes and frame(writable)[0] > surface.nbytes
+
+
+@pytest.mark.parametrize("stop, code, said", [(signal.SIGINT, 130, "interrupted"),
+                                              (signal.SIGTERM, 143, "stopped (SIGTERM)")])
+@pytest.mark.parametrize("after", [0.2, 1.5])
+def test_a_run_stopped_before_it_steps_ends_with_one_line_and_writes_nothing(tmp_path, stop, code,
+                                                                               said, after):
+    """SIGINT or SIGTERM while `hybrid run` imports (0.2 s) or builds a large body (1.5 s): before
+    the entry point handled them, Ctrl-C printed a KeyboardInterrupt traceback and SIGTERM ended
+    the process without a word (exit -15). Now one line, the signal's exit code, no output. (A
+    signal is handled between Python calls: one that arrives in a long compiled call, or on a
+    loaded machine after the build, lands later; then the run's own stop writes a checkpoint.)"""
+    scene = tmp_path / "big.toml"
+    scene.write_text("""
+[simulation]
+duration = 0.01
+[[planes]]
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [1.0, 1.0, 1.0], resolution = 0.05 }
+position = [0.0, 0.0, 0.5]
+young = 1e6
+""")
+    out = tmp_path / "out"
+    cli = Path(sys.executable).with_name("hybrid")
+    run = subprocess.Popen([str(cli), "run", str(scene), "--out", str(out), "--quiet"],
+                           env=dict(os.environ, OPENBLAS_NUM_THREADS="1"), start_new_session=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        time.sleep(after)
+        os.killpg(run.pid, stop)
+        _, err = run.communicate(timeout=180)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    err = err.decode()
+    assert run.returncode == code, err
+    assert "Traceback" not in err
+    if not (out / "checkpoint.npz").exists():
+        assert said in err and not out.exists()

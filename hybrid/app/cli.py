@@ -249,7 +249,8 @@ def main(argv=None):
         return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
                 "converge": run_command}[args.command](args)
     except KeyboardInterrupt:
-        print("\ninterrupted; whole frames written so far are kept", file=sys.stderr)
+        print("\ninterrupted (Ctrl-C); files written so far are whole (each is written atomically)",
+              file=sys.stderr)
         return 130
 
 

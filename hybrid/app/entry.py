@@ -1,0 +1,36 @@
+"""The ``hybrid`` command's entry point: signals are handled before anything heavy is imported.
+
+Importing the simulator (numpy, scipy, numba's cached kernels, scikit-fem) and building a large
+scene take seconds; a Ctrl-C then printed a KeyboardInterrupt traceback, and a SIGTERM (a job
+scheduler's, ``timeout``'s) ended the process without a word. Once a run steps,
+:func:`hybrid.app.checkpoint.stop_on_signals` takes the signals over (a checkpoint, then exit
+130 / 143); before that, and in commands without a run, they end the command with one line and
+those exit codes.
+"""
+import signal
+import sys
+
+
+class _Terminated(Exception):
+    """SIGTERM arrived outside a run's stepping."""
+
+
+def _on_term(signum, frame):
+    raise _Terminated()
+
+
+def main(argv=None):
+    """Run the command line (:func:`hybrid.app.cli.main`) with SIGINT and SIGTERM ending it
+    cleanly; returns its exit code."""
+    previous = signal.signal(signal.SIGTERM, _on_term)
+    try:
+        from .cli import main as command
+        return command(argv)
+    except KeyboardInterrupt:
+        print("hybrid: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
+    except _Terminated:
+        print("hybrid: stopped (SIGTERM)", file=sys.stderr)
+        return 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
