@@ -122,7 +122,8 @@ def _run(args):
           f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g} "
           f"(largest change of total energy over the frames, relative to the largest |energy|; "
           f"friction, inelastic contact, damping, plastic flow and fracture lower it)")
-    print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv, summary.json")
+    regions = ", regions.csv" if (out / "regions.csv").exists() else ""
+    print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv{regions}, summary.json")
     print(f"render it with: hybrid render {shlex.quote(str(out))}")
     return 0
 

@@ -96,8 +96,9 @@ class FractureEvent:
         return text
 
     def as_dict(self):
-        """JSON-ready summary row: time, body, cracks, faces, new bodies."""
-        return {"time": self.time, "body": self.body, "cracks": self.cracks, "faces": self.faces,
+        """JSON-ready summary row: time, body, event kind ("fracture"), cracks, faces, new bodies."""
+        return {"time": self.time, "body": self.body, "event": "fracture", "cracks": self.cracks,
+                "faces": self.faces,
                 "new_bodies": list(self.new_bodies), "rigid_bodies": list(self.rigid_bodies)}
 
 
@@ -330,6 +331,9 @@ def _crack(bodies, j, cut, found, model, state):
         first.model, first.state, first.data, first.pending)
     if first.model is model.fem[j]:
         return None
+    # the plastic work the body dissipated stays with the piece in its place (the pieces start
+    # from none: summary.json's plastic_dissipation read 0 once a pulled bar tore)
+    bodies.fem_states[j] = first.state.replace(plastic_dissipation=state.fem[j].plastic_dissipation)
     new_names = [bodies.add(piece, parent_body, root) for piece in pieces[1:]]
     rigid_names = [name for name, piece in zip(new_names, pieces[1:]) if piece.model is None]
     still_pending = sum(len(p.pending) for p in pieces if p.model is not None)
