@@ -840,15 +840,18 @@ position = [{x}, 0.0, 0.3]
     assert np.linalg.norm(s.state.rigid.velocity[ball]) < 1e-2
 
 
-@pytest.mark.parametrize("friction", [0.0, 0.5])
-def test_a_ball_striking_a_soft_block_off_centre_keeps_the_angular_momentum(sim, friction):
+@pytest.mark.parametrize("friction, integrator", [(0.0, "backward_euler"), (0.5, "backward_euler"),
+                                                 (0.0, "newmark")])
+def test_a_ball_striking_a_soft_block_off_centre_keeps_the_angular_momentum(sim, friction, integrator):
     """A steel ball (4 kg, 3 m/s) strikes a free soft block (8 kg, E = 1 MPa) 6 cm off its centre
     in zero gravity, squashing it by tens of percent. The ball's sample point meets the block's
     faces at a place of a surface triangle: placed by its weights on the rest surface, the place
     slid off the line through the ball's centre along the normal as the block deformed, and the
     two sides' impulses turned each other: 14% (frictionless) to 19% (friction 0.5) of the
     angular momentum was lost, and with friction the energy rose 20-59% within the contact.
-    Placed on the triangles as they are now: within 1%, and the energy never rises."""
+    Placed on the triangles as they are now: within 1%, and the energy never rises. (Under Newmark
+    the energy rose 23% and kept it: penetration recovery moved the block's nodes after its
+    energy was held to what the contact's work allows; they are moved first.)"""
     from hybrid.app.observe import totals
     s = sim(f"""
 [simulation]
@@ -868,6 +871,7 @@ shape = {{ type = "box", size = [0.2, 0.2, 0.2], resolution = 0.04 }}
 young = 1.0e6
 poisson = 0.3
 friction = {friction}
+integrator = "{integrator}"
 """)
     E0, P0, L0 = totals(s.model, s.state)
     energies = []
