@@ -286,3 +286,21 @@ def test_a_mesh_ladder_needs_refine_and_replaces_a_shape(tmp_path, capsys):
             apply_setting(data, key, value)
         body = parse_scene(data, "s.toml", tmp_path).bodies[0]
         assert body.shape is None and str(body.mesh) == mesh
+
+
+def test_a_recommendation_measured_against_an_unconverged_finest_run_says_so():
+    """With an erratic order the errors are differences from the finest run, which may itself be
+    far from the answer (a ball rebounding from a plate: the recommended dt's true error was 0.18
+    against the 0.098 it reported under --tol 0.15); the recommendation says so, and says
+    nothing of the kind where Richardson's extrapolation stands."""
+    from hybrid.app.study_cli import report
+
+    def rows(method):
+        return [{"id": f"00{k}", "dt": dt, "resolution": "", "status": "ok", "error:x": 0.1,
+                 "estimate:x": method, "max_relative_error": e, "wall_per_sim_s": 1.0 + k,
+                 "recommended": k == 1}
+                for k, (dt, e) in enumerate([(1e-3, 0.3), (5e-4, 0.05), (2.5e-4, 0.0)])]
+
+    erratic = report(rows("finest-difference"), 0.1)[-1]
+    assert erratic.startswith("recommended: dt = 0.0005 s") and "not converged itself" in erratic
+    assert "not converged" not in report(rows("richardson"), 0.1)[-1]

@@ -125,10 +125,11 @@ def _converge(args, out):
 def report(rows, tol):
     """Lines for the terminal: each quantity's estimate, and the recommended setting."""
     names = [k.split(":", 1)[1] for k in rows[0] if k.startswith("error:")]
-    lines = []
+    lines, against_finest = [], False
     for name in names:
         methods = {r[f"estimate:{name}"] for r in rows}
         if methods != {"richardson"}:
+            against_finest = True
             lines.append(f"{name}: the observed order is erratic (contact events, fracture, runs "
                          f"swinging about the limit): its errors are differences from the finest "
                          f"run, not an extrapolation")
@@ -143,5 +144,8 @@ def report(rows, tol):
         setting = f"dt = {pick['dt']:.4g} s" + (f", resolution = {pick['resolution']}" if pick["resolution"] != "" else "")
         lines.append(f"recommended: {setting} ({pick['id']}): largest estimated relative error "
                      f"{pick['max_relative_error']:.2g} (tol {tol:g}) at {pick['wall_per_sim_s']:.3g} s "
-                     f"of wall time per simulated second")
+                     f"of wall time per simulated second"
+                     + ("; measured against the finest run, which is not converged itself: the "
+                        "error to the answer may be larger (add a finer level to see it hold)"
+                        if against_finest else ""))
     return lines
