@@ -21,8 +21,8 @@ from .app.build import build
 from .app.deformable import mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
-from .app.run import (Progress, Recorder, below_planes, forwarded, overlapping_bodies, rigid_hints,
-                      summary)
+from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, overlapping_bodies,
+                      rigid_hints, summary)
 from .app.scene import SceneError, load_scene
 from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
@@ -266,7 +266,7 @@ class Simulation:
                              (self.fem_time, self.stepped_time), self.peaks, self.impacts)
             if saver.stopped is not None:
                 result["status"] = "stopped"
-            for line in rigid_hints(self.model, self.peaks.strains):
+            for line in rigid_hints(self.model, self.peaks.strains) + frame_hints(self.model, self.peaks.strains):
                 log(line)
             recorder.close(result)
         if failure is not None:
