@@ -195,6 +195,19 @@ def test_a_corrupted_checkpoint_is_refused(capsys, stopped_quick):
     assert code == 2 and "truncated or corrupted" in err, err
 
 
+@pytest.mark.parametrize("damage", ["garbage", "cut short"])
+def test_a_damaged_frame_the_checkpoint_counts_is_refused(capsys, stopped_quick, damage):
+    """A frame the checkpoint counts, overwritten with garbage or cut short since: the resume
+    refuses it, naming the file (it went on, and left a frame no reader opens)."""
+    out, scene = stopped_quick
+    frame = sorted((out / "frames").glob("frame_*.vtu"))[0]
+    data = frame.read_bytes()
+    frame.write_bytes(b"garbage" * 100 if damage == "garbage" else data[:len(data) // 2])
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and frame.name in err and "not a whole .vtu file" in err, err
+    assert "Traceback" not in err
+
+
 def rewritten(path, change):
     """Rewrite checkpoint ``path`` with its manifest passed through ``change``."""
     with np.load(path) as z:

@@ -70,6 +70,9 @@ class ResumableWriter(RunWriter):
         for name in files:
             if not (self.out_dir / name).is_file():
                 raise ResumeError(f"{self.out_dir / name}: missing, the checkpoint counts it")
+            if not _whole_vtu(self.out_dir / name):
+                raise ResumeError(f"{self.out_dir / name}: not a whole .vtu file (damaged since it "
+                                  f"was written), the checkpoint counts it")
         tables = {name: snapshot["tables"].get(name) for name in (BODIES_CSV, REGIONS_CSV)}
         for name, length in tables.items():
             self._check_table(name, length)
@@ -104,3 +107,15 @@ class ResumableWriter(RunWriter):
             return
         with open(path, "r+b") as f:
             f.truncate(length)
+
+
+def _whole_vtu(path):
+    """Whether ``path`` reads as a whole .vtu file as the writer leaves one: an XML declaration or
+    VTKFile element at its head and the VTKFile element closed at its tail (a frame overwritten
+    with garbage was resumed past, leaving a file no reader opens)."""
+    with open(path, "rb") as f:
+        head = f.read(64)
+        f.seek(0, 2)
+        f.seek(max(0, f.tell() - 64))
+        tail = f.read()
+    return head.lstrip().startswith((b"<?xml", b"<VTKFile")) and tail.rstrip().endswith(b"</VTKFile>")
