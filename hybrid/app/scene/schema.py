@@ -93,7 +93,9 @@ def _unit_interval(name, default, doc, **kw):
 
 SOLVER = Section("simulation.solver", "[simulation.solver]", "Solver settings: the contact solver "
                  "and the linear systems of FEM bodies.", (
-    Field("iterations", "integer", 20, "", "Contact solver iterations per step.", low=1),
+    Field("iterations", "integer", 20, "", "Contact solver iterations per step (at least: a "
+          "pass with few contacts sweeps on until converged, up to 100 within 2,000 contact "
+          "visits). The sweeps stop early once converged.", low=1),
     Field("deformable_iterations", "integer", 100, "", "Contact solver iterations per step when "
           "any contact is on a deformable body: those converge more slowly (a heavy box on a light "
           "slab sank into it after 20). The sweeps stop early once converged.", low=1),
