@@ -370,3 +370,22 @@ young = 1e6
     assert "Traceback" not in err
     if not (out / "checkpoint.npz").exists():
         assert said in err and not out.exists()
+
+
+def test_the_fork_server_ignores_ctrl_c_while_it_imports(tmp_path):
+    """A Ctrl-C to the process group while the writers' fork server imports the project printed
+    its KeyboardInterrupt traceback into the run's output (the server ignores SIGINT only once its
+    imports are done). It is spawned with SIGINT ignored: read from /proc right after it starts,
+    before its imports are done, SIGINT is among its ignored signals."""
+    script = tmp_path / "start.py"
+    script.write_text(
+        "import multiprocessing.forkserver as fs\n"
+        "from hybrid.app.writer_process import fork_server\n"
+        "if __name__ == '__main__':\n"
+        "    fork_server.start()\n"
+        "    pid = fs._forkserver._forkserver_pid\n"
+        "    ignored = [l for l in open(f'/proc/{pid}/status') if l.startswith('SigIgn')][0]\n"
+        "    print(int(ignored.split()[1], 16) >> 1 & 1)\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "1"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import atexit
 import multiprocessing
+import multiprocessing.forkserver
 import multiprocessing.util
 import pickle
 import queue
@@ -104,6 +105,8 @@ class WriterProcess:
         self._replies, send = context.Pipe(duplex=False)
         self._process = context.Process(target=_serve, args=(receive, send, str(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
+        if method == "forkserver":
+            _start_fork_server()
         self._process.start()
         receive.close()
         send.close()
@@ -285,6 +288,10 @@ class ForkServer:
     def start(self) -> None:
         """Start the fork server and its first child on a thread (once; returns at once)."""
         if self._thread is None:
+            try:
+                _start_fork_server()
+            except Exception:                   # noqa: BLE001 (the writers stay on their thread)
+                return
             self._thread = threading.Thread(target=self._warm, name="RunWriter fork server", daemon=True)
             self._thread.start()
 
@@ -307,6 +314,23 @@ class ForkServer:
 
 
 fork_server = ForkServer()
+
+
+def _start_fork_server():
+    """Start multiprocessing's fork server (with this module to import) if it is not running,
+    with Ctrl-C ignored while it is spawned when called on the main thread: the server inherits
+    that, so a Ctrl-C to the process group while it imports the project does not print its
+    KeyboardInterrupt traceback into the run's output (it ignores SIGINT once its imports are
+    done; its writer processes too). The spawn takes milliseconds; the imports happen after."""
+    multiprocessing.get_context("forkserver").set_forkserver_preload(["__main__", __name__])
+    if threading.current_thread() is not threading.main_thread():
+        multiprocessing.forkserver.ensure_running()
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
