@@ -238,3 +238,18 @@ def test_a_plot_against_a_vector_key_is_refused_before_anything_runs(tmp_path, c
                  str(tmp_path / "out"), "--plot", "ball.z:bodies.ball.position", "--quiet"])
     assert code == 2 and "takes values that are not numbers" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_sweep_from_python_names_its_settings_keys_not_the_command_line(tmp_path):
+    """sweep() given a dict words its errors in its own terms (they read "--set ..." and
+    "--zip", the command line's flags, which a Python caller never gave); nothing runs."""
+    from hybrid import sweep
+    from hybrid.app.variants import SettingError
+    with pytest.raises(SettingError) as error:
+        sweep("dent", {"bodies.nope.young": [1e9]}, out=tmp_path / "a")
+    assert str(error.value).startswith("settings key bodies.nope.young: no body 'nope'")
+    with pytest.raises(SettingError) as error:
+        sweep("dent", {"simulation.dt": [1e-3, 2e-3], "bodies.plate.young": [1e9]},
+              out=tmp_path / "b", zipped=True)
+    assert "--" not in str(error.value) and str(error.value).startswith("zipped=True needs")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -19,7 +19,7 @@ import traceback
 from pathlib import Path
 
 from .output import BODIES_CSV, read_summary
-from .variants import combinations, make_variants, parse_settings
+from .variants import SettingError, combinations, make_variants, parse_settings
 
 # one BLAS / OpenMP / numba thread per worker process: workers do not oversubscribe the cores
 PINNED_THREADS = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
@@ -222,8 +222,15 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     if plot:
         from .plots import check_sweep_plot
         check_sweep_plot(plot, [k for k, _ in pairs], [v for _, v in pairs])
-    rows = combinations(pairs, zipped)
-    variants = make_variants(path, rows)
+    try:
+        rows = combinations(pairs, zipped)
+        variants = make_variants(path, rows)
+    except SettingError as error:
+        if isinstance(settings, (list, tuple)):
+            raise
+        # given as a dict from Python: its keys, not the command line's --set and --zip
+        message = str(error).replace("--set key", "settings key").replace("--set ", "settings key ")
+        raise SettingError(message.replace("--zip", "zipped=True")) from None
     out = Path(out)
     records = execute(variants, out, workers, scheduler, progress)
     out.mkdir(parents=True, exist_ok=True)
