@@ -86,5 +86,11 @@ def angular_momentum(model, state):
 
 def center_of_mass(model, state):
     """Centre of mass ``(3,)`` (m) of the body's mass matrix (:func:`mass_weights`)."""
+    return weighted_mean(model, state.x)
+
+
+def weighted_mean(model, field):
+    """A node field ``(n, 3)`` averaged with the body's mass weights (:func:`mass_weights`): the
+    centre of mass of positions, the centre's velocity of velocities."""
     weights = mass_weights(model)
-    return weights @ state.x / weights.sum()
+    return weights @ field / weights.sum()

@@ -10,7 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fem.momentum import inertia_and_moment, mass_moments, mass_times, mass_weights, skew
+from fem.momentum import (inertia_and_moment, mass_moments, mass_times, mass_weights, skew,
+                          weighted_mean)
 from fem.system import (LazyMatrix, StepData, gravity_force, implicitness, internal_forces_and_solver,
                         right_hand_side, system_coefficients)
 
@@ -140,7 +141,7 @@ def impulse_turn(model, state, step):
     x_free = step.x_base + step.x_rate * step.v_free
     dv = step.v - step.v_free
     move, _, d = _rigid_split(model, state, dv)
-    y = x_free - centre(model, x_free)
+    y = x_free - weighted_mean(model, x_free)
     inertia, L_free = mass_moments(model, y, step.v_free)
     L_turn = mass_moments(model, y, dv)[1]
     turn = _rotation(step.x_rate * np.linalg.solve(inertia, L_turn))
@@ -155,14 +156,8 @@ def shift_turned(model, state, x, v, dx):
     part of ``dx`` about the rest shape in the start's best-fit frame; the velocities' deformation
     part turns with the body and its spin keeps the angular momentum."""
     move, rotation, d = _rigid_split(model, state, dx)
-    y = x - centre(model, x)
+    y = x - weighted_mean(model, x)
     return _turned(model, x + move + d, v, _rotation(rotation), mass_moments(model, y, v)[1])
-
-
-def centre(model, x):
-    """Centre of mass ``(3,)`` m of node positions ``x`` ``(n, 3)`` (the body's mass weights)."""
-    m = mass_weights(model)
-    return m @ x / m.sum()
 
 
 def _rigid_split(model, state, field):
@@ -170,10 +165,10 @@ def _rigid_split(model, state, field):
     its mass-weighted mean, the small rotation of its rigid part about the centre (``I^-1`` of
     its angular moment), and what remains, each about the rest shape in the start's best-fit frame
     (where the system's rigid modes lie): the rest carries no momentum."""
-    rest = model.rest_offsets - centre(model, model.rest_offsets)
+    rest = model.rest_offsets - weighted_mean(model, model.rest_offsets)
     rest = rest @ np.asarray(state.R, float).T
     inertia, moment = mass_moments(model, rest, field)
-    mean, rotation = centre(model, field), np.linalg.solve(inertia, moment)
+    mean, rotation = weighted_mean(model, field), np.linalg.solve(inertia, moment)
     return mean, rotation, field - mean - rest @ skew(rotation).T
 
 
@@ -181,7 +176,7 @@ def _turned(model, x, v, turn, L):
     """Positions and velocities ``(x, v)`` turned about their centre of mass by the rotation matrix
     ``turn`` (3, 3), the velocities' deformation part turned along and their spin the one that
     gives angular momentum ``L`` (3,) about the centre with the turned shape."""
-    c, V = centre(model, x), centre(model, v)
+    c, V = weighted_mean(model, x), weighted_mean(model, v)
     y = x - c
     inertia, moment = mass_moments(model, y, v)
     u = v - V - y @ skew(np.linalg.solve(inertia, moment)).T

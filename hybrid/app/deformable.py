@@ -264,16 +264,18 @@ def _disjoint_anchors(found, label):
     same velocity, and each reports the reaction of its own nodes (shared ones were counted
     twice); ValueError naming the two anchors when they disagree (the second won, the first
     reported its nodes moving)."""
-    owner, out = {}, []
+    owner = np.full(1 + max((int(n.max()) for n, _ in found if len(n)), default=0), -1)
+    out = []
     for k, (nodes, velocity) in enumerate(found):
-        held = np.array([int(i) in owner for i in nodes], dtype=bool)
-        for first in sorted({owner[int(i)] for i in nodes[held]}):
-            if not np.allclose(found[first][1], velocity, rtol=0.0, atol=0.0):
-                shared = int(sum(owner[int(i)] == first for i in nodes[held]))
+        firsts = owner[nodes]
+        held = firsts >= 0
+        for first in np.unique(firsts[held]):
+            if not np.array_equal(np.asarray(found[first][1], float), np.asarray(velocity, float)):
                 raise ValueError(f"{label}: field 'anchors': [[bodies.anchors]] {first} and {k} both "
-                                 f"hold {shared} node(s) at different velocities; a node follows "
-                                 f"one velocity: make the boxes disjoint or their velocities equal")
-        owner.update((int(i), k) for i in nodes[~held])
+                                 f"hold {int((firsts == first).sum())} node(s) at different "
+                                 f"velocities; a node follows one velocity: make the boxes disjoint "
+                                 f"or their velocities equal")
+        owner[nodes[~held]] = k
         out.append((nodes[~held], velocity))
     return out
 

@@ -97,15 +97,11 @@ class WriterProcess:
             raise RuntimeError(f"no writer process: {why}")
         method = start_method or self.start_method
         context = multiprocessing.get_context(method)
-        if method == "forkserver":
-            # the fork server imports this module once, so each writer process starts forked
-            # from it with its imports done (the hybrid package takes most of a second)
-            context.set_forkserver_preload(["__main__", __name__])
         receive, self._jobs = context.Pipe(duplex=False)
         self._replies, send = context.Pipe(duplex=False)
         self._process = context.Process(target=_serve, args=(receive, send, str(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
-        if method == "forkserver":
+        if method == "forkserver":     # (its imports done once: a writer process starts in ms)
             _start_fork_server()
         self._process.start()
         receive.close()
@@ -299,7 +295,6 @@ class ForkServer:
         start = time.perf_counter()
         try:
             context = multiprocessing.get_context("forkserver")
-            context.set_forkserver_preload(["__main__", __name__])
             child = context.Process(target=_noop, name="RunWriter fork server warm-up", daemon=True)
             child.start()
             child.join()
