@@ -11,8 +11,10 @@ import signal
 import sys
 
 
-class _Terminated(Exception):
-    """SIGTERM arrived outside a run's stepping."""
+class _Terminated(BaseException):
+    """SIGTERM arrived outside a run's stepping (a BaseException, as KeyboardInterrupt is: the
+    broad ``except Exception`` of a step or a cache lookup must not swallow it; one did, and a
+    run given SIGTERM while it started ran to its end)."""
 
 
 def _on_term(signum, frame):
