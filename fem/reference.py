@@ -18,10 +18,12 @@ and small rotations: the linearised form of shape matching's best-fit frame, whi
 plastic stretch exact where the nonlinear fit would mix the large rigid round-off of the singular
 solve into it). The new rest shape is ``X_new = X + u_p`` (body frame) and the plastic strain is reset
 to ``eps_p - eps(u_p)``, the incompatible part that no displacement can relieve (~0 for a
-compatible plastic strain, and it keeps the residual stress of a dent exactly). Because the total
-strain ``eps(u) - eps_p`` is unchanged by the reset, the stress, the elastic energy and the
-positions do not jump at the update: the body keeps its shape, springs back only by its elastic
-part, and vibrates about the new rest shape.
+compatible plastic strain, and it keeps the residual stress of a dent exactly); to be exact, by
+the change of each point's strain ``eps(u)`` as the new shape (and frame) measures the same
+positions, which is ``-eps(u_p)`` to first order. So the elastic strain ``eps(u) - eps_p`` of every
+point is unchanged by the reset, and the stress, the elastic energy and the positions do not jump
+at the update: the body keeps its shape, springs back only by its elastic part, and vibrates about
+the new rest shape.
 
 An update is due when the accumulated equivalent plastic strain of some quadrature point has grown
 by ``model.plastic_update_strain`` since the last update; each update therefore bakes at most
@@ -33,6 +35,7 @@ from fem.dynamics import body_frame
 from fem.model import with_rest_points
 from fem.plastic_flow import rest_frame_plastic_force, state_plastic_force
 from fem.solver import Factorisation
+from fem.stress import quadrature_strain
 
 # shift of the singular free-body stiffness, relative to the mean of diag(K)/diag(M)
 _SHIFT = 1e-10
@@ -84,17 +87,20 @@ def update_reference(model, state, dt=None):
 
     The new model has rest points ``X + u_p`` (see the module docstring), rebuilt K, M and element
     data, and its own factorisation (done now for ``dt`` s if given, floating frame); positions and
-    velocities are unchanged, the plastic strain is reset to ``eps_p - eps(u_p)``.
+    velocities are unchanged, the plastic strain is reset so that each point's elastic strain is
+    unchanged (``eps_p - eps(u_p)`` to first order).
     """
     eps_p = state.tet_plastic_strain
     u_p = plastic_displacement(model, state)
-    e = model.elements
-    grad_u = np.einsum("tai,tqaj->tqij", u_p[e.tet_nodes], e.tet_gradients)
-    eps_p_new = eps_p - 0.5 * (grad_u + np.swapaxes(grad_u, -1, -2))
     new_model = with_rest_points(model, model.rest_points + u_p, dt,
                                  reference_peeq=state.tet_peeq.copy(),
                                  reference_updates=model.reference_updates + 1)
     R, c = body_frame(new_model, state.x)
+    # eps_p - eps(u_p) to first order, but exactly the strain that keeps each point's elastic
+    # strain: the new shape's gradients (and frame) measure the same positions differently, by
+    # eps(u_p) times the strain, which in a neck flowing 80% put updates at 13 Y
+    eps_p_new = eps_p + quadrature_strain(new_model, state.replace(R=R, c=c)) \
+        - quadrature_strain(model, state)
     # the plastic force of the reset strain, and the increment the next step is predicted to make
     # (fem.plastic_flow.plastic_update) carried over, so that an update does not change the flow
     force = rest_frame_plastic_force(new_model, eps_p_new)
