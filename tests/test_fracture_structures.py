@@ -314,3 +314,45 @@ def test_ductile_bar_yields_elongates_then_tears_in_two(sim):
     assert s.state.fem[0].tet_peeq.max() > TEAR_STRAIN
     plateau = u > 1.5 * elastic_elongation
     assert np.all(np.abs(force[plateau] / YA - 1.0) < 0.05)
+
+
+def test_rigid_fragments_leave_loaded_pieces_deformable_with_their_loads():
+    # a free brittle bar pulled apart by equal and opposite end loads, fragment_model = "rigid":
+    # the end pieces hold the loads, so they stay deformable and keep accelerating at F / m (a
+    # rigid piece has no loads: it coasted, and the energy watch then stopped the run)
+    text = """
+[simulation]
+duration = 0.003
+dt = 0.0002
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = { type = "box", size = [0.2, 0.02, 0.02], resolution = 0.01 }
+density = 1000.0
+young = 1e8
+fracture_stress = 1e6
+fragment_model = "rigid"
+[[bodies.loads]]
+box = [[-1, -1, -1], [-0.09999, 1, 1]]
+force = [-600.0, 0.0, 0.0]
+[[bodies.loads]]
+box = [[0.09999, -1, -1], [1, 1, 1]]
+force = [600.0, 0.0, 0.0]
+"""
+    from hybrid import Simulation
+    sim = Simulation(parse_scene(tomllib.loads(text), "<test>", Path(".")))
+    while len(sim.body_names) < 3:
+        sim.step()
+    ends = [n for n in sim.body_names if n != "bar"]
+    assert all(sim.body(n).kind == "fem" for n in ends)
+    before = {n: sim.body(n).velocity[0] for n in ends}
+    mass = {n: sum(m.node_mass.sum() for m, k in zip(sim.model.fem, sim.model.fem_ids)
+                   if sim.model.names[k] == n) for n in ends}
+    for _ in range(5):
+        sim.step()
+    for n in ends:
+        side = np.sign(sim.body(n).position[0])
+        gained = sim.body(n).velocity[0] - before[n]
+        assert gained == pytest.approx(side * 600.0 / mass[n] * 5 * 0.0002, rel=1e-6)
+    assert np.linalg.norm(totals(sim.model, sim.state)[1]) < 1e-9     # the loads cancel

@@ -16,7 +16,8 @@ other body keeps its model and factorisation.
   ``HybridModel.names`` (and to ``scene.bodies``, so per-body scene data such as friction is found).
 - Node velocities are copied to the duplicated nodes and node masses are recomputed from each
   piece's own tets, so total mass and linear and angular momentum are unchanged.
-- ``fragment_model = "rigid"`` makes every unanchored piece but the largest a rigid body;
+- ``fragment_model = "rigid"`` makes every piece but the largest a rigid body, unless it holds
+  anchor or load nodes;
   ``"auto"`` makes the pieces auto bodies (hybrid.coupling.auto: rigid while calm, FEM while
   struck; those under ``rigid_fragment_tets`` tets rigid at once), as are an auto body's pieces.
 - ``HybridModel.fragment_of`` (one entry per name): the original scene body each body came from
@@ -198,10 +199,14 @@ class _Piece:
 
 
 def _turns_rigid(fem_model, data, frag, node_origin):
-    """Whether a piece other than the largest becomes a rigid body for good: unanchored, and
-    ``fragment_model = "rigid"`` (``"auto"`` pieces are auto bodies, see hybrid.coupling.auto)."""
-    anchored = np.any(fem_model.node_anchor[node_origin[frag.node_index]] >= 0)
-    return not anchored and data.fragment_model == "rigid"
+    """Whether a piece other than the largest becomes a rigid body for good: holding no anchor
+    or load node (anchors and loads go with the nodes they hold, and a rigid body has neither),
+    and ``fragment_model = "rigid"`` (``"auto"`` pieces are auto bodies, see
+    hybrid.coupling.auto)."""
+    nodes = node_origin[frag.node_index]
+    anchored = np.any(fem_model.node_anchor[nodes] >= 0)
+    loaded = any(np.isin(nodes, held).any() for held in fem_model.load_nodes)
+    return not anchored and not loaded and data.fragment_model == "rigid"
 
 
 def _fragment_data(data, fem_model, frag, cut):

@@ -278,9 +278,11 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
               default_text="none (unbreakable)"),
     _positive("tearing_strain", None, "", "Equivalent plastic strain at which an element tears "
               "(ductile fracture); needs `yield_stress`.", fem=True, default_text="none"),
-    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid` (for good), "
+    Field("fragment_model", "choice", "fem", "", "What fragments become: `fem`, `rigid` (for good; "
+          "not the largest, nor pieces holding anchor or load nodes), "
           "or `auto` (auto bodies, rigid while calm and FEM while struck; those with fewer than "
-          "`rigid_fragment_tets` elements rigid at once). An auto body's fragments are auto.",
+          "`rigid_fragment_tets` elements rigid at once). An auto body's fragments that are not "
+          "rigid for good are auto.",
           choices=("fem", "rigid", "auto"), fem=True),
     Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
           "turns rigid at once, and again at the first check after a blow made it deformable "
