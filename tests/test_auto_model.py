@@ -462,3 +462,21 @@ def test_largest_strain_and_the_rigid_hint_see_every_step_and_only_free_unloaded
     assert summary["models"]["block"]["largest_strain"] >= peak / (np.sqrt(6.0) * mu) > 1e-2
     hints = [line for line in lines if "never strained" in line]
     assert len(hints) == 1 and "'idle'" in hints[0], lines
+
+
+def test_the_summary_lists_auto_pieces_turned_rigid_at_once_with_no_time_as_fem(tmp_path):
+    """Shatter's small pieces (fragment_model = "auto") turn rigid as they split off: the
+    summary's models still lists each, stepped as FEM for no time and with no strain measured."""
+    text = (Path(__file__).parent / "scenes" / "shatter.toml").read_text()
+    sim = Sim(text.replace("dt = 0.001", "dt = 0.001\nduration = 0.02"))
+    summary = sim.run(out=tmp_path / "out", progress=False, log=lambda line: None)
+    pieces = [n for n in sim.body_names if n.startswith("plate.")]
+    never = [n for n in pieces if not any(getattr(e, "event", None) == "elastify" and e.body == n
+                                          for e in sim.events)
+             and sim.body(n).kind == "rigid"]
+    assert never, sim.body_names
+    for name in pieces:
+        assert summary["models"][name]["model"] == "auto"
+    for name in never:
+        assert summary["models"][name]["fem_time_fraction"] == 0.0
+        assert summary["models"][name]["largest_strain"] is None

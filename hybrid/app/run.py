@@ -223,12 +223,15 @@ def stepping(model, strains, fem_time, simulated):
     """The summary's ``models`` section: per body stepped as FEM (by name, ``strains``: the
     largest elastic strain it reached over every step, hybrid.app.peaks.Peaks.strains) how it was
     modelled, the fraction of the run's simulated time (``simulated`` s) it was stepped as FEM
-    (``fem_time``: seconds by name) and that strain."""
+    (``fem_time``: seconds by name) and that strain; auto bodies never stepped as FEM (fracture
+    pieces turned rigid at once) too, with fraction 0 and no strain."""
     scene_models = {b.name: b.model for b in model.scene.bodies}
+    names = list(strains) + [b.name for b in model.scene.bodies
+                             if b.model == "auto" and b.name not in strains]
     return {name: {"model": scene_models.get(name, "fem"),
                    "fem_time_fraction": fem_time.get(name, 0.0) / simulated if simulated > 0 else None,
-                   "largest_strain": strain}
-            for name, strain in strains.items()}
+                   "largest_strain": strains.get(name)}
+            for name in names}
 
 
 def rigid_hints(model, strains):
