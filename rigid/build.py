@@ -5,7 +5,7 @@ import numpy as np
 
 from . import quaternion as quat
 from .mass import mass_properties
-from .model import POINT_ON_RING, POINT_PLAIN, POINT_RING, SHAPE_CODES, RigidModel, RigidState
+from .model import POINT_FEM_ONLY, POINT_PLAIN, POINT_RING, SHAPE_CODES, RigidModel, RigidState
 from .sdf import SignedDistanceGrid
 from .shapes import make_shape
 
@@ -21,7 +21,8 @@ class RigidBodyDesc:
     whose mass, centre and inertia the body takes instead of its solid's (a deformable body
     turned rigid keeps the momentum and energy of its lumped node masses exactly); None: the
     solid of ``density``. contact_points: ``(p, 3)`` shape-frame points of a mesh body that meet
-    planes and other bodies' surfaces (None: all its vertices). grid_cells: cells across the largest extent of a mesh body's
+    planes and other bodies' surfaces (None: all its vertices); fem_contact_points: ``(q, 3)``
+    more points that meet only FEM surfaces (None: none). grid_cells: cells across the largest extent of a mesh body's
     signed-distance grid (None: the grid's default; fewer build faster, for bodies made during a
     run).
     """
@@ -40,6 +41,7 @@ class RigidBodyDesc:
     point_masses: tuple = None
     grid_cells: int = None
     contact_points: np.ndarray = None
+    fem_contact_points: np.ndarray = None
 
 
 @dataclass
@@ -102,7 +104,14 @@ def _geometry(desc):
     else:
         cell = None if desc.grid_cells is None else float(np.ptp(vertices, axis=0).max()) / desc.grid_cells
         grid = SignedDistanceGrid.build(vertices, triangles, cell_size=cell)
-    return _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
+    body = _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
+    if desc.fem_contact_points is not None:
+        more = np.asarray(desc.fem_contact_points, float).reshape(-1, 3)
+        body.points = np.concatenate([points, more])
+        body.point_radius = np.concatenate([radius, np.zeros(len(more))])
+        body.point_kind = np.concatenate([np.full(len(points), POINT_PLAIN),
+                                          np.full(len(more), POINT_FEM_ONLY)])
+    return body
 
 
 def _cylinder_rings(body, r):
@@ -116,7 +125,7 @@ def _cylinder_rings(body, r):
     count = len(body.points)
     body.points = np.concatenate([body.points, rings])
     body.point_radius = np.zeros(len(body.points))
-    body.point_kind = np.concatenate([np.where(on_side, POINT_ON_RING, POINT_PLAIN),
+    body.point_kind = np.concatenate([np.where(on_side, POINT_FEM_ONLY, POINT_PLAIN),
                                       np.full(len(heights), POINT_RING)])
     body.point_ring = np.concatenate([np.zeros(count), np.full(len(heights), r)])
     body.point_axis = np.zeros((len(body.points), 3))

@@ -14,7 +14,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .model import POINT_ON_RING, POINT_RING, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_SPHERE
+from .model import POINT_FEM_ONLY, POINT_RING, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_SPHERE
 from .sdf_kernels import box_sdf, shape_sdf
 
 
@@ -162,7 +162,7 @@ def _plane_contacts(position, rotation, sweep, fixed, point_start, point_local, 
             continue
         Ra, xa = rotation[a], position[a]
         for k in range(point_start[a], point_start[a + 1]):
-            if point_kind[k] == POINT_ON_RING:
+            if point_kind[k] == POINT_FEM_ONLY:
                 continue
             px, py, pz = _point_world(Ra, xa, point_local, k)
             ring = point_kind[k] == POINT_RING
@@ -214,7 +214,7 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_s
             # centre of a in the shape frame of b (tie-break at edges)
             cx, cy, cz = _to_shape(Rb, Sb, xb, ob, xa[0], xa[1], xa[2])
             for k in range(point_start[a], point_start[a + 1]):
-                if point_kind[k] == POINT_ON_RING:
+                if point_kind[k] == POINT_FEM_ONLY:
                     continue
                 px, py, pz = _point_world(Ra, xa, point_local, k)
                 if kind == SHAPE_BOX:

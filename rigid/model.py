@@ -14,7 +14,7 @@ SHAPE_SPHERE, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_CYLINDER, SHAPE_GRID = 1, 2, 3, 4,
 SHAPE_CODES = {"sphere": SHAPE_SPHERE, "box": SHAPE_BOX, "capsule": SHAPE_CAPSULE,
                "cylinder": SHAPE_CYLINDER, "mesh": SHAPE_GRID}
 # contact point kinds (RigidModel.point_kind)
-POINT_PLAIN, POINT_RING, POINT_ON_RING = 0, 1, 2
+POINT_PLAIN, POINT_RING, POINT_FEM_ONLY = 0, 1, 2
 
 
 @dataclass
@@ -37,7 +37,8 @@ class RigidModel:
     point_kind (p,) int: POINT_PLAIN (every detector), POINT_RING (a circle of radius
         point_ring (p,) m about the unit axis point_axis (p, 3) (body frame) through point_local:
         rigid bodies and planes meet its nearest points, so a cylinder rolls as a circle, not a
-        polygon) or POINT_ON_RING (a mesh vertex on such a circle, used only against FEM surfaces).
+        polygon) or POINT_FEM_ONLY (used only against FEM surfaces: a mesh vertex on such a
+        circle, or an auto body's surface vertex off its convex hull).
     surface_vertices: list of (n_i, 3) body-frame vertices; surface_triangles: list of (m_i, 3).
     plane_point (k, 3), plane_normal (k, 3) unit, plane_friction (k,), plane_restitution (k,).
     names: list of body names.

@@ -30,16 +30,21 @@ from .fracture import fracture_data
 
 
 def hull_points(vertices):
-    """The vertices ``(p, 3)`` on the convex hull of ``vertices`` (all of them for a flat set):
-    a body turned rigid meets planes and other bodies through these. A plane or a convex part of
-    another body meets a body first at its hull; a convex corner of another body pressing into a
-    hollow of this one is found from that body's points against this one's distance grid (both
-    directions are tested), so only hollows meeting hollows go unseen. A box-like soft body's
-    resting face has about a third of its vertices on the hull; its contact rows shrink alike."""
+    """``(on, off)``: the vertices ``(p, 3)`` on the convex hull of ``vertices`` (all of them for
+    a flat set) and the others ``(q, 3)``. A body turned rigid meets planes and rigid bodies
+    through the hull's: a plane or a convex part of another body meets a body first at its hull;
+    a convex corner of another body pressing into a hollow of this one is found from that body's
+    points against this one's distance grid (both directions are tested), so only hollows meeting
+    hollows go unseen. A box-like soft body's resting face has about a third of its vertices on
+    the hull; its contact rows shrink alike. Against FEM surfaces it meets with all of them, as it
+    did while deformable: an FEM deck resting across a support that turned rigid was carried by
+    the support's dented edge nodes, which are off the hull, and sagged 2 mm when they went."""
     try:
-        return vertices[ConvexHull(vertices).vertices]
+        on = np.zeros(len(vertices), bool)
+        on[ConvexHull(vertices).vertices] = True
     except QhullError:
-        return vertices
+        return vertices, vertices[:0]
+    return vertices[on], vertices[~on]
 
 
 @dataclass(frozen=True)
@@ -84,11 +89,12 @@ def _rigid_bodies(model, state, bodies):
         m, s, k = model.fem[j], state.fem[j], model.fem_ids[j]
         scene_body = model.scene.bodies[k]
         vertices, triangles, _ = compact(s.x, m.surface)
+        hull, others = hull_points(vertices)
         descs.append(RigidBodyDesc(name=model.names[k], vertices=vertices, triangles=triangles,
                                    density=m.density, friction=scene_body.friction,
                                    restitution=scene_body.restitution, fixed=m.has_anchors,
                                    point_masses=(s.x, m.node_mass),
-                                   contact_points=hull_points(vertices)))
+                                   contact_points=hull, fem_contact_points=others))
     rm, rs = build_rigid(descs, [])
     last_dt = state.rigid.last_dt
     for i, j in enumerate(bodies):
