@@ -168,7 +168,8 @@ class Simulation:
         """Start watching the steps: :attr:`peaks` (:class:`hybrid.app.peaks.Peaks`, every FEM
         body's largest stresses and plastic strain over every step) and :attr:`impacts`
         (:class:`hybrid.app.resolution.ImpactWatch`, under-resolved impacts: its ``warnings``,
-        once per body and kind; the run log gets each as it is found)."""
+        once per body and kind, again for one that asks a fifth finer; the run log gets
+        each as it is found)."""
         most = MAX_SUBSTEPS if getattr(self.scene.simulation, "resolve_impacts", False) else 1
         self.peaks, self.impacts, self._said = Peaks(), ImpactWatch(most), []
 
@@ -201,9 +202,11 @@ class Simulation:
         self.events.extend(happened)
         return happened
 
-    def _took(self, model, state):
+    def _took(self, model, state, start):
         """After each step (before its events): count the step's time as FEM time for the bodies
-        it stepped as FEM, take the step's peaks and look for under-resolved impacts."""
+        it stepped as FEM, take the step's peaks and look for under-resolved impacts (from the
+        step's ``start``, so that a rigid auto body struck, turned deformable for the step, is
+        judged at the speed it was struck at; sub-steps are judged by the step they divide)."""
         h = model.dt
         self.stepped_time += h
         for k in model.fem_ids:
@@ -211,7 +214,8 @@ class Simulation:
             self.fem_time[name] = self.fem_time.get(name, 0.0) + h
         if model.fem:
             self.peaks.update(model, state)
-            self._said += [w.message for w in self.impacts.check(self._before, model, state)]
+            before = (model, start) if model.dt == self.model.dt else self._before
+            self._said += [w.message for w in self.impacts.check(before, model, state)]
         self._stepped(model, state)
 
     def _stepped(self, model, state):

@@ -5,7 +5,8 @@ An impact's answer depends on the mesh and the step more than anything else a sc
 under-resolved one gives a quiet, plausible and wrong answer: a steel ball at 20 m/s stops dead on
 a coarse aluminium plate without denting it, a brittle slab dropped on the ground does not crack
 because the impact's impulse is spread over a step 25 times longer than the impact. These are the
-model's honest answers at that resolution; :class:`ImpactWatch` says so, once per body and kind:
+model's honest answers at that resolution; :class:`ImpactWatch` says so, once per body and kind
+(again for a later impact that asks for a resolution or step a fifth finer than any told before):
 
 - in space, when the contact patch is carried by fewer than a few nodes: the patch radius is
   estimated from Hertz's impact (and, for a body with a yield stress, the fully plastic contact
@@ -203,14 +204,20 @@ class ImpactWatch:
         rm = model.rigid
         if rm.body_count == 0 and rm.plane_point.shape[0] == 0:
             return []
-        warned = {(w.body, w.kind) for w in self.warnings}
+        # per body and kind, the finest resolution or step asked for so far: a later impact is
+        # told only when it asks for a fifth less or finer (once per body and kind, but a slow
+        # first contact does not hide a fast blow: Hertz's contact time goes as v^-1/5)
+        asked = {}
+        for w in self.warnings:
+            asked[w.body, w.kind] = min(w.need, asked.get((w.body, w.kind), np.inf))
         origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
         new, touching = [], set()
         for j, (m, s0, s1) in enumerate(zip(model.fem, old.fem, state.fem)):
             scene_body = model.scene.bodies[origin[int(model.fem_ids[j])]]
             for found in self._impacts(model, old, state, j, scene_body, touching):
-                if (found.body, found.kind) not in warned:
-                    warned.add((found.body, found.kind))
+                key = (found.body, found.kind)
+                if found.need < 0.8 * asked.get(key, np.inf):
+                    asked[key] = found.need
                     new.append(found)
         self.warnings += new
         self.touching = touching
@@ -229,7 +236,7 @@ class ImpactWatch:
         touching.update((name, p) for p in partners.values())
         # resting contact (the common case) is not new: nothing more to do
         began = [p for p, p_name in partners.items() if (name, p_name) not in self.touching
-                 and not _same_body(model, j, p)]
+                 and not _same_body(model, j, p) and not _just_parked(model, state, p)]
         if not began:
             return []
         approach = _approach(model, old, state, j, c)
@@ -327,6 +334,16 @@ def _same_body(model, j, partner):
     if partner < 0 or model.fragment_of is None:
         return False
     return model.fragment_of[int(model.rigid_ids[partner])] == model.fragment_of[int(model.fem_ids[j])]
+
+
+def _just_parked(model, state, partner):
+    """Whether rigid body ``partner`` is an auto body that turned rigid at the end of the last
+    step: a contact with it then is one the two had while both were deformable (not judged),
+    not one that began."""
+    if partner < 0:
+        return False
+    since = state.rigid_since.get(int(model.rigid_ids[partner]))
+    return since is not None and state.steps - since <= 1
 
 
 def _partner(model, partner):

@@ -62,7 +62,9 @@ def advance(model, state, timings=None, stepped=None):
     body deformable (hybrid.coupling.auto.fem_due, before the step is kept); then the events
     between steps (hybrid.coupling.events.between_steps: reference-shape updates, fracture, auto
     bodies turning rigid). ``timings``: see hybrid.coupling.fracture.apply_fracture.
-    ``stepped(model, state)``, if given, is called with them after the step, before its events."""
+    ``stepped(model, state, start)``, if given, is called with them after the step, before its
+    events, ``start`` the state the step was taken from (with ``model``: an auto body that turned
+    deformable for the step is deformable in it)."""
     new, switched = step(model, state), []
     due = fem_due(model, state, new)
     while due:
@@ -71,7 +73,7 @@ def advance(model, state, timings=None, stepped=None):
         new = step(model, state)
         due = fem_due(model, state, new)
     if stepped is not None:
-        stepped(model, new)
+        stepped(model, new, state)
     model, new, events = between_steps(model, new, timings)
     return model, new, switched + events
 
