@@ -75,16 +75,17 @@ def rest_triangles_reference(P, tri, around, Y, close):
     return tri[face[best]], weights, (row[tied], tri[face[tied]])
 
 
-def places_reference(P, tri, around, moved, Y, close, n_near, X_now, radius):
+def places_reference(P, tri, around, moved, Y, close, X_now, radius):
     corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close)
     rest = P[corners]
     now = rest + moved[corners]
-    n = turn_reference(n_near, unit_normals_reference(rest), unit_normals_reference(now))
+    n_rest = unit_normals_reference(rest)
+    n = turn_reference(n_rest, n_rest, unit_normals_reference(now))
     if len(tie_row):
         tie_rest = P[tie_corners]
         tie_now = tie_rest + moved[tie_corners]
-        np.add.at(n, tie_row, turn_reference(n_near[tie_row], unit_normals_reference(tie_rest),
-                                             unit_normals_reference(tie_now)))
+        tie_n = unit_normals_reference(tie_rest)
+        np.add.at(n, tie_row, turn_reference(tie_n, tie_n, unit_normals_reference(tie_now)))
         n[np.unique(tie_row)] /= np.linalg.norm(n[np.unique(tie_row)], axis=1, keepdims=True)
     place = np.einsum("pi,pij->pj", weights, now)
     line = X_now - place
@@ -202,11 +203,10 @@ def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
     w[10:20] /= w[10:20].sum(axis=1, keepdims=True)
     Y = np.einsum("pi,pij->pj", w, P[tri[face]])
     close = cKDTree(P).query(Y, k=3)[1]
-    n_rest = unit_normals_reference(P[tri[face]])
     X_now = Y + 0.003 * rng.standard_normal(Y.shape)
     radius = rng.uniform(0.0, 0.01, 60)
-    corners, weights, normal, gap = kernels.places(Y, close, around, tri, P, moved, n_rest, X_now, radius)
-    want = places_reference(P, tri, around, moved, Y, close, n_rest, X_now, radius)
+    corners, weights, normal, gap = kernels.places(Y, close, around, tri, P, moved, X_now, radius)
+    want = places_reference(P, tri, around, moved, Y, close, X_now, radius)
     assert want[4] > 0                                   # ties were met
     np.testing.assert_array_equal(corners, want[0])
     np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)

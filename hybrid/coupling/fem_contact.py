@@ -204,12 +204,11 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     tree, tri, around = _surface_index(mb)
     P = tree.data                  # the surface nodes' rest positions (the tree keeps them)
     X_now = X[near] + local[near]
-    corners, weights, n, gap = kernels.places(Y, close, around, tri, P, moved, n_rest[near], X_now,
-                                              radius[near])
+    corners, weights, n, gap = kernels.places(Y, close, around, tri, P, moved, X_now, radius[near])
     own = np.nonzero((radius[near] == 0.0) & (np.abs(phi[near]) <= grid.cell_size))[0]
     if len(own):
-        mine = kernels.places(X[near[own]], close[own], around, tri, P, moved, n_rest[near[own]],
-                              X_now[own], radius[near[own]])
+        mine = kernels.places(X[near[own]], close[own], around, tri, P, moved, X_now[own],
+                              radius[near[own]])
         keep = np.abs(mine[3] - gap[own]) <= 0.5 * grid.cell_size
         for whole, part in zip((corners, weights, n, gap), mine):
             whole[own[keep]] = part[keep]

@@ -167,6 +167,16 @@ def turned(v, rest, now):
     return out
 
 
+@nb.njit(cache=True)
+def face_normal(rest, now):
+    """Unit outward normal (3,) of triangle ``now`` (3, 3), as its rest normal (``rest`` (3, 3))
+    turned with it (:func:`turned`: the rest normal itself where it turned by more than 90
+    degrees, an inverted triangle)."""
+    a = np.empty(3)
+    a[0], a[1], a[2] = _unit_normal(rest[0], rest[1], rest[2])
+    return turned(a, rest, now)
+
+
 # a point outside a place on a sharp edge or vertex by more than this fraction of the triangle's
 # edge is met along the line to it (kernels.places); nearer, along the faces' normals there
 CLEAR = 1e-3
@@ -199,11 +209,10 @@ def _candidates(k, Y, close, around, triangles, P, faces, dist):
 
 
 @nb.njit(cache=True)
-def _tied_normal(n, n_rest, line, faces, dist, count, best, size, triangles, P, moved, seen_n,
-                 rest, now):
+def _tied_normal(n, line, faces, dist, count, best, size, triangles, P, moved, seen_n, rest, now):
     """The normal at a place held as closely (to 1e-12 of ``size``, the triangle's squared edge)
-    by several of the ``faces`` (``n``: the rest normal ``n_rest`` turned with the closest;
-    ``line`` (3,): from the place to the point now). Such a place lies on an edge or a vertex.
+    by several of the ``faces`` (``n``: the closest one's normal, :func:`face_normal`; ``line``
+    (3,): from the place to the point now). Such a place lies on an edge or a vertex.
 
     On a sharp one (faces turned more than 30 degrees apart) the grid's gradient is any blend of
     the faces around, decided by round-off (two soft cubes meeting face on with coinciding edges
@@ -211,9 +220,9 @@ def _tied_normal(n, n_rest, line, faces, dist, count, best, size, triangles, P, 
     direction, the normal of the face it lies in front of); one on the edge or in the body (a node
     on the edge line pressing into the body lies nearer the side face than the face it presses
     on) along the sum of the distinct faces' own normals there, each once however many triangles
-    of one face hold it. Elsewhere (an edge between triangles of one face, bent or not) the rest
-    normal turned with each triangle holding it, averaged: the rest place under a bent face is not
-    the closest place now, and ``line`` would not follow the bend."""
+    of one face hold it. Elsewhere (an edge between triangles of one face, bent or not) the normals
+    of the triangles holding it, averaged: the rest place under a bent face is not the closest
+    place now, and ``line`` would not follow the bend."""
     distinct, tied = 0, False
     for t in range(count):
         g = faces[t]
@@ -235,7 +244,7 @@ def _tied_normal(n, n_rest, line, faces, dist, count, best, size, triangles, P, 
             seen = seen or faces[u] == g
         if not seen:
             tied = True
-            n += turned(n_rest, rest, now)
+            n += face_normal(rest, now)
     sharp = False
     for u in range(1, distinct):
         sharp = sharp or seen_n[u, 0] * seen_n[0, 0] + seen_n[u, 1] * seen_n[0, 1] + seen_n[u, 2] * seen_n[0, 2] < SHARP_COS
@@ -253,16 +262,19 @@ def _tied_normal(n, n_rest, line, faces, dist, count, best, size, triangles, P, 
 
 
 @nb.njit(cache=True)
-def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
+def places(Y, close, around, triangles, P, moved, X_now, radius):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
     ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
     rest positions are ``P`` (s, 3) and moves ``moved`` (s, 3)); the point's triangle is the
     closest among the ``triangles`` (f, 3) ``around`` (s, d) them (the first found among equally
-    close ones). ``n_rest`` (p, 3): the rest normal there, turned with that triangle (a point on
-    an edge or vertex: :func:`_tied_normal`); ``X_now`` (p, 3) the points moved as the surface
-    moved, ``radius`` (p,) m. Returns ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle,
-    the barycentric weights, the turned normal and the gap along it to the place as it is now."""
+    close ones), and its normal that triangle's (:func:`face_normal`; a point on an edge or
+    vertex: :func:`_tied_normal`), not the signed-distance grid's gradient, which across a body
+    a cell or two thick is any blend of its faces (a frictionless box sliding on a plank as
+    thick as a cell met its top face on sideways normals at every node line, and stopped).
+    ``X_now`` (p, 3): the points moved as the surface moved, ``radius`` (p,) m. Returns
+    ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle, the barycentric
+    weights, the normal and the gap along it to the place as it is now."""
     p = len(Y)
     corners = np.zeros((p, 3), dtype=np.int64)
     weights = np.zeros((p, 3))
@@ -284,10 +296,10 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius):
                 rest[i, a] = P[triangles[f, i], a]
                 now[i, a] = rest[i, a] + moved[triangles[f, i], a]
                 place[a] += weights[k, i] * now[i, a]
-        n = turned(n_rest[k], rest, now)
+        n = face_normal(rest, now)
         e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
         line = X_now[k] - place
-        n = _tied_normal(n, n_rest[k], line, faces, dist, count, best, e0 * e0 + e1 * e1 + e2 * e2,
+        n = _tied_normal(n, line, faces, dist, count, best, e0 * e0 + e1 * e1 + e2 * e2,
                          triangles, P, moved, seen_n, rest, now)
         normal[k] = n
         gap[k] = line[0] * n[0] + line[1] * n[1] + line[2] * n[2] - radius[k]
