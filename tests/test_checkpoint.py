@@ -251,3 +251,24 @@ def test_a_missing_checkpoint_and_an_object_array_are_refused(capsys, stopped_qu
     (out / "checkpoint.npz").unlink()
     code, err = resume_code(capsys, scene, out)
     assert code == 2 and "no checkpoint to resume from" in err, err
+
+
+def test_a_sigterm_swallowed_before_the_run_steps_stops_the_run_at_once(tmp_path):
+    """A SIGTERM whose exception the entry point raised inside a callback (an import lock's:
+    printed as ignored, and the command went on) still stops the run: its stop request is set as
+    the run takes the signals over, so it writes its checkpoint after its first step and stops
+    (the run had gone on to its end, exit 0)."""
+    from hybrid.app import entry
+    handler = entry._OnTerm()
+    with pytest.raises(entry._Terminated):
+        handler(signal.SIGTERM, None)
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        sim = Simulation.from_toml("default")
+        with checkpoint.stop_on_signals() as request:
+            assert request.signal == signal.SIGTERM
+            with pytest.raises(checkpoint.Stopped):
+                sim.run(out=tmp_path / "out", progress=False, log=lambda line: None, stop=request)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert sim.steps == 1 and (tmp_path / "out" / "checkpoint.npz").exists()

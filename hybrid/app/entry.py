@@ -17,14 +17,25 @@ class _Terminated(BaseException):
     run given SIGTERM while it started ran to its end)."""
 
 
-def _on_term(signum, frame):
-    raise _Terminated()
+class _OnTerm:
+    """The SIGTERM handler before a run steps: raises :class:`_Terminated`, and keeps that it did
+    (``received``). Raised inside a callback (an import lock's, a weakref's) the exception is
+    printed as ignored and the command goes on; a run that then starts stepping finds the
+    handler it replaces with ``received`` set and stops at once
+    (hybrid.app.checkpoint.stop_on_signals)."""
+
+    def __init__(self):
+        self.received = False
+
+    def __call__(self, signum, frame):
+        self.received = True
+        raise _Terminated()
 
 
 def main(argv=None):
     """Run the command line (:func:`hybrid.app.cli.main`) with SIGINT and SIGTERM ending it
     cleanly; returns its exit code."""
-    previous = signal.signal(signal.SIGTERM, _on_term)
+    previous = signal.signal(signal.SIGTERM, _OnTerm())
     try:
         from .cli import main as command
         return command(argv)
