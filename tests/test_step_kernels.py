@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from hybrid.coupling import fem_contact, kernels, rest_grid
+from hybrid.coupling import fem_contact, kernels, places, rest_grid
 from rigid import shapes
 from rigid.sdf import SignedDistanceGrid, closest_point_weights
 
@@ -53,7 +53,7 @@ def turn_reference(v, a, b):
     return np.where(ok[:, None], turned, v)
 
 
-def rest_triangles_reference(P, tri, around, Y, close):
+def rest_triangles_reference(P, tri, around, Y, close, moved=None, facing=None):
     candidates = around[close].reshape(len(Y), -1)
     row, slot = np.nonzero(candidates >= 0)
     face = candidates[row, slot]
@@ -63,6 +63,18 @@ def rest_triangles_reference(P, tri, around, Y, close):
     distance = np.einsum("ij,ij->i", off, off)
     order = np.lexsort((distance, row))
     best = order[np.searchsorted(row[order], np.arange(len(Y)))]
+    if facing is not None:
+        # a node whose closest triangle turns away from it meets the nearest one facing it
+        # within a hundredth of an edge farther
+        now_n = unit_normals_reference(P[tri[face]] + moved[tri[face]])
+        against = -np.einsum("ij,ij->i", now_n, facing[row])
+        node = np.abs(np.einsum("ij,ij->i", facing, facing) - 1.0) < 1e-6
+        for k in np.nonzero(node & (against[best] <= places.FACING_COS))[0]:
+            reach = (np.sqrt(distance[best[k]])
+                     + places.FACING_SLACK * np.linalg.norm(b[best[k]] - a[best[k]])) ** 2
+            ok = np.nonzero((row == k) & (distance <= reach) & (against > places.FACING_COS))[0]
+            if len(ok):
+                best[k] = ok[np.argmin(distance[ok])]
     weights = np.column_stack([1.0 - v[best] - w[best], v[best], w[best]])
     edge = b[best] - a[best]
     size = np.einsum("ij,ij->i", edge, edge)
@@ -75,8 +87,9 @@ def rest_triangles_reference(P, tri, around, Y, close):
     return tri[face[best]], weights, (row[tied], tri[face[tied]])
 
 
-def places_reference(P, tri, around, moved, Y, close, X_now, radius):
-    corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close)
+def places_reference(P, tri, around, moved, Y, close, X_now, radius, facing):
+    corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close,
+                                                                        moved, facing)
     rest = P[corners]
     now = rest + moved[corners]
     n_rest = unit_normals_reference(rest)
@@ -98,11 +111,15 @@ def places_reference(P, tri, around, moved, Y, close, X_now, radius):
         for f in faces[1:]:
             if all(f @ g <= 1.0 - 1e-9 for g in distinct):
                 distinct.append(f)
-        if min(f @ distinct[0] for f in distinct) >= kernels.SHARP_COS:
+        if min(f @ distinct[0] for f in distinct) >= places.SHARP_COS:
             continue
         total = np.sum(distinct, axis=0)
         total /= np.linalg.norm(total)
-        clear = line[k] @ total > kernels.CLEAR * edge[k]
+        clear = line[k] @ total > places.CLEAR * edge[k]
+        against = [-(f @ facing[k]) for f in distinct]
+        if not clear and abs(facing[k] @ facing[k] - 1.0) < 1e-6 and max(against) > places.FACING_COS:
+            n[k] = distinct[int(np.argmax(against))]       # the face facing the node
+            continue
         n[k] = line[k] / np.linalg.norm(line[k]) if clear else total
     gap = np.einsum("ij,ij->i", line, n) - radius
     return corners, weights, n, gap, len(tie_row)
@@ -178,7 +195,7 @@ def test_closest_weights_match_the_numpy_regions(seed):
     b[40:60] = a[40:60]                            # and coincident ones
     p = rng.standard_normal((400, 3)) * 2.0
     want_v, want_w = closest_point_weights(p, a, b, c)
-    got = np.array([kernels.closest_weights(p[k, 0], p[k, 1], p[k, 2], a[k], b[k], c[k])
+    got = np.array([places.closest_weights(p[k, 0], p[k, 1], p[k, 2], a[k], b[k], c[k])
                     for k in range(400)])
     np.testing.assert_allclose(got[60:, 0], want_v[60:], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(got[60:, 1], want_w[60:], rtol=1e-12, atol=1e-12)
@@ -205,8 +222,13 @@ def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
     close = cKDTree(P).query(Y, k=3)[1]
     X_now = Y + 0.003 * rng.standard_normal(Y.shape)
     radius = rng.uniform(0.0, 0.01, 60)
-    corners, weights, normal, gap = kernels.places(Y, close, around, tri, P, moved, X_now, radius)
-    want = places_reference(P, tri, around, moved, Y, close, X_now, radius)
+    # half the points are nodes with normals of their own (random), the others have none
+    facing = rng.standard_normal(Y.shape)
+    facing /= np.linalg.norm(facing, axis=1, keepdims=True)
+    facing[::2] = 0.0
+    corners, weights, normal, gap = places.places(Y, close, around, tri, P, moved, X_now, radius,
+                                                   facing)
+    want = places_reference(P, tri, around, moved, Y, close, X_now, radius, facing)
     assert want[4] > 0                                   # ties were met
     np.testing.assert_array_equal(corners, want[0])
     np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)

@@ -131,7 +131,7 @@ def test_edge_turns_match_the_numpy_edge_normals(seed):
     own[::7] = 0.0                      # nodes without a face normal of their own
     near = 1e-3                         # some gaps beyond it: those keep the rigid normal
     reference = edge_normals_reference(normal, gap, body_b, own, float(np.cos(np.radians(70.0))), near)
-    out = fem_contact.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))), near)
+    out = kernels.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))), near)
     np.testing.assert_allclose(out[0], reference[0], rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(out[1], reference[1], rtol=1e-14, atol=1e-18)
     assert np.array_equal(out[2], reference[2])

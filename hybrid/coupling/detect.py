@@ -10,7 +10,7 @@ from rigid import step as rigid_step
 from rigid.contacts import Contacts, detect, detect_points
 
 from .fem_contact import (EDGE_COS, SurfaceContacts, contact_node_normals, detect_fem_pairs,
-                          detect_rigid_points, edge_normals)
+                          detect_rigid_points, edge_normals, pair_edge_normals)
 from .nodes import row_norms
 
 
@@ -67,6 +67,8 @@ def detect_all(model, state, nodes, rigid_bodies, h, rotation=None):
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
+    pairs.normal, pairs.gap = pair_edge_normals(model.fem, state.fem, nodes.offset, nodes.body,
+                                                pairs, margin)
     pairs = _movable(pairs, anchored[pairs.a], anchored)
     on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, bodies,
                                    nodes.offset, sweep, margin)

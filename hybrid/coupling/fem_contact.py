@@ -33,7 +33,7 @@ from rigid.contacts import combine_friction, combine_restitution
 from rigid.model import POINT_RING
 from rigid.sdf import SignedDistanceGrid
 
-from . import kernels, rest_grid
+from . import kernels, places, rest_grid
 
 # queries of the nearest current surface node up to this many are answered by brute force
 # (hybrid.coupling.kernels.nearest_rows) instead of a k-d tree built anew for the moved surface
@@ -118,8 +118,38 @@ def edge_normals(contacts, own, near):
     the rigid body's normal and gap (its own, zero, made the contact's normal zero, and the
     contact solver divided by the length of the tangent built from it).
     ``own``: :func:`contact_node_normals` of ``contacts``. One pass (kernels.edge_turns)."""
-    return edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS),
+    return kernels.edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS),
                       float(near))
+
+
+def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
+    """Normals ``(c, 3)`` and gaps ``(c,)`` of the node-against-face ``pairs`` (stacked node a,
+    a place on another deformable body's face b) with a node on a smooth part of its own
+    surface, beside an edge or corner of b, meeting b along its own face's normal, as a node
+    meets a rigid edge (:func:`edge_normals`, whose ``near`` and angles apply). The corner's
+    normals are any within its cone; the smooth surface's is the one: a soft slab's nodes ahead
+    of a soft block sliding on it, in the dent it makes, met its front face as a wall, and the
+    block lost a third of its speed without friction and tumbled. A node on an edge or a corner
+    of its own body (a spinning block's, grazing a ball) keeps the face's normal."""
+    own = _stacked_normals(models, states, node_offset, node_body, pairs.a)
+    normal, gap, _ = kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
+                                        own, float(EDGE_COS), float(near))
+    return normal, gap
+
+
+def _stacked_normals(models, states, node_offset, node_body, stacked):
+    """Own outward unit normals ``(k, 3)`` of the ``stacked`` surface nodes on a smooth part of
+    their body's surface (every triangle around within 30 degrees of the node's normal; zero
+    rows for the others, on their own body's edges and corners)."""
+    out = np.zeros((len(stacked), 3))
+    for j in np.unique(node_body[stacked]):
+        mine = node_body[stacked] == j
+        m, s = models[j], states[j]
+        _, tri, around = _surface_index(m)
+        out[mine] = kernels.flat_node_normals(s.x, m.surface_nodes, tri, around,
+                                              np.asarray(stacked[mine] - node_offset[j], np.int64),
+                                              float(places.SHARP_COS))
+    return out
 
 
 def _node_normals(m, s, local):
@@ -153,14 +183,16 @@ def _current_nearest(m, s, x):
     return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
-def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
+def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
     those closer than ``reach`` (p,) m, ``motion`` being b's :func:`_motion`: ``(rows, corners,
     weights, nearest, point, normal, gap)``. b's side is a place in its surface triangle ``corners``
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
     node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
     With ``off_nodes`` (m), points within that distance of their nearest node across the normal
-    are left out (that node's own contact covers them)."""
+    are left out (that node's own contact covers them). ``facing`` (p, 3): the points' own
+    outward unit normals (world; nodes of another deformable body), which choose the face they
+    meet at b's sharp edges (places.places); None: none."""
     radius = np.zeros(len(x)) if radius is None else radius
     moved, largest = motion[2], motion[3]
     # into b's rest frame, less the deformation there: the displacement of b's surface node now
@@ -168,7 +200,7 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     # point pressing on its top face nearer the bottom face, or off b's grid)
     # (a point exactly on an edge or a corner may find the grid's gradient zero, its neighbouring
     # samples cancelling: one within a cell of the surface stays, to be met along the faces
-    # there, kernels.places; a place left without a unit normal is dropped, detect._movable)
+    # there, places.places; a place left without a unit normal is dropped, detect._movable)
     grid = _grid(mb)
     R = np.asarray(sb.R, float)
     nearest = _current_nearest(mb, sb, x)
@@ -204,11 +236,14 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None):
     tree, tri, around = _surface_index(mb)
     P = tree.data                  # the surface nodes' rest positions (the tree keeps them)
     X_now = X[near] + local[near]
-    corners, weights, n, gap = kernels.places(Y, close, around, tri, P, moved, X_now, radius[near])
+    # the points' own normals in b's rest frame, as X
+    toward = np.zeros((len(near), 3)) if facing is None else facing[near] @ R
+    corners, weights, n, gap = places.places(Y, close, around, tri, P, moved, X_now, radius[near],
+                                              toward)
     own = np.nonzero((radius[near] == 0.0) & (np.abs(phi[near]) <= grid.cell_size))[0]
     if len(own):
-        mine = kernels.places(X[near[own]], close[own], around, tri, P, moved, X_now[own],
-                              radius[near[own]])
+        mine = places.places(X[near[own]], close[own], around, tri, P, moved, X_now[own],
+                              radius[near[own]], toward[own])
         keep = np.abs(mine[3] - gap[own]) <= 0.5 * grid.cell_size
         for whole, part in zip((corners, weights, n, gap), mine):
             whole[own[keep]] = part[keep]
@@ -298,7 +333,8 @@ def detect_fem_pairs(models, states, bodies, node_offset, node_x, node_sweep, ma
                                               <= radius + slack + node_sweep))[0]
         if not len(near):
             continue
-        found = _against(mb, sb, motion, node_x[near], slack + node_sweep[near])
+        found = _against(mb, sb, motion, node_x[near], slack + node_sweep[near],
+                         facing=_stacked_normals(models, states, node_offset, node_body, near))
         rows, corners, weights, nearest, point, normal, gap = found
         a = near[rows]
         _append(parts, a, ib[corners], weights, ib[nearest], point, normal, gap,
@@ -350,32 +386,6 @@ def _append(parts, a, corners, weights, nearest, point, normal, gap, friction, r
     if len(a):
         parts.append((a, corners, weights, nearest, point, normal, gap,
                       np.broadcast_to(friction, len(a)), np.broadcast_to(restitution, len(a)), sample))
-
-
-@nb.njit(cache=True)
-def edge_turns(normal, gap, body_b, own, edge_cos, near):
-    """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` of
-    surface nodes' contacts (stacked node a, rigid body ``body_b`` >= 0 or a plane) whose nodes
-    have their own outward normals ``own`` (r, 3), one per contact with a rigid body in order
-    (hybrid.coupling.fem_contact.edge_normals; a node whose own normal is not a unit vector, or
-    whose gap exceeds ``near`` m, keeps the contact's normal and gap)."""
-    c = len(gap)
-    out_n = normal.copy()
-    out_gap = gap.copy()
-    front = np.ones(c, dtype=np.bool_)
-    r = 0
-    for k in range(c):
-        if body_b[k] < 0:
-            continue
-        m0, m1, m2 = -own[r, 0], -own[r, 1], -own[r, 2]
-        r += 1
-        along = normal[k, 0] * m0 + normal[k, 1] * m1 + normal[k, 2] * m2
-        if along < -edge_cos:
-            front[k] = False
-        if along < edge_cos and gap[k] <= near and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
-            out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
-            out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
-    return out_n, out_gap, front
 
 
 @nb.njit(cache=True)
