@@ -132,6 +132,17 @@ def test_a_scheduler_that_cannot_be_reached_leaves_no_files_and_excludes_workers
     assert exit_code.value.code == 2 and "not allowed with" in capsys.readouterr().err
 
 
+def test_a_scheduler_address_that_is_no_address_is_an_exit_2_error(tmp_path, capsys):
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    code = main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--scheduler", "nonsense",
+                 "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--scheduler nonsense: not a scheduler address" in err
+    assert "Traceback" not in err and not out.exists()
+
+
 def test_a_key_set_twice_is_an_exit_2_error_and_nothing_runs(tmp_path, capsys):
     scene = tmp_path / "drop.toml"
     scene.write_text(DROP)
@@ -171,7 +182,11 @@ def _wait_for_port(port, process, seconds=30):
     raise AssertionError(f"nothing listens on port {port}")
 
 
-def test_sweep_through_a_real_scheduler_and_worker_records_a_failed_run_and_runs_the_rest(tmp_path, capsys):
+def test_sweep_through_a_real_scheduler_and_worker_records_a_failed_run_and_runs_the_rest(
+        tmp_path, capsys, monkeypatch):
+    """Through a scheduler whose worker runs in another folder, with the study folder given
+    relative to this one (as the default outputs/<scene>-sweep is): the worker is sent absolute
+    paths (it failed every run, and the error it wrote over was lost)."""
     port = _free_port()
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     env = os.environ | {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
@@ -183,18 +198,20 @@ def test_sweep_through_a_real_scheduler_and_worker_records_a_failed_run_and_runs
         address = f"tcp://127.0.0.1:{port}"
         worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address,
                                    "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1"],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                                  cwd=Path(__file__).parent)
         scene = tmp_path / "beam.toml"
         scene.write_text(BEAM)
+        monkeypatch.chdir(tmp_path)
         # the second anchor box holds no node: that variant fails when its bodies are built
-        code = main(["sweep", str(scene), "--set",
+        code = main(["sweep", "beam.toml", "--set",
                      "bodies.beam.anchors.0.box=[[-0.11,-1,-1],[-0.09,1,1]],[[5,5,5],[6,6,6]]",
-                     "--scheduler", address, "--out", str(tmp_path / "out"), "--quiet"])
+                     "--scheduler", address, "--out", "out", "--quiet"])
         assert code == 0
         rows = list(csv.DictReader(open(tmp_path / "out" / "results.csv")))
         assert [r["status"] for r in rows] == ["ok", "failed"]
         assert "anchor" in rows[1]["error"]
-        summary = json.loads((Path(rows[0]["folder"]) / "summary.json").read_text())
+        summary = json.loads((tmp_path / rows[0]["folder"] / "summary.json").read_text())
         assert summary["status"] == "ok" and summary["steps"] == 2
         assert "1 of 2 runs ok" in capsys.readouterr().out
     finally:

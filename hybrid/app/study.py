@@ -47,7 +47,10 @@ def run_variant(scene_file, out_dir):
     except Exception as failure:        # noqa: BLE001 (one run's failure must not end the study)
         status = "failed"
         error = f"{type(failure).__name__}: {failure}".strip()
-        Path(out_dir, "error.txt").write_text(traceback.format_exc())
+        try:
+            Path(out_dir, "error.txt").write_text(traceback.format_exc())
+        except OSError:                 # the folder unseen from here: the error itself is what counts
+            pass
     return {"status": status, "error": error, "wall_s": clock.perf_counter() - start}
 
 
@@ -88,7 +91,10 @@ def _client(workers, scheduler):
     import dask
     from dask.distributed import Client, LocalCluster
     if scheduler:
-        return Client(scheduler, timeout="20s"), None
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except ValueError as err:           # no address at all ("missing port number ...")
+            raise OSError(f"not a scheduler address ({err}); give one as tcp://HOST:PORT") from None
     n = int(workers or os.cpu_count() or 1)
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ | PINNED_THREADS}):
@@ -137,7 +143,10 @@ def _dispatch(todo, texts, total, workers, scheduler, progress):
             (folder / "summary.json").unlink(missing_ok=True)
             Path(record["scene_file"]).write_text(text)
         bar.slots = max(1, sum(client.nthreads().values()))
-        futures = {client.submit(run_variant, r["scene_file"], r["folder"], pure=False,
+        # absolute paths: a scheduler's workers run from folders of their own (a relative study
+        # folder failed every run there)
+        futures = {client.submit(run_variant, str(Path(r["scene_file"]).resolve()),
+                                 str(Path(r["folder"]).resolve()), pure=False,
                                  key=f"hybrid-run-{r['id']}-{os.urandom(4).hex()}"): r for r in todo}
         bar.show()
         for future in as_completed(futures):
