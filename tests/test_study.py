@@ -270,3 +270,13 @@ def test_sweep_from_python_names_its_settings_keys_not_the_command_line(tmp_path
               out=tmp_path / "b", zipped=True)
     assert "--" not in str(error.value) and str(error.value).startswith("zipped=True needs")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("key", ["simulation.dt=0.001,0.002", "simulation.output_fps=10,20"])
+def test_converge_refuses_a_setting_its_ladder_sets(tmp_path, capsys, key):
+    """A --set of the time step (or the frame rate the ladder aligns) was overwritten by the
+    ladder in every run, and the table labelled the runs by the values never used."""
+    code = main(["converge", "default", "--set", key, "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "ladder sets it in every run" in err and key.split("=")[0] in err
+    assert not (tmp_path / "out").exists()

@@ -88,6 +88,12 @@ def ladder(scene, dt_levels, refine_levels=0, meshes=None, across=()):
     if dt_levels < 1 or refine_levels < 0:
         raise SettingError("--dt needs at least 1 level and --refine at least 0")
     refined = _mesh_settings(scene, refine_levels, meshes or {})
+    laddered = {"simulation.dt", "simulation.output_fps"} | set(refined)
+    for key, _ in across:
+        if key in laddered:
+            what = "time step" if key.startswith("simulation.") else "mesh"
+            raise SettingError(f"--set {key}: the {what} ladder sets it in every run; set it "
+                               f"in the scene file (the ladder starts from the scene's)")
     dt = scene.simulation.dt
     # frames every whole number of the coarsest steps, so every run writes them at the same times
     fps = 1.0 / (dt * max(1, round(1.0 / (scene.simulation.output_fps * dt))))
