@@ -172,11 +172,35 @@ def test_a_rerun_replaces_the_earlier_movie_and_frames(tmp_path):
     assert result["movie"].read_bytes() != b"old"
 
 
-def test_render_refuses_a_size_it_cannot_draw(tmp_path):
+def test_render_refuses_a_size_it_cannot_draw(tmp_path, capfd):
+    """Too small, or too large to allocate (40000 x 30000 ended the process in the renderer,
+    after the earlier render's files were removed): exit 2, and an earlier render stays."""
+    from hybrid.app.cli import main
     run_dir = tmp_path / "boxes"
     write_two_box_run(run_dir)
-    with pytest.raises(ValueError, match="at least 16 pixels"):
+    with pytest.raises(ValueError, match="16 to 8192 pixels"):
         render_run(run_dir, size=(0, -5))
+    (run_dir / "render").mkdir()
+    (run_dir / "render" / "frame_0000.png").write_bytes(b"earlier")
+    for size in (["0", "-5"], ["40000", "30000"]):
+        assert main(["render", str(run_dir), "--size", *size]) == 2
+        assert "16 to 8192 pixels" in capfd.readouterr().err
+    assert (run_dir / "render" / "frame_0000.png").read_bytes() == b"earlier"
+
+
+@pytest.mark.parametrize("damage", ["index", "render folder"])
+def test_a_damaged_index_or_a_file_where_the_render_goes_is_an_exit_2_error(tmp_path, capfd, damage):
+    from hybrid.app.cli import main
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    if damage == "index":
+        next(run_dir.glob("*.pvd")).write_text("garbage")
+    else:
+        (run_dir / "render").write_text("a file")
+    assert main(["render", str(run_dir)]) == 2
+    err = capfd.readouterr().err
+    assert ("not a finished run folder" if damage == "index" else "cannot write the render") in err
+    assert "Traceback" not in err
 
 
 @pytest.mark.parametrize("damage", ["missing", "cut short"])

@@ -170,16 +170,17 @@ def _seconds(text):
 
 
 def _render(args):
+    from xml.etree.ElementTree import ParseError
     from .output import read_run
-    from .render import render_run
+    from .render import MAX_SIZE, render_run
     run_dir = Path(args.dir)
-    if min(args.size) < 16:
-        print(f"{run_dir}: --size {args.size[0]} {args.size[1]}: give a width and height of at least "
-              f"16 pixels", file=sys.stderr)
+    if not (16 <= min(args.size) and max(args.size) <= MAX_SIZE):
+        print(f"{run_dir}: --size {args.size[0]} {args.size[1]}: give a width and height of 16 to "
+              f"{MAX_SIZE} pixels", file=sys.stderr)
         return 2
     try:
         times, frames, _ = read_run(run_dir)
-    except (FileNotFoundError, OSError, ValueError) as err:
+    except (FileNotFoundError, OSError, ValueError, ParseError) as err:
         print(f"{run_dir}: not a finished run folder ({err})", file=sys.stderr)
         return 2
     if not frames:
@@ -197,6 +198,9 @@ def _render(args):
         return 4
     except ValueError as err:
         print(f"\n{run_dir}: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:              # its render folder a file, or not writable
+        print(f"\n{run_dir}: cannot write the render ({err})", file=sys.stderr)
         return 2
     print(f"\nwrote {len(result['pngs'])} PNG frames and {result['movie']}")
     return 0

@@ -255,6 +255,12 @@ def _bar_left(field, width):
     return min(bar["position_x"], bar["position_x"] + (BAR_WIDTH * width - title) / (2 * width))
 
 
+# the largest image side (pixels): off-screen OpenGL's own limit is 16384 at best, and a
+# 40000 x 30000 frame ended the process in the renderer's allocation after the earlier render's
+# files were gone
+MAX_SIZE = 8192
+
+
 def render_run(run_dir: Path | str, out: Path | str | None = None,
                size: tuple[int, int] = (960, 540), fps: float | None = None,
                field: str | None = None,
@@ -284,8 +290,8 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
     scene = find_pvd(run_dir, summary).stem
     fps = float(fps) if fps else movie_fps(times, summary)
     width, height = int(size[0]), int(size[1])
-    if width < 16 or height < 16:
-        raise ValueError(f"--size {width} {height}: give a width and height of at least 16 pixels")
+    if not (16 <= width <= MAX_SIZE and 16 <= height <= MAX_SIZE):
+        raise ValueError(f"--size {width} {height}: give a width and height of 16 to {MAX_SIZE} pixels")
 
     if colour_range not in COLOUR_RANGES:
         raise ValueError(f"colour range {colour_range!r}: one of {', '.join(COLOUR_RANGES)}")
