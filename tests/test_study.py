@@ -280,3 +280,18 @@ def test_converge_refuses_a_setting_its_ladder_sets(tmp_path, capsys, key):
     err = capsys.readouterr().err
     assert code == 2 and "ladder sets it in every run" in err and key.split("=")[0] in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_study_run_again_with_a_value_added_keeps_every_run_it_had(tmp_path):
+    """Run ids name the variant, not its place in the grid: a value added in the middle kept
+    only the runs before it (numbered by position, the later ones ran again under new numbers
+    and their old folders were left behind)."""
+    from hybrid.app.study import sweep
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    first = sweep(scene, {"simulation.dt": [0.01, 0.005]}, out, workers=1)
+    again = sweep(scene, {"simulation.dt": [0.01, 0.0075, 0.005]}, out, workers=1)
+    kept = {r["id"]: r for r in again}
+    assert all(kept[r["id"]]["wall_s"] == r["wall_s"] for r in first)      # not run again
+    assert len(list((out / "runs").iterdir())) == 3

@@ -203,14 +203,16 @@ def make_variants(scene_path, rows):
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
         raise SceneError([f"{scene_path}: cannot read scene file ({error})"]) from None
     variants, problems = [], []
-    for index, settings in enumerate(rows):
+    for settings in rows:
         data = copy.deepcopy(base)
         for key, value in settings.items():
             apply_setting(data, key, value)
         _absolute_meshes(data, scene_path.parent)
         digest = hashlib.sha1(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:6]
+        # named by what it is, not where it stands: a study run again with one more value keeps
+        # the runs it had (numbered by position, every run after the new value ran again)
         label = _label(settings)
-        variant_id = f"{index:03d}_{label}" if label else f"{index:03d}_{digest}"
+        variant_id = f"{label}_{digest}" if label else digest
         try:
             parse_scene(data, str(scene_path), scene_path.parent)
         except SceneError as error:
