@@ -14,7 +14,8 @@ import pytest
 
 from hybrid import sweep
 from hybrid.app.cli import main
-from hybrid.app.variants import parse_value, toml_text
+from hybrid.app.scene import SceneError
+from hybrid.app.variants import SettingError, parse_value, toml_text
 
 DROP = """[simulation]
 duration = 0.25
@@ -295,3 +296,24 @@ def test_a_study_run_again_with_a_value_added_keeps_every_run_it_had(tmp_path):
     kept = {r["id"]: r for r in again}
     assert all(kept[r["id"]]["wall_s"] == r["wall_s"] for r in first)      # not run again
     assert len(list((out / "runs").iterdir())) == 3
+
+
+def test_python_studies_take_numpy_values_and_refuse_bad_workers_and_tolerances(tmp_path):
+    """From Python: numpy numbers and arrays are values like any (an np.int64 was refused as no
+    integer, an array taken as one value); workers=-1 (which waited for ever) and tol=5 (taken
+    silently) are errors in the API's words."""
+    import numpy as np
+    from hybrid.app.converge import converge
+    from hybrid.app.study import sweep
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    rows = sweep(scene, {"simulation.solver.iterations": np.arange(5, 7),
+                         "bodies.ball.restitution": np.float32(0.5)}, tmp_path / "out", workers=1)
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    with pytest.raises(SettingError, match="workers=-1"):
+        sweep(scene, {"simulation.dt": [0.01]}, tmp_path / "w", workers=-1)
+    with pytest.raises(SettingError, match="tol=5"):
+        converge(scene, tmp_path / "c", tol=5)
+    with pytest.raises(SceneError, match="settings key"):
+        sweep(scene, {"simulation.dt": [-1.0]}, tmp_path / "neg", workers=1)
+    assert not (tmp_path / "w").exists() and not (tmp_path / "c").exists()

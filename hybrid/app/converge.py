@@ -21,7 +21,7 @@ import numpy as np
 
 from . import quantities as qty
 from .study import execute, write_table
-from .variants import SettingError, combinations, make_variants, parse_settings
+from .variants import SettingError, combinations, make_variants, setting_pairs
 
 RICHARDSON, FINEST = "richardson", "finest-difference"
 
@@ -185,8 +185,8 @@ def pareto(points):
 def converge(scene, out, dt_levels=3, refine_levels=0, meshes=None, across=(), quantities=None,
              tol=0.01, workers=None, scheduler=None, progress=False, plot=True):
     """Run ``scene`` (a file or built-in name) at ``dt_levels`` halving time steps (and
-    ``refine_levels`` mesh levels, see :func:`ladder`; ``across``: ``["KEY=V1,V2"]`` settings each
-    with a ladder of its own) on Dask, estimate each run's error in ``quantities`` (names of
+    ``refine_levels`` mesh levels, see :func:`ladder`; ``across``: ``["KEY=V1,V2"]`` or
+    ``{key: values}`` settings each with a ladder of its own) on Dask, estimate each run's error in ``quantities`` (names of
     :mod:`hybrid.app.quantities`; default :func:`hybrid.app.quantities.defaults`), write
     ``out/convergence.csv`` (and ``out/convergence.png`` with ``plot``) and return its rows (a
     list of dicts). ``tol``: the relative error the recommendation asks for; the rows' ``pareto``
@@ -197,7 +197,9 @@ def converge(scene, out, dt_levels=3, refine_levels=0, meshes=None, across=(), q
     path = scene_path(scene)
     base = load_scene(path)
     names = check_quantities(base, quantities)
-    rungs = ladder(base, dt_levels, refine_levels, meshes, parse_settings(across))
+    if not 0.0 < tol < 1.0:
+        raise SettingError(f"tol={tol}: give a relative error between 0 and 1")
+    rungs = ladder(base, dt_levels, refine_levels, meshes, setting_pairs(across))
     variants = make_variants(path, [r.settings for r in rungs])
     out = Path(out)
     records = execute(variants, out, workers, scheduler, progress)

@@ -19,7 +19,8 @@ import traceback
 from pathlib import Path
 
 from .output import BODIES_CSV, read_summary
-from .variants import SettingError, combinations, make_variants, parse_settings
+from .scene import SceneError
+from .variants import SettingError, combinations, make_variants, setting_pairs
 
 # one BLAS / OpenMP / numba thread per worker process: workers do not oversubscribe the cores
 PINNED_THREADS = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
@@ -106,7 +107,11 @@ def _client(workers, scheduler):
 def execute(variants, out, workers=None, scheduler=None, progress=True):
     """Run ``variants`` (from :func:`hybrid.app.variants.make_variants`) under ``out/runs/``,
     skipping those finished before. Returns one record per variant, in order: ``id``, ``folder``,
-    ``scene_file``, ``status``, ``error``, ``wall_s``, ``kept`` (finished before)."""
+    ``scene_file``, ``status``, ``error``, ``wall_s``, ``kept`` (finished before). ``workers``:
+    None or a whole number of at least 1 (SettingError; -1 waited for workers for ever)."""
+    if workers is not None and (isinstance(workers, bool) or not float(workers).is_integer()
+                                or workers < 1):
+        raise SettingError(f"workers={workers!r}: give a whole number of local processes, at least 1")
     runs = Path(out) / "runs"
     records, todo, texts = [], [], []
     for v in variants:
@@ -216,6 +221,17 @@ def _cell(value):
     return value
 
 
+def _in_python_words(error):
+    """``error`` (SettingError or SceneError) about settings given as a dict from Python: in its
+    keys' words, not the command line's --set and --zip."""
+    def words(message):
+        message = message.replace("--set key", "settings key").replace("--set ", "settings key ")
+        return message.replace("--zip", "zipped=True")
+    if isinstance(error, SceneError):
+        return SceneError([words(p) for p in error.problems])
+    return SettingError(words(str(error)))
+
+
 def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, progress=False,
           plot=None):
     """Run every variant of ``scene`` (a scene file or built-in name) that ``settings`` makes
@@ -225,8 +241,7 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     ``plot``: ``"FIGURE"`` or ``"FIGURE:KEY"`` draws ``out/FIGURE.png`` against the first (or
     that) swept key. Raises SettingError or SceneError before anything runs for bad input."""
     from ..simulation import scene_path
-    pairs = parse_settings(settings) if isinstance(settings, (list, tuple)) \
-        else [(k, list(v) if isinstance(v, (list, tuple)) else [v]) for k, v in settings.items()]
+    pairs = setting_pairs(settings)
     path = scene_path(scene)
     if plot:
         from .plots import check_sweep_plot
@@ -234,12 +249,10 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     try:
         rows = combinations(pairs, zipped)
         variants = make_variants(path, rows)
-    except SettingError as error:
+    except (SettingError, SceneError) as error:
         if isinstance(settings, (list, tuple)):
             raise
-        # given as a dict from Python: its keys, not the command line's --set and --zip
-        message = str(error).replace("--set key", "settings key").replace("--set ", "settings key ")
-        raise SettingError(message.replace("--zip", "zipped=True")) from None
+        raise _in_python_words(error) from None
     out = Path(out)
     records = execute(variants, out, workers, scheduler, progress)
     out.mkdir(parents=True, exist_ok=True)

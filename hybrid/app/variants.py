@@ -100,6 +100,23 @@ def parse_setting(text):
     return key, [parse_value(p) for p in parts]
 
 
+def setting_pairs(settings):
+    """``[(key, values)]`` of settings given as ``["KEY=V1,V2", ...]`` (:func:`parse_settings`) or
+    from Python as ``{key: values}`` (a value alone or a list, tuple or numpy array of them; numpy
+    numbers become Python ones, which the scene loader checks by type)."""
+    if isinstance(settings, (list, tuple)):
+        return parse_settings(settings)
+
+    def plain(value):
+        return value.tolist() if hasattr(value, "tolist") else value
+    pairs = []
+    for key, values in settings.items():
+        values = plain(values)
+        values = list(values) if isinstance(values, (list, tuple)) else [values]
+        pairs.append((key, [plain(v) for v in values]))
+    return pairs
+
+
 def parse_settings(texts):
     """:func:`parse_setting` of each ``--set`` text; a KEY given twice is a SettingError (the later
     values would silently replace the earlier)."""
