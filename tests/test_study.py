@@ -317,3 +317,23 @@ def test_python_studies_take_numpy_values_and_refuse_bad_workers_and_tolerances(
     with pytest.raises(SceneError, match="settings key"):
         sweep(scene, {"simulation.dt": [-1.0]}, tmp_path / "neg", workers=1)
     assert not (tmp_path / "w").exists() and not (tmp_path / "c").exists()
+
+
+def test_the_convergence_report_says_why_it_has_no_extrapolation():
+    """A two-level ladder, failed runs and an erratic order are told apart (all three read
+    "erratic"), and a study whose every run failed says so instead of asking for more levels."""
+    from hybrid.app.study_cli import report
+
+    def row(dt, status="ok", method="finest-difference"):
+        return {"id": f"dt={dt}", "dt": dt, "resolution": "", "status": status,
+                "error:ball.z": 0.1, "estimate:ball.z": method, "recommended": False,
+                "max_relative_error": 0.1, "wall_per_sim_s": 1.0}
+    two = report([row(0.01), row(0.005)], 0.01)
+    assert "a ladder of 2 levels gives no observed order" in two[0]
+    failed = report([row(0.01), row(0.005, "unstable"), row(0.0025)], 0.01)
+    assert "runs of the ladder did not finish ok" in failed[0]
+    erratic = report([row(0.01), row(0.005), row(0.0025)], 0.01)
+    assert "the observed order is erratic" in erratic[0]
+    none = report([row(0.01, "unstable"), row(0.005, "failed")], 0.01)
+    assert "no run finished ok" in none[0] and "every run failed" in none[-1]
+    assert not any("add --dt levels" in line for line in none)

@@ -50,13 +50,13 @@ def richardson(levels, ratio=2.0):
     as the two differences add up to, within 20%: runs that swing about the limit can shrink their
     differences too), the finest order is between 0.5 and 6 and, with four or more levels, the
     last two orders agree within 0.6; otherwise the reference is the finest level (method
-    ``finest-difference``). Runs that agree to round-off (1e-12 of the largest value) have
-    converged."""
+    ``finest-difference``). Runs that agree to 1e-9 of the largest value have converged (to
+    1e-12, a cantilever's tip agreeing to 3e-12 read as an erratic order)."""
     finest = levels[-1]
     if len(levels) < 3:
         return Estimate(finest, (), FINEST)
     orders, d = observed_orders(levels, ratio)
-    round_off = 1e-12 * max(float(np.max(np.abs(np.asarray(level, float)))) for level in levels)
+    round_off = 1e-9 * max(float(np.max(np.abs(np.asarray(level, float)))) for level in levels)
     if d[-1] <= round_off and d[-2] <= round_off:
         return Estimate(finest, orders, RICHARDSON)       # converged exactly
     p = orders[-1]

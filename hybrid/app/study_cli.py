@@ -126,18 +126,28 @@ def report(rows, tol):
     """Lines for the terminal: each quantity's estimate, and the recommended setting."""
     names = [k.split(":", 1)[1] for k in rows[0] if k.startswith("error:")]
     lines, against_finest = [], False
+    ok = [r for r in rows if r["status"] == "ok"]
+    # a ladder gives an order from three levels: with two, or runs missing, there is none to test
+    levels = max(len({r["dt"] for r in rows}), len({r["resolution"] for r in rows}))
+    why = ("no run finished ok: nothing to estimate" if not ok else
+           f"a ladder of {levels} levels gives no observed order (three or more do)" if levels < 3
+           else "runs of the ladder did not finish ok" if len(ok) < len(rows)
+           else "the observed order is erratic (contact events, fracture, runs swinging about the "
+                "limit)")
     for name in names:
         methods = {r[f"estimate:{name}"] for r in rows}
         if methods != {"richardson"}:
             against_finest = True
-            lines.append(f"{name}: the observed order is erratic (contact events, fracture, runs "
-                         f"swinging about the limit): its errors are differences from the finest "
-                         f"run, not an extrapolation")
+            lines.append(f"{name}: {why}: its errors are differences from the finest run, not an "
+                         f"extrapolation" if ok else f"{name}: {why}")
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"{r['id']}: {r['status']} (left out of the estimates)")
     pick = next((r for r in rows if r["recommended"]), None)
-    if pick is None:
+    if not ok:
+        lines.append("no estimate: every run failed (their messages are above and in "
+                     "convergence.csv)")
+    elif pick is None:
         lines.append(f"no run tried reaches a relative error of {tol:g}; add --dt levels "
                      f"(or --refine) and run again (finished runs are kept)")
     else:
