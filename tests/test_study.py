@@ -337,3 +337,18 @@ def test_the_convergence_report_says_why_it_has_no_extrapolation():
     none = report([row(0.01, "unstable"), row(0.005, "failed")], 0.01)
     assert "no run finished ok" in none[0] and "every run failed" in none[-1]
     assert not any("add --dt levels" in line for line in none)
+
+
+@pytest.mark.parametrize("plot, ok", [("simulated_time", True), ("ball.z", True), ("nobody.z", False)])
+def test_sweep_plots_every_documented_figure_and_refuses_a_body_the_scene_lacks(tmp_path, capsys,
+                                                                               plot, ok):
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    code = main(["sweep", str(scene), "--set", "simulation.dt=0.004,0.002", "--plot", plot,
+                 "--out", str(out), "--quiet"])
+    if ok:
+        assert code == 0 and (out / f"{plot}.png").exists()
+    else:
+        assert code == 2 and "no body 'nobody'; bodies: ball" in capsys.readouterr().err
+        assert not out.exists()

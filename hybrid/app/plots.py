@@ -3,10 +3,8 @@ convergence study's error against cost."""
 import re
 from pathlib import Path
 
+from .study import FIGURES as SWEEP_FIGURES
 from .variants import SettingError
-
-SWEEP_FIGURES = ("wall_s", "steps_per_s", "energy_drift", "linear_momentum_drift",
-                 "angular_momentum_drift", "plastic_dissipation", "cracks", "fragments")
 
 
 def _pyplot():
@@ -21,14 +19,16 @@ def _plot_parts(plot, keys):
     return figure, key or (keys[0] if keys else "")
 
 
-def check_sweep_plot(plot, keys, values=None):
+def check_sweep_plot(plot, keys, values=None, bodies=None):
     """SettingError unless ``plot`` (``FIGURE`` or ``FIGURE:KEY``) names a figure of
-    ``results.csv`` (or ``<body>.x|y|z``) and one of the swept ``keys`` whose ``values`` (a list
-    per key, if given) are numbers, which an axis can carry."""
+    ``results.csv`` (or ``<body>.x|y|z``, a body of ``bodies`` if given) and one of the swept
+    ``keys`` whose ``values`` (a list per key, if given) are numbers, which an axis can carry."""
     figure, key = _plot_parts(plot, keys)
     if figure not in SWEEP_FIGURES and not re.fullmatch(r".+\.[xyz]", figure):
         raise SettingError(f"--plot {plot}: give one of {', '.join(SWEEP_FIGURES)} or <body>.x|y|z, "
                            f"optionally :KEY")
+    if figure not in SWEEP_FIGURES and bodies is not None and figure[:-2] not in bodies:
+        raise SettingError(f"--plot {plot}: no body '{figure[:-2]}'; bodies: {', '.join(bodies)}")
     if key not in keys:
         raise SettingError(f"--plot {plot}: '{key}' is not a swept key; swept: {', '.join(keys) or 'none'}")
     if values is not None and not all(isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -245,7 +245,9 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     path = scene_path(scene)
     if plot:
         from .plots import check_sweep_plot
-        check_sweep_plot(plot, [k for k, _ in pairs], [v for _, v in pairs])
+        from .scene import load_scene
+        check_sweep_plot(plot, [k for k, _ in pairs], [v for _, v in pairs],
+                         [b.name for b in load_scene(path).bodies])
     try:
         rows = combinations(pairs, zipped)
         variants = make_variants(path, rows)

@@ -98,7 +98,9 @@ def _sweep(args, out):
                  scheduler=args.scheduler, progress=not args.quiet, plot=args.plot)
     failed = [r for r in rows if r["status"] != "ok"]
     for r in failed:
-        print(f"{r['id']}: {r['status']}: {r['error']}", file=sys.stderr)
+        error = str(r["error"])        # an instability's message says "unstable: ..." itself
+        said = error if error.startswith(f"{r['status']}:") else f"{r['status']}: {error}"
+        print(f"{r['id']}: {said}", file=sys.stderr)
     print(f"{len(rows) - len(failed)} of {len(rows)} runs ok; wrote {out}/results.csv"
           + (f" and {out}/{args.plot.partition(':')[0]}.png" if args.plot else ""))
     return 0
