@@ -4,6 +4,7 @@ does not stop the others, and the same command runs on a real scheduler and work
 import csv
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -352,3 +353,27 @@ def test_sweep_plots_every_documented_figure_and_refuses_a_body_the_scene_lacks(
     else:
         assert code == 2 and "no body 'nobody'; bodies: ball" in capsys.readouterr().err
         assert not out.exists()
+
+
+def test_ctrl_c_stops_a_sweep_with_one_line_and_no_worker_tracebacks(tmp_path):
+    """Ctrl-C goes to the terminal's whole process group: the workers, given it too, printed
+    pages of Dask tracebacks as they closed. They start with it ignored; the study stops them."""
+    scene = tmp_path / "long.toml"
+    scene.write_text(DROP.replace("duration = 0.25", "duration = 1000.0"))
+    cli = Path(sys.executable).with_name("hybrid")
+    run = subprocess.Popen([str(cli), "sweep", str(scene), "--set", "simulation.dt=0.004,0.002",
+                            "--workers", "2", "--out", str(tmp_path / "out")],
+                           env=dict(os.environ, OPENBLAS_NUM_THREADS="1"), start_new_session=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        end = time.time() + 60          # until both runs have started writing
+        while len(list((tmp_path / "out").glob("runs/*/*.pvd"))) < 2 and time.time() < end:
+            time.sleep(0.2)
+        os.killpg(run.pid, signal.SIGINT)
+        _, err = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    err = err.decode()
+    assert run.returncode == 130 and "interrupted (Ctrl-C)" in err
+    assert "Traceback" not in err and "ERROR" not in err, err

@@ -12,8 +12,11 @@ A run whose ``summary.json`` says ``ok`` for the same scene file is kept and ski
 study runs again; an unstable or failed run is recorded and does not stop the others.
 """
 import csv
+import logging
 import os
+import signal
 import sys
+import threading
 import time as clock
 import traceback
 from pathlib import Path
@@ -98,10 +101,23 @@ def _client(workers, scheduler):
             raise OSError(f"not a scheduler address ({err}); give one as tcp://HOST:PORT") from None
     n = int(workers or os.cpu_count() or 1)
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ | PINNED_THREADS}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
+    # the workers start with Ctrl-C ignored (a terminal's goes to the whole process group): the
+    # study stops them itself; given it too, they printed pages of tracebacks as they closed,
+    # which their logs at CRITICAL leave out (a lost worker's run is a failed row anyway)
+    ignored = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ | PINNED_THREADS}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.CRITICAL)
+    finally:
+        if ignored is not None:
+            signal.signal(signal.SIGINT, ignored)
     return Client(cluster), cluster
+
+
+def _main_thread():
+    """Whether this is the main thread (the only one that may set signal handlers)."""
+    return threading.current_thread() is threading.main_thread()
 
 
 def execute(variants, out, workers=None, scheduler=None, progress=True):
