@@ -126,6 +126,18 @@ FACING_SLACK = 0.01
 
 
 @nb.njit(cache=True)
+def _facing(f, triangles, P, moved, facing):
+    """How squarely triangle ``f`` as it is now faces a node of outward normal ``facing``: the
+    cosine between the triangle's normal and the opposite of the node's."""
+    now = np.empty((3, 3))
+    for i in range(3):
+        for a in range(3):
+            now[i, a] = P[triangles[f, i], a] + moved[triangles[f, i], a]
+    m0, m1, m2 = unit_normal(now[0], now[1], now[2])
+    return -(m0 * facing[0] + m1 * facing[1] + m2 * facing[2])
+
+
+@nb.njit(cache=True)
 def _facing_candidate(k, Y, facing, faces, dist, count, best, v, w, triangles, P, moved):
     """``(best, v, w)``: the candidate triangle point ``k`` (of :func:`places`) meets, and the
     barycentric weights of its closest point. A node with its own outward normal ``facing``
@@ -138,13 +150,8 @@ def _facing_candidate(k, Y, facing, faces, dist, count, best, v, w, triangles, P
     as a wall, and the block sliding on the slab without friction lost a third of its speed."""
     if abs(facing[0] * facing[0] + facing[1] * facing[1] + facing[2] * facing[2] - 1.0) >= 1e-6:
         return best, v, w
-    now = np.empty((3, 3))
     f = faces[best]
-    for i in range(3):
-        for a in range(3):
-            now[i, a] = P[triangles[f, i], a] + moved[triangles[f, i], a]
-    m0, m1, m2 = unit_normal(now[0], now[1], now[2])
-    if -(m0 * facing[0] + m1 * facing[1] + m2 * facing[2]) > FACING_COS:
+    if _facing(f, triangles, P, moved, facing) > FACING_COS:
         return best, v, w
     a, b = P[triangles[f, 0]], P[triangles[f, 1]]
     slack = FACING_SLACK * np.sqrt((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 + (b[2] - a[2]) ** 2)
@@ -153,12 +160,7 @@ def _facing_candidate(k, Y, facing, faces, dist, count, best, v, w, triangles, P
     for t in range(count):
         if dist[t] > reach or (chosen >= 0 and dist[t] >= dist[chosen]):
             continue
-        g = faces[t]
-        for i in range(3):
-            for c in range(3):
-                now[i, c] = P[triangles[g, i], c] + moved[triangles[g, i], c]
-        m0, m1, m2 = unit_normal(now[0], now[1], now[2])
-        if -(m0 * facing[0] + m1 * facing[1] + m2 * facing[2]) > FACING_COS:
+        if _facing(faces[t], triangles, P, moved, facing) > FACING_COS:
             chosen = t
     if chosen < 0:
         return best, v, w
