@@ -42,7 +42,7 @@ def test_the_render_hint_is_quoted_for_the_shell(tmp_path, capsys, monkeypatch):
 
 def test_render_size_must_be_drawable(tmp_path, capsys):
     assert main(["render", str(tmp_path), "--size", "0", "-5"]) == 2
-    assert "at least 16 pixels" in capsys.readouterr().err
+    assert "16 to 8192 pixels" in capsys.readouterr().err
 
 
 def test_help_lists_every_render_field_and_version_is_printed(capsys):

@@ -87,13 +87,19 @@ def rest_triangles_reference(P, tri, around, Y, close, moved=None, facing=None):
     return tri[face[best]], weights, (row[tied], tri[face[tied]])
 
 
-def places_reference(P, tri, around, moved, Y, close, X_now, radius, facing):
+def places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, facing):
     corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close,
                                                                         moved, facing)
     rest = P[corners]
     now = rest + moved[corners]
     n_rest = unit_normals_reference(rest)
     n = turn_reference(n_rest, n_rest, unit_normals_reference(now))
+    # pressed in behind the face, with the grid's normal opposed to it: the grid's stands
+    behind = -np.einsum("ij,ij->i", X_now - np.einsum("pi,pij->pj", weights, now), n) \
+        > places.CLEAR * np.linalg.norm(rest[:, 1] - rest[:, 0], axis=1)
+    grid = turn_reference(grid_n, n_rest, unit_normals_reference(now))
+    use = behind & (np.einsum("ij,ij->i", n, grid) < places.OPPOSED_COS)
+    n[use] = grid[use]
     if len(tie_row):
         tie_rest = P[tie_corners]
         tie_now = tie_rest + moved[tie_corners]
@@ -226,9 +232,15 @@ def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
     facing = rng.standard_normal(Y.shape)
     facing /= np.linalg.norm(facing, axis=1, keepdims=True)
     facing[::2] = 0.0
-    corners, weights, normal, gap = places.places(Y, close, around, tri, P, moved, X_now, radius,
-                                                   facing)
-    want = places_reference(P, tri, around, moved, Y, close, X_now, radius, facing)
+    # the grid's normals: the triangle's own, for a third of the points reversed (a thin piece's
+    # far side), for a third random
+    grid_n = unit_normals_reference(P[tri[face]])
+    grid_n[::3] *= -1.0
+    grid_n[1::3] = rng.standard_normal((len(grid_n[1::3]), 3))
+    grid_n /= np.linalg.norm(grid_n, axis=1, keepdims=True)
+    corners, weights, normal, gap = places.places(Y, close, around, tri, P, moved, grid_n, X_now,
+                                                   radius, facing)
+    want = places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, facing)
     assert want[4] > 0                                   # ties were met
     np.testing.assert_array_equal(corners, want[0])
     np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)

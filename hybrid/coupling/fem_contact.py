@@ -238,12 +238,12 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     X_now = X[near] + local[near]
     # the points' own normals in b's rest frame, as X
     toward = np.zeros((len(near), 3)) if facing is None else facing[near] @ R
-    corners, weights, n, gap = places.places(Y, close, around, tri, P, moved, X_now, radius[near],
-                                              toward)
+    corners, weights, n, gap = places.places(Y, close, around, tri, P, moved, n_rest[near], X_now,
+                                              radius[near], toward)
     own = np.nonzero((radius[near] == 0.0) & (np.abs(phi[near]) <= grid.cell_size))[0]
     if len(own):
-        mine = places.places(X[near[own]], close[own], around, tri, P, moved, X_now[own],
-                              radius[near[own]], toward[own])
+        mine = places.places(X[near[own]], close[own], around, tri, P, moved, n_rest[near[own]],
+                              X_now[own], radius[near[own]], toward[own])
         keep = np.abs(mine[3] - gap[own]) <= 0.5 * grid.cell_size
         for whole, part in zip((corners, weights, n, gap), mine):
             whole[own[keep]] = part[keep]

@@ -86,6 +86,10 @@ def face_normal(rest, now):
     return turned(a, rest, now)
 
 
+# a triangle whose normal is turned more than 120 degrees from the grid's is the far side of a
+# thin piece (places)
+OPPOSED_COS = -0.5
+
 # a node meets the face at a sharp edge whose normal is within 70 degrees of opposite its own
 FACING_COS = np.cos(np.radians(70.0))
 
@@ -239,7 +243,7 @@ def _tied_normal(n, line, facing, faces, dist, count, best, size, triangles, P, 
 
 
 @nb.njit(cache=True)
-def places(Y, close, around, triangles, P, moved, X_now, radius, facing):
+def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, facing):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
     ``close`` (p, kc): each point's nearest surface nodes (indices into the surface nodes, whose
@@ -248,7 +252,12 @@ def places(Y, close, around, triangles, P, moved, X_now, radius, facing):
     close ones), and its normal that triangle's (:func:`face_normal`; a point on an edge or
     vertex: :func:`_tied_normal`), not the signed-distance grid's gradient, which across a body
     a cell or two thick is any blend of its faces (a frictionless box sliding on a plank as
-    thick as a cell met its top face on sideways normals at every node line, and stopped).
+    thick as a cell met its top face on sideways normals at every node line, and stopped);
+    but a point pressed in behind that triangle (by more than CLEAR of its edge) whose grid
+    rest normal ``n_rest`` (p, 3, turned with it) is opposed to it by more than 120 degrees is
+    nearer the far side of a thin piece, and the grid's normal stands (met along the near face,
+    points pressed into a shattered pane's slivers went through them and the pieces gained a
+    third of their energy).
     ``X_now`` (p, 3): the points moved as the surface moved, ``radius`` (p,) m, ``facing``
     (p, 3) the points' own outward unit normals in the body's rest frame (nodes of other
     deformable bodies; zero rows for points without one, see :func:`_tied_normal`). Returns
@@ -280,6 +289,11 @@ def places(Y, close, around, triangles, P, moved, X_now, radius, facing):
         n = face_normal(rest, now)
         e0, e1, e2 = rest[1, 0] - rest[0, 0], rest[1, 1] - rest[0, 1], rest[1, 2] - rest[0, 2]
         line = X_now[k] - place
+        depth = -(line[0] * n[0] + line[1] * n[1] + line[2] * n[2])      # behind the face
+        if depth > CLEAR * np.sqrt(e0 * e0 + e1 * e1 + e2 * e2):
+            grid_n = turned(n_rest[k], rest, now)
+            if n[0] * grid_n[0] + n[1] * grid_n[1] + n[2] * grid_n[2] < OPPOSED_COS:
+                n = grid_n
         n = _tied_normal(n, line, facing[k], faces, dist, count, best, e0 * e0 + e1 * e1 + e2 * e2,
                          triangles, P, moved, seen_n, rest, now)
         normal[k] = n
