@@ -79,14 +79,8 @@ EDGE_COS = np.cos(np.radians(70.0))
 def contact_node_normals(models, states, node_offset, node_body, contacts):
     """Own outward unit normals ``(r, 3)`` of the surface nodes (side a) of the ``contacts`` with
     rigid bodies (side b >= 0), in their order (:func:`_node_normals`; zero where a node has none)."""
-    node = contacts.body_a[contacts.body_b >= 0]
-    if len(models) == 1:
-        return _node_normals(models[0], states[0], node - node_offset[0])
-    own = np.zeros((len(node), 3))
-    for j in np.unique(node_body[node]):
-        mine = node_body[node] == j
-        own[mine] = _node_normals(models[j], states[j], node[mine] - node_offset[j])
-    return own
+    return _stacked_normals(models, states, node_offset, node_body,
+                            contacts.body_a[contacts.body_b >= 0], flat=False)
 
 
 def edge_normals(contacts, own, near):
@@ -137,26 +131,27 @@ def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
     return normal, gap
 
 
-def _stacked_normals(models, states, node_offset, node_body, stacked):
-    """Own outward unit normals ``(k, 3)`` of the ``stacked`` surface nodes on a smooth part of
-    their body's surface (every triangle around within 30 degrees of the node's normal; zero
-    rows for the others, on their own body's edges and corners)."""
+def _stacked_normals(models, states, node_offset, node_body, stacked, flat=True):
+    """Own outward unit normals ``(k, 3)`` of the ``stacked`` surface nodes (:func:`_node_normals`),
+    with ``flat`` only of those on a smooth part of their body's surface."""
     out = np.zeros((len(stacked), 3))
     for j in np.unique(node_body[stacked]):
         mine = node_body[stacked] == j
-        m, s = models[j], states[j]
-        _, tri, around = _surface_index(m)
-        out[mine] = kernels.flat_node_normals(s.x, m.surface_nodes, tri, around,
-                                              np.asarray(stacked[mine] - node_offset[j], np.int64),
-                                              float(places.SHARP_COS))
+        out[mine] = _node_normals(models[j], states[j], stacked[mine] - node_offset[j], flat)
     return out
 
 
-def _node_normals(m, s, local):
+def _node_normals(m, s, local, flat=False):
     """Current outward unit normals ``(k, 3)`` of body m's surface nodes ``local`` (indices into
-    ``surface_nodes``): the area-weighted normals of the triangles around each."""
+    ``surface_nodes``): the area-weighted normals of the triangles around each; with ``flat``,
+    zero for a node some triangle around which turns more than 30 degrees from its normal (on an
+    edge or a corner of its own body, where a node's normal is no surface's)."""
     _, tri, around = _surface_index(m)
-    return kernels.node_normals(s.x, m.surface_nodes, tri, around, np.asarray(local, np.int64))
+    local = np.asarray(local, np.int64)
+    if flat:
+        return kernels.flat_node_normals(s.x, m.surface_nodes, tri, around, local,
+                                         float(places.SHARP_COS))
+    return kernels.node_normals(s.x, m.surface_nodes, tri, around, local)
 
 
 def _motion(m, s):

@@ -70,6 +70,12 @@ def nearest_rows(points, queries):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _corners(surface_nodes, triangles, f):
+    """The node indices of surface triangle ``f``."""
+    return surface_nodes[triangles[f, 0]], surface_nodes[triangles[f, 1]], surface_nodes[triangles[f, 2]]
+
+
 @nb.njit(cache=True)
 def flat_node_normals(x, surface_nodes, triangles, around, local, cos_min):
     """:func:`node_normals` of the surface nodes ``local`` that lie on a smooth part of their
@@ -82,9 +88,7 @@ def flat_node_normals(x, surface_nodes, triangles, around, local, cos_min):
             f = around[local[k], slot]
             if f < 0:
                 continue
-            p = surface_nodes[triangles[f, 0]]
-            q = surface_nodes[triangles[f, 1]]
-            r = surface_nodes[triangles[f, 2]]
+            p, q, r = _corners(surface_nodes, triangles, f)
             m0, m1, m2 = unit_normal(x[p], x[q], x[r])
             if m0 * out[k, 0] + m1 * out[k, 1] + m2 * out[k, 2] < cos_min:
                 out[k, 0], out[k, 1], out[k, 2] = 0.0, 0.0, 0.0
@@ -107,9 +111,7 @@ def node_normals(x, surface_nodes, triangles, around, local):
             f = around[local[k], slot]
             if f < 0:
                 continue
-            p = surface_nodes[triangles[f, 0]]
-            q = surface_nodes[triangles[f, 1]]
-            r = surface_nodes[triangles[f, 2]]
+            p, q, r = _corners(surface_nodes, triangles, f)
             a0, a1, a2 = x[q, 0] - x[p, 0], x[q, 1] - x[p, 1], x[q, 2] - x[p, 2]
             b0, b1, b2 = x[r, 0] - x[p, 0], x[r, 1] - x[p, 1], x[r, 2] - x[p, 2]
             n0 += a1 * b2 - a2 * b1
