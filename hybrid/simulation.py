@@ -270,7 +270,9 @@ class Simulation:
                              (self.fem_time, self.stepped_time), self.peaks, self.impacts)
             if saver.stopped is not None:
                 result["status"] = "stopped"
-            for line in rigid_hints(self.model, self.peaks.strains) + frame_hints(self.model, self.peaks.strains):
+            struck = {w.body for w in self.impacts.warnings}
+            for line in (rigid_hints(self.model, self.peaks.strains, struck)
+                         + frame_hints(self.model, self.peaks.strains)):
                 log(line)
             recorder.close(result)
         if failure is not None:

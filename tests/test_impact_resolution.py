@@ -87,6 +87,42 @@ def test_finer_plate_still_warns_until_the_patch_spans_nodes(sim):
     assert [w.kind for w in sim(ball_on_plate(0.01)).advance(3e-4).impacts.warnings] == ["space", "time"]
 
 
+def test_a_small_ball_striking_a_face_between_nodes_is_warned_of(sim):
+    # a 4 mm steel ball at 10 m/s on a plate of 4 cm elements meets one face between its nodes:
+    # no node touches it, and it stops on the face with the plate barely strained (4e-6)
+    s = sim("""
+[simulation]
+dt = 1e-4
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "plate"
+model = "fem"
+shape = { type = "box", size = [0.16, 0.12, 0.01], resolution = 0.04 }
+density = 2700.0
+young = 70e9
+poisson = 0.33
+yield_stress = 35e6
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.004 }
+density = 7800.0
+position = [0.012, 0.009, 0.0095]
+velocity = [0.0, 0.0, -10.0]
+""")
+    s.advance(5e-4)
+    warnings = s.impacts.warnings
+    assert [(w.body, w.kind, w.partner) for w in warnings] == [("plate", "space", "ball"),
+                                                              ("plate", "time", "ball")]
+    assert warnings[0].speed == pytest.approx(10.0, rel=0.02)
+    assert "(none touching: it strikes inside a face;" in warnings[0].message
+    # Hertz's patch of the 2.1 g ball (the plate's 0.52 kg hardly counts), fully plastic: 3 Y
+    # pi R d^2 = m v^2 / 2 and a = sqrt(2 R d), about 1.5 mm, far under the 40 mm spacing
+    m = 7800.0 * 4 / 3 * np.pi * 0.004 ** 3
+    m = m * 0.16 * 0.12 * 0.01 * 2700.0 / (m + 0.16 * 0.12 * 0.01 * 2700.0)
+    d = np.sqrt(m * 10.0 ** 2 / (6 * np.pi * 35e6 * 0.004))
+    assert warnings[0].need == pytest.approx(np.sqrt(2 * 0.004 * d) / 3, rel=0.05)
+
+
 def test_dropped_brittle_slab_warns_that_the_step_is_longer_than_the_impact(sim):
     s = sim(SLAB)
     summary, lines = run(s, 1e-3)

@@ -17,7 +17,8 @@ model's honest answers at that resolution; :class:`ImpactWatch` says so, once pe
   for a body that yields) when curved shapes meet.
 
 It looks at each step's end (through the Simulation's per-step hook) for surface nodes of FEM
-bodies touching rigid bodies or planes, with the velocities of the step's start: an impact is a
+bodies touching rigid bodies or planes, and rigid bodies' contact points on their faces
+(hybrid.app.impact_contacts), with the velocities of the step's start: an impact is a
 contact that began in the step, approached fast enough that its stress (``rho c v``, the stress of a wave of speed ``v``)
 reaches a quarter of the body's yield or fracture stress, or a strain of 1e-4 for an elastic
 body. Contacts between two FEM bodies are not examined.
@@ -26,9 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigid import quaternion as quat
-from rigid.contacts import detect_points
-from rigid.model import angular_velocity, reported_velocity
+from .impact_contacts import approach, just_parked, near, partner_of, same_body
 
 # an impact is examined when rho c v reaches this share of the body's yield or fracture stress
 STRENGTH_SHARE = 0.25
@@ -171,8 +170,8 @@ class ImpactWatch:
             name = model.names[model.fem_ids[j]]
             partners = {p for b, p in pairs if b == name}
             if partners:
-                c = _near(model, state, j, CLOSE * self._node_spacing(m))
-                found = {model.names[int(model.rigid_ids[p])] if p >= 0 else "plane" for p in c.body_b}
+                c = near(model, state, j, CLOSE * self._node_spacing(m))
+                found = {model.names[int(model.rigid_ids[p])] if p >= 0 else "plane" for p in c.partner}
                 if found & partners:
                     return True
         return False
@@ -230,25 +229,25 @@ class ImpactWatch:
         m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
         spacing = self._node_spacing(m)
-        c = _near(model, state, j, CLOSE * spacing)
+        c = near(model, state, j, CLOSE * spacing)
         partners = {int(p): model.names[int(model.rigid_ids[p])] if p >= 0 else "plane"
-                    for p in np.unique(c.body_b)}
+                    for p in np.unique(c.partner)}
         touching.update((name, p) for p in partners.values())
         # resting contact (the common case) is not new: nothing more to do
         began = [p for p, p_name in partners.items() if (name, p_name) not in self.touching
-                 and not _same_body(model, j, p) and not _just_parked(model, state, p)]
+                 and not same_body(model, j, p) and not just_parked(model, state, p)]
         if not began:
             return []
-        approach = _approach(model, old, state, j, c)
+        speeds = approach(model, old, state, j, c)
         out = []
         for partner in began:
-            partner_name, on = partners[partner], c.body_b == partner
-            speed = float(approach[on].max())
+            partner_name, on = partners[partner], c.partner == partner
+            speed = float(speeds[on].max())
             if not _relevant(m, body, speed):
                 continue
-            normal = c.normal[int(np.argmax(np.where(on, approach, -np.inf)))]
+            normal = c.normal[int(np.argmax(np.where(on, speeds, -np.inf)))]
             extent = float(np.ptp(s1.x @ normal))
-            partner_body, partner_mass = _partner(model, int(partner))
+            partner_body, partner_mass = partner_of(model, int(partner))
             curvature = 1.0 / shape_radius(body) + 1.0 / shape_radius(partner_body)
             radius = 1.0 / curvature if curvature > 0 else np.inf
             mass = float(m.node_mass.sum())
@@ -256,9 +255,10 @@ class ImpactWatch:
             impact = impact_estimate(m.young, m.poisson, m.density, m.yield_stress, extent, radius,
                                      reduced, speed)
             # the nodes that meet at once: within TOUCH of the leading one (a face landing flat is
-            # met by all of its nodes in the step the contact begins, none of them touching yet)
-            lead = on & (c.gap <= c.gap[on].min() + TOUCH * spacing)
-            nodes_on = int(np.unique(c.body_a[lead]).size)
+            # met by all of its nodes in the step the contact begins, none of them touching yet);
+            # a partner's point on a face between nodes is carried by none
+            lead = on & (c.gap <= c.gap[on].min() + TOUCH * spacing) & (c.node >= 0)
+            nodes_on = int(np.unique(c.node[lead]).size)
             where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
             if impact.tau < STEPS_PER_IMPACT * model.dt:
@@ -303,59 +303,6 @@ class ImpactWatch:
         self.resolving = None if r is None else (*r[:3], {tuple(pair) for pair in r[3]})
 
 
-def _near(model, state, j, margin):
-    """Contacts (rigid.contacts.Contacts) of FEM body ``j``'s surface nodes at the step's end with
-    rigid bodies and planes within ``margin`` m (body_a: the index into its surface nodes)."""
-    rm, rs = model.rigid, state.rigid
-    k = len(model.fem[j].surface_nodes)
-    R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
-    return detect_points(rm, rs.position, R, state.fem[j].x[model.fem[j].surface_nodes],
-                         np.zeros(k), np.zeros(rm.body_count), margin, np.zeros(k), np.zeros(k))
-
-
-def _approach(model, old, state, j, c):
-    """Speed of approach (c,) m/s of contacts ``c`` (:func:`_near`) at the step's start: the
-    node's velocity against the partner's at the contact point, along the normal."""
-    rm, rs = model.rigid, state.rigid
-    v_partner = np.zeros((c.count, 3))
-    if rm.body_count and c.count:
-        rigid = c.body_b >= 0
-        b = c.body_b[rigid]
-        v_rigid = reported_velocity(rm, old.rigid, model.gravity)
-        w_rigid = angular_velocity(rm, old.rigid)
-        v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
-    v_node = old.fem[j].v[model.fem[j].surface_nodes[c.body_a]]
-    return -np.einsum("ci,ci->c", v_node - v_partner, c.normal)
-
-
-def _same_body(model, j, partner):
-    """Whether rigid body ``partner`` broke from the same scene body as FEM body ``j`` (its own
-    debris: the fracture, not an impact the scene set up)."""
-    if partner < 0 or model.fragment_of is None:
-        return False
-    return model.fragment_of[int(model.rigid_ids[partner])] == model.fragment_of[int(model.fem_ids[j])]
-
-
-def _just_parked(model, state, partner):
-    """Whether rigid body ``partner`` is an auto body that turned rigid at the end of the last
-    step: a contact with it then is one the two had while both were deformable (not judged),
-    not one that began."""
-    if partner < 0:
-        return False
-    since = state.rigid_since.get(int(model.rigid_ids[partner]))
-    return since is not None and state.steps - since <= 1
-
-
-def _partner(model, partner):
-    """``(scene body or None, mass kg)`` of a contact partner: rigid body ``partner`` (its scene
-    body; None for a fracture fragment, whose shape is not the scene's) or a plane (-1)."""
-    if partner < 0:
-        return None, np.inf
-    k = int(model.rigid_ids[partner])
-    origin = model.fragment_of[k] if model.fragment_of is not None else k
-    return (model.scene.bodies[origin] if origin == k else None), float(model.rigid.body_mass[partner])
-
-
 def _relevant(m, body, speed):
     """Whether an approach at ``speed`` m/s matters to FEM body ``m`` (scene ``body``): its wave
     stress ``rho c v`` reaches STRENGTH_SHARE of its yield or fracture stress, or for an elastic
@@ -377,20 +324,22 @@ def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
     dt, most = stepping
     see = "check with `hybrid converge` (docs/studies.md)"
     out = []
+    touching = f"{nodes_on} touching" if nodes_on else "none touching: it strikes inside a face"
     if impact.a is not None and impact.a < PATCH_ELEMENTS * spacing:
         need = impact.a / PATCH_SUGGESTED
         out.append(ImpactWarning(
             about[0], "space", *about[1:], spacing, need,
             f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) is "
-            f"carried by fewer than a few nodes ({nodes_on} touching; nodes {spacing * 1e3:.3g} "
+            f"carried by fewer than a few nodes ({touching}; nodes {spacing * 1e3:.3g} "
             f"mm apart), so the stress under it is smeared over the elements and a dent or crack "
             f"there is underestimated; a resolution of about {need:.2g} m would resolve it: {see}"))
     elif impact.a is None and nodes_on < FLAT_NODES:
         need = spacing / 2.0
         out.append(ImpactWarning(
             about[0], "space", *about[1:], spacing, need,
-            f"warning: {where}: the contact is carried by {nodes_on} node(s) (an edge or corner "
-            f"strikes; nodes {spacing * 1e3:.3g} mm apart), so the stress under it is smeared over "
+            f"warning: {where}: the contact is carried by {nodes_on} node(s) ("
+            f"{'an edge or corner strikes' if nodes_on else 'it strikes inside a face'}; nodes "
+            f"{spacing * 1e3:.3g} mm apart), so the stress under it is smeared over "
             f"the elements; refine (resolution {need:.2g} m or finer): {see}"))
     if dt / most > impact.tau / STEPS_PER_IMPACT:
         need = impact.tau / STEPS_PER_IMPACT

@@ -234,12 +234,13 @@ def stepping(model, strains, fem_time, simulated):
             for name in names}
 
 
-def rigid_hints(model, strains):
+def rigid_hints(model, strains, struck=()):
     """Log lines suggesting ``model = "rigid"`` for FEM or auto bodies whose largest strain over
     every step (``strains``, as for :func:`stepping`) stayed below the strain an auto body would
     turn deformable at (its elastify threshold; the default for an FEM body). Only for free bodies
     without loads: a rigid body carries none, and a fixed one would not show an anchored body's
-    deflection, which is what a small strain there is usually wanted for."""
+    deflection, which is what a small strain there is usually wanted for; and not for the bodies
+    named in ``struck`` (warned of an under-resolved impact: their strain is underestimated)."""
     from hybrid.coupling.auto import elastify_threshold
     lines = []
     for body in model.scene.bodies:
@@ -247,7 +248,7 @@ def rigid_hints(model, strains):
         if body.model not in ("fem", "auto") or strain is None or model.fragment_of[
                 model.names.index(body.name)] != model.names.index(body.name):
             continue
-        if body.loads or body.anchors:
+        if body.loads or body.anchors or body.name in struck:
             continue
         limit = elastify_threshold(body)
         if strain < limit:
