@@ -242,6 +242,8 @@ class Simulation:
         simulation's last run wrote (a run into it again would replace that run's frames)."""
         out = self._checked_out(out)
         position, snapshot = self._position(until)
+        if out is not None:             # a run refused above wrote nothing there
+            self._last_out = out.resolve()
         for message in getattr(self, "notes", []):
             log(message)
         for message in self.warnings:
@@ -293,7 +295,6 @@ class Simulation:
         if self.resumed is None and getattr(self, "_last_out", None) == out.resolve():
             raise ValueError(f"out {out}: this simulation's last run wrote there; a run from "
                              f"t = {self.time:.6g} s would replace its frames: give another folder")
-        self._last_out = out.resolve()
         return out
 
     def _position(self, until):

@@ -138,6 +138,12 @@ def test_run_refuses_times_and_folders_it_cannot_honour(tmp_path):
         sim.run(until=0.008, out=tmp_path / "run", progress=False, log=lambda m: None)
     with pytest.raises(ValueError, match="until must be a time"):
         sim.run(until=0.0, progress=False, log=lambda m: None)
+    # a run refused for its time writes nothing, and the folder of the last run stays guarded
+    with pytest.raises(ValueError, match="until must be a time"):
+        sim.run(until=0.001, out=tmp_path / "never", progress=False, log=lambda m: None)
+    assert not (tmp_path / "never").exists()
+    with pytest.raises(ValueError, match="last run wrote there"):
+        sim.run(until=0.008, out=tmp_path / "run", progress=False, log=lambda m: None)
     summary = sim.run(until=0.008, out=tmp_path / "later", progress=False, log=lambda m: None)
     assert summary["status"] == "ok" and sim.time == pytest.approx(0.008)
 
