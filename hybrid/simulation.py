@@ -24,6 +24,7 @@ from .app.resolution import ImpactWatch
 from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, overlapping_bodies,
                       rigid_hints, summary)
 from .app.scene import SceneError, load_scene
+from .app.scene.data import rechecked
 from .coupling.stability import StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
 from .coupling.substep import advance_in_substeps
@@ -105,6 +106,8 @@ class Simulation:
     def __init__(self, scene):
         if isinstance(scene, (str, os.PathLike)):       # a scene file or a built-in scene's name
             scene = load_scene(scene_path(scene))
+        else:                                           # perhaps changed in Python: checked again
+            scene = rechecked(scene)
         self.scene = scene
         try:
             with geometry.caught_mesh_warnings() as repaired:
@@ -132,7 +135,7 @@ class Simulation:
         """Load, validate and build a scene file, or a built-in scene given by name (``hybrid
         scenes`` lists them). Raises SceneError listing every problem (a missing file among them),
         KeyError for a name that is no built-in scene."""
-        return cls(load_scene(scene_path(path)))
+        return cls(scene_path(path))
 
     @classmethod
     def resume(cls, path, out):
@@ -225,7 +228,7 @@ class Simulation:
     def run(self, until=None, out=None, progress=True, log=print, checkpoint_every=None,
             stop=None):
         """Step until simulated time ``until`` (s; default the scene's ``duration``), recording a
-        frame at the scene's ``output_fps`` (and one at the current time). With ``out`` (a
+        frame at the scene's ``output_fps`` (and one at the current time and one at the end). With ``out`` (a
         folder), write the frames (.vtu and a .pvd index), bodies.csv, regions.csv and
         summary.json there, as ``hybrid run`` does, and checkpoints (``out/checkpoint.npz``,
         :mod:`hybrid.app.checkpoint`) every ``checkpoint_every`` simulated seconds (None: every
@@ -317,7 +320,8 @@ class Simulation:
                                    len(self.events)), None
 
     def _steps(self, position, recorder, bar, log, saver):
-        """Take steps until ``position.end_step``, recording frames at the output rate and
+        """Take steps until ``position.end_step``, recording frames at the output rate (at the
+        first step at or after each frame time) and at the last step, and
         writing checkpoints (``saver``, which also ends the steps when a stop was asked); the
         InstabilityError that stopped them, or None."""
         frame_every = 1.0 / self.scene.simulation.output_fps
@@ -331,6 +335,8 @@ class Simulation:
                 if self.time >= position.next_frame - 1e-9 * self.dt:
                     recorder.record(self.model, self.state)
                     position.next_frame += frame_every
+                elif self.steps == position.end_step:     # the run's end, between frame times
+                    recorder.record(self.model, self.state)
                 bar.update(self.time, self.steps)
                 if saver.after_step(recorder):
                     break

@@ -197,3 +197,50 @@ shape = {{ type = "sphere", radius = 0.1, resolution = 0.1 }}
         assert drift < 1e-9
     else:
         assert drift == pytest.approx(1 / (sim.steps + 1), rel=1e-6)
+
+
+def test_a_run_ending_between_frame_times_writes_its_end(tmp_path):
+    """Frames come at the first step at or after each frame time, and the run's last state is
+    written even when its end falls between them (a 0.03 s run at 60 frames/s kept t = 0.018)."""
+    sim = Simulation(parse_scene(tomllib.loads("""
+[simulation]
+duration = 0.03
+dt = 0.002
+output_fps = 60
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.1 }
+"""), "<test>", Path(".")))
+    summary = sim.run(out=tmp_path / "run", progress=False, log=lambda m: None)
+    times = np.loadtxt(tmp_path / "run" / "bodies.csv", delimiter=",", skiprows=1, usecols=0, ndmin=1)
+    assert times == pytest.approx([0.0, 0.018, 0.03])
+    assert summary["frames"] == 3 and len(list((tmp_path / "run" / "frames").glob("*.vtu"))) == 3
+    vz = np.loadtxt(tmp_path / "run" / "bodies.csv", delimiter=",", skiprows=1, usecols=11)[-1]
+    assert vz == pytest.approx(-9.81 * 0.03)
+
+
+def test_a_scene_changed_in_python_is_checked_as_its_file_would_be():
+    """dataclasses.replace skips the scene file's checks: a negative young stepped with a
+    negative von Mises stress, a negative dt ran backwards. Simulation(scene) checks it again,
+    naming the field, and the summary shows the values it ran with."""
+    from dataclasses import replace
+    from hybrid.app.scene import SceneError, load_scene
+    from hybrid.scenes import builtin_path
+    scene = load_scene(builtin_path("dent"))
+    plate = next(b for b in scene.bodies if b.name == "plate")
+
+    def changed(**fields):
+        return replace(scene, bodies=tuple(replace(b, **fields) if b is plate else b for b in scene.bodies))
+
+    for fields, message in (({"young": -70e9}, "field 'young' must be a number > 0"),
+                            ({"poisson": 0.7}, "field 'poisson' must be"),
+                            ({"yield_stress": "abc"}, "field 'yield_stress' must be")):
+        with pytest.raises(SceneError, match=message):
+            Simulation(changed(**fields))
+    with pytest.raises(SceneError, match="field 'dt' must be"):
+        Simulation(replace(scene, simulation=replace(scene.simulation, dt=-1e-3)))
+    sim = Simulation(changed(yield_stress=100e6))
+    summary = sim.run(until=2e-4, progress=False, log=lambda m: None)
+    assert summary["scene"]["bodies"][2]["yield_stress"] == 100e6
+    assert sim.model.fem[0].yield_stress == 100e6
+    assert Simulation(scene).scene is scene         # an unchanged scene is used as it is
