@@ -163,15 +163,15 @@ velocity = [0.0, 0.0, -1.0]
 
 
 def test_peaks_cover_every_step_not_only_written_frames(sim):
-    # frames at 10 per second: the start's is the only one of the 0.5 ms run
+    # frames at 10 per second: the start's and the end's are the only ones of the 0.5 ms run
     s = sim(ball_on_plate(0.02, fps=10))
     summary, _ = run(s, 5e-4)
-    assert summary["frames"] == 1
+    assert summary["frames"] == 2
     peak = summary["peaks"]["plate"]
     # perfect plasticity holds the yielded elements' stress on the yield surface
     assert peak["von_mises"]["value"] == pytest.approx(50e6, rel=1e-6)
     assert peak["plastic_strain"]["value"] > 0
-    assert 0 < peak["von_mises"]["time"] <= 5e-4
+    assert 0 < peak["von_mises"]["time"] < 5e-4 - 1e-9        # between the frames
     assert 0 < peak["principal_stress"]["value"] <= peak["von_mises"]["value"]
     # the plate at the end is below the peak (it rings down after the blow)
     assert s.body("plate").von_mises.max() < peak["von_mises"]["value"]

@@ -121,7 +121,8 @@ SIMULATION = Section("simulation", "[simulation]",
               "steps of `dt` (the run log warns when that is not `duration` itself)."),
     _positive("dt", 0.001, "s", "Time step."),
     Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
-    _positive("output_fps", 60.0, "1/s", "Frames written per simulated second."),
+    _positive("output_fps", 60.0, "1/s", "Frames written per simulated second, each at the first "
+              "step at or after its time; the first at the start and one at the end."),
     Field("resolve_impacts", "boolean", False, "", "Take a step in which an impact on a "
           "deformable body begins, and which is longer than the impact, in sub-steps (up to 64) "
           "short enough that the impact spans four of them, each followed by its events; then "
