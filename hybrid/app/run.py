@@ -270,15 +270,17 @@ def rigid_hints(model, strains, struck=()):
 FLOATING_STRAIN = 0.05
 
 
-def frame_hints(model, strains):
+def frame_hints(model, strains, spinning=()):
     """Log lines suggesting ``frame = "corotated"`` for floating-frame bodies whose largest
     strain over every step (``strains``, as for :func:`stepping`) passed FLOATING_STRAIN: linear
-    elasticity in one best-fit frame does not follow the large rotation of a part of the body."""
+    elasticity in one best-fit frame does not follow the large rotation of a part of the body;
+    not for bodies named in ``spinning`` (warned that their step turns them too far: the
+    corotated frame would not help)."""
     lines = []
     for body in model.scene.bodies:
         strain = strains.get(body.name)
         if body.model in ("fem", "auto") and body.frame == "floating" and strain is not None \
-                and strain > FLOATING_STRAIN:
+                and strain > FLOATING_STRAIN and body.name not in spinning:
             lines.append(f"note: '{body.name}' reached a strain of {strain:.2g} in the floating "
                          f"frame, whose linear elasticity holds for small strains and small "
                          f"rotations of its parts; frame = \"corotated\" follows large rotations "
