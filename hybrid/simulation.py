@@ -42,7 +42,8 @@ class Body:
     it is stepped now (an auto body switches).
     position (3,) m: centre of mass. orientation (4,): unit quaternion (w, x, y, z) of the body's
     frame (FEM: its scene orientation turned by its best-fit rotation). velocity (3,) m/s: of the
-    centre of mass. angular_velocity (3,) rad/s. kinetic_energy J.
+    centre of mass. angular_velocity (3,) rad/s. kinetic_energy J. mass kg (a rigid body's from
+    its surface mesh, a deformable body's from its tets).
     FEM and auto bodies only (None for rigid ones; an auto body stepped as rigid gives its tet
     mesh carried by the rigid motion, its fields as they were when it became rigid): points
     (n, 3) m, node positions; tets (t, 4 or 10)
@@ -56,6 +57,7 @@ class Body:
     velocity: np.ndarray
     angular_velocity: np.ndarray
     kinetic_energy: float
+    mass: float
     points: np.ndarray = None
     tets: np.ndarray = None
     von_mises: np.ndarray = None
@@ -380,6 +382,10 @@ class Simulation:
         pose = dict(name=name, position=values[0:3], orientation=values[3:7], velocity=values[7:10],
                     angular_velocity=values[10:13], kinetic_energy=float(values[13]))
         kind = "fem" if index in self.model.fem_ids else "rigid"
+        if kind == "fem":
+            pose["mass"] = float(self.model.fem[list(self.model.fem_ids).index(index)].node_mass.sum())
+        else:
+            pose["mass"] = float(self.model.rigid.body_mass[list(self.model.rigid_ids).index(index)])
         deformable = [(m, s) for k, m, s in observe.fem_states(self.model, self.state) if k == index]
         if not deformable:
             return Body(kind=kind, **pose)

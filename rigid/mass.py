@@ -44,8 +44,9 @@ def mass_properties(vertices, triangles, density):
     det = np.einsum("ij,ij->i", a, np.cross(b, c))
     volume = det.sum() / 6.0
     if not (np.isfinite(volume) and volume > 0):
-        raise ValueError(f"enclosed volume must be positive, got {volume!r} m^3: the surface is "
-                         "open, inward-facing or degenerate (see rigid.trimesh.orient_outward)")
+        raise ValueError(f"enclosed volume must be positive, got {float(volume):.3g} m^3: the "
+                         "surface is open, inward-facing, degenerate, or too small for its volume "
+                         "to be computed")
     corner_sum = a + b + c  # the reference corner is the origin
     first_moment = np.einsum("i,ij->j", det, corner_sum) / 24.0  # sum V (0 + a + b + c) / 4
     # Second moment of a tet with a corner at the origin:

@@ -244,3 +244,20 @@ def test_a_scene_changed_in_python_is_checked_as_its_file_would_be():
     assert summary["scene"]["bodies"][2]["yield_stress"] == 100e6
     assert sim.model.fem[0].yield_stress == 100e6
     assert Simulation(scene).scene is scene         # an unchanged scene is used as it is
+
+
+def test_a_body_reports_its_mass_and_the_progress_of_a_log_ends_once():
+    """Body.mass lets a user check momentum from the API: a box's is density times volume, rigid
+    or deformable. A run logged to a file ends its progress with one 100% line (it was twice)."""
+    import io
+    from hybrid.app.run import Progress
+    sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
+    assert sim.body("box").mass == pytest.approx(500.0 * 0.1 ** 3, rel=1e-12)
+    assert sim.body("slab").mass == pytest.approx(1000.0 * 0.3 * 0.3 * 0.04, rel=1e-12)
+    stream = io.StringIO()
+    bar = Progress(0.01, stream=stream)
+    for k in range(1, 11):
+        bar.update(0.001 * k, k)
+    bar.update(0.01, 10, force=True)
+    lines = stream.getvalue().splitlines()
+    assert sum(line.startswith("100.0%") for line in lines) == 1

@@ -119,8 +119,9 @@ def _run(args):
         return _stopped(args, out, stopped)
     c = summary["conservation"]
     print(f"done: {summary['steps']} steps, {summary['frames']} frames in {summary['wall_time']:.1f} s "
-          f"({summary['steps_per_second']:.0f} steps/s); energy drift {c['energy_relative_drift']:.3g} "
-          f"(largest change of total energy over the frames, relative to the largest |energy|; "
+          f"({summary['steps_per_second']:.3g} steps/s); energy drift {c['energy_relative_drift']:.3g} "
+          f"(largest change of total energy over the frames, relative to the largest |energy| or "
+          f"the energy the bodies convert; "
           f"friction, inelastic contact, damping, plastic flow and fracture lower it)")
     regions = ", regions.csv" if (out / "regions.csv").exists() else ""
     print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv{regions}, summary.json")
@@ -187,8 +188,14 @@ def _render(args):
         print(f"{run_dir}: no frames to render", file=sys.stderr)
         return 2
 
+    tty = sys.stderr.isatty()
+
     def progress(done, total):
-        print(f"\rrendering frame {done}/{total}", end="", file=sys.stderr, flush=True)
+        # on a terminal one line rewritten; in a log one line per tenth of the frames
+        if tty:
+            print(f"\rrendering frame {done}/{total}", end="", file=sys.stderr, flush=True)
+        elif done == total or (10 * done) // total > (10 * (done - 1)) // total:
+            print(f"rendering frame {done}/{total}", file=sys.stderr, flush=True)
 
     try:
         result = render_run(run_dir, size=tuple(args.size), field=args.field, progress=progress,

@@ -26,7 +26,7 @@ class Progress:
         self.start = clock.perf_counter()
         self.last = -1.0
         self.tty = hasattr(stream, "isatty") and stream.isatty()
-        self.last_decile = -1
+        self.last_decile, self.last_shown = -1, None
 
     def update(self, t, steps, force=False):
         """Show simulated time ``t`` (s) after ``steps`` steps; on a terminal at most every 0.2 s
@@ -42,8 +42,8 @@ class Progress:
                 self.stream.write(f"\r[{bar}] t = {t:7.3f} / {self.duration:.3f} s  {rate:8.1f} steps/s")
                 self.stream.flush()
                 self.last = now
-        elif int(frac * 10) > self.last_decile or force:
-            self.last_decile = int(frac * 10)
+        elif int(frac * 10) > self.last_decile or (force and steps != self.last_shown):
+            self.last_decile, self.last_shown = int(frac * 10), steps
             self.stream.write(f"{100 * frac:5.1f}%  t = {t:.3f} s  {rate:.1f} steps/s\n")
             self.stream.flush()
 

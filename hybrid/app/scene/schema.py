@@ -167,6 +167,8 @@ SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, ce
 ), rules=("`size` is required for and only allowed with `box`; `radius` with `sphere`, `cylinder`, "
           "`capsule`; `height` with `cylinder`, `capsule`.",
           "A capsule's `height` must be >= 2 `radius`.",
+          "A deformable body (`model = \"fem\"` or `\"auto\"`) is a `box`, `sphere` or "
+          "`cylinder`, or a tet mesh file (`mesh`); a `capsule` is for rigid bodies.",
           "`size`, `radius` and `height` must be at most 1e12 m.",
           "A shape that would be meshed into more than 2e6 elements (tetrahedra for a deformable "
           "body, surface triangles for a rigid one) is rejected: at its `resolution` or, when none "
