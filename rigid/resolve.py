@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .collide import collide, finite
 from .patches import share_loads, spinning_patches
-from .shock import STACK_COS, sweep_levels
+from .shock import sweep_levels
 from .solver import arms, contact_basis, normal_velocity, solve_groups, solver_groups
 from .step_kernels import contact_targets, impact_kinematics
 
@@ -112,17 +113,6 @@ class Resolution:
     pseudo_share: np.ndarray = None
 
 
-def _finite(impulse):
-    """The impulses with the NaN rows of contacts a pass left out as zeros (np.nan_to_num, called
-    only when the sum shows a value that is not finite: it costs more than the sum)."""
-    return impulse if np.isfinite(impulse.sum()) else np.nan_to_num(impulse)
-
-
-def _scatter(target, index, values):
-    keep = index >= 0
-    np.add.at(target, index[keep], values[keep])
-
-
 @dataclass
 class _Problem:
     """One call's contacts as the solver kernel takes them: the contacts, their arms ra, rb
@@ -192,8 +182,8 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
         if impact.any():
             # (inelastic impacts end in the contact pass the same way with or without the supports)
             bouncing = bool((contacts.restitution[impact] > 0).any())
-            _collide(out, problem, impact, ~impact & ~on_particle & bouncing, tau, approach, h,
-                     gravity, settings)
+            collide(out, problem, impact, ~impact & ~on_particle & bouncing, tau, approach, h,
+                    gravity, settings)
 
     # 2. contact: no gap may close by the end of the step (inelastic, Coulomb friction)
     target = _contact_target(problem, out, h, settings.slop)
@@ -219,14 +209,14 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
         rigid_side = ~particle[ia] & ((ib < 0) | ~particle[np.maximum(ib, 0)])
         scale_a, scale_b = problem.sweep_stack(-np.asarray(gravity) / gnorm, rigid_side, target,
                                                lam, v, w, settings.shock_iterations, contact_imp)
-    out.contact_impulse = _finite(contact_imp)
+    out.contact_impulse = finite(contact_imp)
     out.contact_lambda = lam
 
     # 4. penetration recovery: move positions only (split impulse), never add velocity
     deep = contacts.gap < -settings.slop
     if deep.any() and previous is None:
         target_p = settings.recovery * (-contacts.gap - settings.slop) / h
-        out.pseudo_impulse = _finite(problem.solve(
+        out.pseudo_impulse = finite(problem.solve(
             target_p, np.zeros(c), scale_a, scale_b, deep, np.zeros((c, 3)), out.pseudo_velocity,
             out.pseudo_angular, settings.iterations))
         out.pseudo_share = np.stack([scale_a, scale_b], axis=1)
@@ -319,87 +309,6 @@ def _contact_start(contacts, previous, warm):
     if warm is not None:
         return warm_lambda(contacts.normal, contacts.friction, warm), True
     return np.zeros((contacts.count, 3)), False
-
-
-def _collide(out, problem, impact, support, tau, approach, h, gravity, settings):
-    """Collision pass: each impact reaches its restitution target (e times its approach) at its
-    time of impact ``tau``, solved together with the ``support`` contacts (the other rigid
-    contacts, held to close no further than their gap, as in the contact pass), so a body lying on
-    the ground passes an impact on to it: solved alone, a ball falling at 3 m/s with e = 0.5 on a
-    box lying on the ground pushed the box into the ground and left at 0.08 m/s instead of 1.5.
-    Then, as in the contact pass, the stack is swept bottom-up with the lower side of each
-    contact frozen (Guendelman 2003), which the sweeps alone reach only slowly through a stack
-    (a ball on two stacked boxes left at 2.3 m/s instead of 3.5 after 20 sweeps, and set the top
-    box sliding). Updates out.velocity, out.angular in place and fills ``out``'s collision
-    fields."""
-    contacts, v, w = problem.contacts, out.velocity, out.angular
-    ia, ib, nrm = contacts.body_a, contacts.body_b, contacts.normal
-    ones = np.ones(contacts.count)
-    active = impact | support
-    target = np.where(impact, normal_velocity(ia, ib, problem.ra, problem.rb, nrm, v, w)
-                      + (1.0 + contacts.restitution) * approach, -np.maximum(contacts.gap, 0.0) / h)
-    v0, w0 = v.copy(), w.copy()
-    lam = np.zeros((contacts.count, 3))
-    imp = problem.solve(target, contacts.friction, ones, ones, active, lam, v, w, settings.iterations)
-    gnorm = np.linalg.norm(gravity)
-    swept = bool(support.any() and gnorm > 0)
-    if swept:
-        up = -np.asarray(gravity) / gnorm
-        # only contacts that stack (a sideways hit keeps the answer of the sweeps above: frozen,
-        # the box it hits would act as a wall)
-        stacked = active & (np.abs(nrm @ up) > STACK_COS)
-        problem.sweep_stack(up, stacked, target, lam, v, w, settings.shock_iterations, imp)
-    out.collision_impulse = _finite(imp)
-    out.impact_dv = v - v0
-    t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, len(v))
-    _move_back(out, problem, t_contact, active, swept, v0, w0)
-
-
-def _move_back(out, problem, t_contact, active, swept, v0, w0):
-    """The bodies are moved back by the time their impulses acted times the velocity they gave,
-    so bounces do not depend on where an impact falls in the step; their spin takes the angular
-    momentum that moving them back takes from their motion, so it stays exact. Fills out.shift,
-    shift_rotation and momentum_fix."""
-    contacts, bodies, v, w = problem.contacts, problem.bodies, out.velocity, out.angular
-    ia, ib, n = contacts.body_a, contacts.body_b, len(v)
-    inv_m, invI = bodies.inv_mass, bodies.inv_inertia
-    if swept:   # frozen sides took less than the impulses: each body's own change, at its time
-        t_body = np.zeros(n + 1)
-        np.maximum.at(t_body, np.where(ia >= 0, ia, n), np.where(active, t_contact, 0.0))
-        np.maximum.at(t_body, np.where(ib >= 0, ib, n), np.where(active, t_contact, 0.0))
-        t_body = t_body[:n, None]
-        out.shift = -t_body * (v - v0)
-        out.shift_rotation = -t_body * (w - w0)
-        mass = np.where(inv_m > 0, 1.0 / np.where(inv_m > 0, inv_m, 1.0), 0.0)[:, None]
-        out.momentum_fix = t_body * np.cross(mass * (v - v0), v)
-        return
-    imp = out.collision_impulse
-    for side, r, j in ((ia, problem.ra, imp), (ib, problem.rb, -imp)):
-        s = np.maximum(side, 0)
-        t = t_contact[:, None]          # each impulse at its own time
-        _scatter(out.shift, side, -t * j * inv_m[s][:, None])
-        _scatter(out.shift_rotation, side, -t * np.einsum("cij,cj->ci", invI[s], np.cross(r, j)))
-        _scatter(out.momentum_fix, side, t * np.cross(j, v[s]))
-
-
-def _impulse_times(ia, ib, tau, support, n, sweeps=8):
-    """When in the step each collision-pass impulse acts (s, (c,)): an impact at its own time
-    ``tau``; a support at the time of the impacts it passes on, found through the bodies it shares
-    with them (down a stack, one body per sweep). The bodies are moved back by these times the
-    velocity they took, so a body that passes an impact on takes no net shift (a box lying on the
-    ground, shifted by the ball's impact but not by the ground's answer to it, rose 2 mm into the
-    ball, which then left at 21 m/s instead of 15)."""
-    t = tau.copy()
-    for _ in range(sweeps):
-        body = np.zeros(n + 1)                  # slot n: planes and static bodies (-1)
-        np.maximum.at(body, np.where(ia >= 0, ia, n), t)
-        np.maximum.at(body, np.where(ib >= 0, ib, n), t)
-        body[n] = 0.0
-        reached = np.where(support, np.maximum(body[np.where(ia >= 0, ia, n)], body[np.where(ib >= 0, ib, n)]), t)
-        if np.array_equal(reached, t):
-            break
-        t = reached
-    return t
 
 
 def warm_lambda(normal, friction, impulse):
