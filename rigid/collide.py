@@ -95,11 +95,16 @@ def _move_back(out, problem, t_contact, active, swept, v0, w0):
     contacts, bodies, v, w = problem.contacts, problem.bodies, out.velocity, out.angular
     ia, ib, n = contacts.body_a, contacts.body_b, len(v)
     inv_m, invI = bodies.inv_mass, bodies.inv_inertia
-    if swept:   # frozen sides took less than the impulses: each body's own change, at its time
-        t_body = np.zeros(n + 1)
-        np.maximum.at(t_body, np.where(ia >= 0, ia, n), np.where(active, t_contact, 0.0))
-        np.maximum.at(t_body, np.where(ib >= 0, ib, n), np.where(active, t_contact, 0.0))
-        t_body = t_body[:n, None]
+    if swept:
+        # frozen sides took less than the impulses: each body's own change, at the mean time of
+        # its impulses, weighted by their size (at the latest, a box landing with its corners at
+        # 0.4 to 0.7 ms was moved back so far that its first corner ended 0.8 mm deep)
+        weight = np.where(active, np.linalg.norm(out.collision_impulse, axis=1), 0.0)
+        t_body, w_body = np.zeros(n + 1), np.zeros(n + 1)
+        for side in (np.where(ia >= 0, ia, n), np.where(ib >= 0, ib, n)):
+            np.add.at(t_body, side, weight * t_contact)
+            np.add.at(w_body, side, weight)
+        t_body = np.where(w_body > 0, t_body / np.where(w_body > 0, w_body, 1.0), 0.0)[:n, None]
         out.shift = -t_body * (v - v0)
         out.shift_rotation = -t_body * (w - w0)
         mass = np.where(inv_m > 0, 1.0 / np.where(inv_m > 0, inv_m, 1.0), 0.0)[:, None]

@@ -111,6 +111,7 @@ class Resolution:
     contact_lambda: np.ndarray = None
     pseudo_impulse: np.ndarray = None
     pseudo_share: np.ndarray = None
+    impact: np.ndarray = None
 
 
 @dataclass
@@ -175,10 +176,11 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     # 1. collisions: restitution at each impact's time within the step
     if previous is not None:     # position-level results belong to the first solve of the step
         for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
-                     "momentum_fix", "collision_impulse", "pseudo_impulse", "pseudo_share"):
+                     "momentum_fix", "collision_impulse", "pseudo_impulse", "pseudo_share", "impact"):
             setattr(out, name, getattr(previous, name))
     else:
         impact, tau, approach = _impacts(problem, on_particle, h, gravity, settings)
+        out.impact = impact
         if impact.any():
             # (inelastic impacts end in the contact pass the same way with or without the supports)
             bouncing = bool((contacts.restitution[impact] > 0).any())
@@ -254,16 +256,17 @@ def _impacts(problem, on_particle, h, gravity, settings):
 def _contact_target(problem, out, h, slop):
     """Normal velocity (c,) m/s each contact may reach at most: closing its gap exactly by the end
     of the step, counting the shifts the collision pass gave the bodies, but no more separating
-    than it already is by more than ``slop`` (m) in the step."""
+    than it already is (by more than ``slop`` (m) in the step, for contacts that were no impact)."""
     c = problem.contacts
     target = contact_targets(c.body_a, c.body_b, problem.ra, problem.rb, c.normal, c.gap,
                              out.shift, out.shift_rotation, float(h))
     # a shift that leaves a contact deeper than its gap (impacts at different times in the step,
-    # moved back together) is pushed out faster than the contact already separates by at most
-    # the slop in the step: more adds velocity (a box landing on a corner at 4.75 m/s left at
-    # 6.65, its energy doubled); penetration recovery moves it out
+    # moved back together) is not pushed out faster than the contact already separates, a
+    # support by at most the slop in the step: that adds velocity (a box landing on a corner at
+    # 4.75 m/s left at 6.65, its energy doubled); penetration recovery moves it out
     vn = normal_velocity(c.body_a, c.body_b, problem.ra, problem.rb, c.normal, out.velocity, out.angular)
-    return np.minimum(target, np.maximum(vn, 0.0) + slop / h)
+    allowed = slop / h if out.impact is None else np.where(out.impact, 0.0, slop / h)
+    return np.minimum(target, np.maximum(vn, 0.0) + allowed)
 
 
 # the sweeps of a contact pass with few contacts: up to SMALL_SWEEPS, within SWEEP_BUDGET contact
