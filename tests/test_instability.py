@@ -170,3 +170,45 @@ def test_a_run_that_loses_energy_is_not_stopped(sim):
     s = sim(bouncing_bar(1e6))
     summary = s.run(progress=False, log=lambda message: None)
     assert summary["status"] == "ok" and s.time == pytest.approx(0.3)
+
+
+LOADED_BAR = """
+[simulation]
+duration = {duration}
+dt = {dt}
+gravity = [0.0, 0.0, 0.0]
+output_fps = 100
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = {{ type = "box", size = [0.4, 0.04, 0.04], resolution = 0.02 }}
+young = 1e6
+integrator = "{integrator}"
+angular_velocity = [0.0, 0.0, {spin}]
+[[bodies.loads]]
+box = [[0.19, -1.0, -1.0], [0.21, 1.0, 1.0]]
+force = [{force}, 0.0, 0.0]
+[[bodies.loads]]
+box = [[-0.21, -1.0, -1.0], [-0.19, 1.0, 1.0]]
+force = [{minus}, 0.0, 0.0]
+"""
+
+
+def test_the_energy_watch_counts_the_loads_work(sim):
+    """Loads switched the watch off: a free bar spun at 2 rad per step diverged with two equal and
+    opposite 1 uN loads on it and the run ended "ok". Constant loads are conservative, so the
+    watch counts their potential -f . x: an undamped Newmark bar stretched from rest by 5 N at
+    each end (its energy all the loads' work) runs to its end, and the diverging one stops."""
+    from hybrid.app.energy_watch import loads
+    stretched = sim(LOADED_BAR.format(duration=0.5, dt=1e-3, integrator="newmark", spin=0.0,
+                                      force=5.0, minus=-5.0))
+    start = totals(stretched.model, stretched.state)[0] + loads(stretched.model, stretched.state)
+    assert stretched.run(progress=False, log=lambda m: None)["status"] == "ok"
+    end = totals(stretched.model, stretched.state)[0] + loads(stretched.model, stretched.state)
+    elastic = fem_dyn.elastic_energy(stretched.model.fem[0], stretched.state.fem[0])
+    assert elastic > 1e-4 and abs(end - start) < 0.01 * elastic     # the loads' work, kept
+    spinning = sim(LOADED_BAR.format(duration=2.0, dt=0.05, integrator="backward_euler", spin=40.0,
+                                     force=1e-6, minus=-1e-6))
+    with pytest.raises(InstabilityError) as error:
+        spinning.run(progress=False, log=lambda m: None)
+    assert error.value.body == "bar" and "the loads' work counted" in error.value.quantity

@@ -1,8 +1,8 @@
 """The energy watchdog of a run: a scene in which nothing does work cannot gain energy.
 
 Contacts, friction, damping, plastic flow and fracture only take energy out, and backward Euler
-damps; so in a scene without loads and moving anchors the total energy (kinetic, elastic,
-gravitational) of a frame exceeding the first frame's by more than the energy in play is a
+damps; so in a scene without moving anchors the total energy (kinetic, elastic, gravitational,
+and the constant loads' potential) of a frame exceeding the first frame's by more than the energy in play is a
 divergence the finiteness checks do not see (a Newmark bar bouncing on the ground at a large step
 climbed from 56 J to 7e12 J at 127 m/s, and the run ended "ok"). The run then stops as unstable,
 naming the body with the most energy. The energy in play is the largest of: the first frame's
@@ -22,9 +22,24 @@ GAIN_LIMIT = 1.0
 
 
 def does_work(model):
-    """Whether something in the scene adds energy: a load, or an anchor that moves."""
-    return any(len(m.load_force) and np.any(m.load_force) or np.any(m.anchor_velocity)
-               for m in model.fem)
+    """Whether something in the scene adds energy the watch cannot count: an anchor that moves,
+    or a load on an auto body (its load leaves the count while it is rigid). A deformable body's
+    loads are constant forces, whose work the frames' load potential counts (:func:`loads`)."""
+    auto = any(b.model == "auto" and b.loads for b in model.scene.bodies)
+    return auto or any(np.any(m.anchor_velocity) for m in model.fem)
+
+
+def loads(model, state):
+    """Potential energy (J) of the deformable bodies' loads, ``-sum f . x`` over their nodes:
+    constant forces, so the total energy with it is conserved as with gravity's."""
+    return -float(sum(np.einsum("ij,ij->", m.node_load, s.x) for m, s in zip(model.fem, state.fem)
+                      if np.any(m.node_load)))
+
+
+def load_scale(model):
+    """The loads' size times the bodies' size, summed (J): |F| L per loaded body."""
+    return float(sum(np.abs(m.node_load).sum() * np.ptp(m.rest_points, axis=0).max()
+                     for m in model.fem if np.any(m.node_load)))
 
 
 def weight_scale(model):
@@ -39,17 +54,20 @@ def weight_scale(model):
     return g * total
 
 
-def check(model, state, energies, kinetic):
+def check(model, state, energies, kinetic, potentials=None):
     """Raise InstabilityError when the last of the frames' total ``energies`` (J; the first is
-    the run's start) exceeds the first by more than GAIN_LIMIT times the energy in play
-    (``kinetic``: the frames' kinetic energies, the first's counts); nothing in a scene that does
-    work."""
+    the run's start), with the loads' ``potentials`` (J, :func:`loads`), exceeds the first by
+    more than GAIN_LIMIT times the energy in play (``kinetic``: the frames' kinetic energies, the
+    first's counts); nothing in a scene that does work the watch cannot count."""
     if len(energies) < 2 or does_work(model):
         return
+    if potentials is not None:
+        energies = np.add(energies, potentials)
     start = energies[0]
-    in_play = max(kinetic[0], start - min(energies), weight_scale(model))
+    in_play = max(kinetic[0], start - min(energies), weight_scale(model) + load_scale(model))
     gain = energies[-1] - start
     if in_play > 0.0 and gain > GAIN_LIMIT * in_play:
         body, _ = max(observe.body_energies(model, state).items(), key=lambda item: item[1])
+        work = "the loads' work counted" if load_scale(model) > 0 else "nothing in the scene does work"
         raise InstabilityError(body, state.time, f"total energy gained over the start (J; energy "
-                               f"in play {in_play:.3g} J, nothing in the scene does work)", gain)
+                               f"in play {in_play:.3g} J, {work})", gain)

@@ -143,6 +143,7 @@ class Recorder:
         self.writer = ResumableWriter(out_dir, scene_name) if out_dir is not None else None
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.kinetic = []       # the frames' kinetic energies (J), for the energy watchdog
+        self.potentials = []    # and the loads' potential energies (J)
         self.frames = 0
         self.watched = None     # (Peaks, ImpactWatch) of the run's steps, kept in checkpoints
 
@@ -171,15 +172,16 @@ class Recorder:
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
         self.kinetic.append(observe.kinetic(model, state))
         self.carried.append(observe.momentum_scales(model, state))
+        self.potentials.append(energy_watch.loads(model, state))
         self.frames += 1
-        energy_watch.check(model, state, self.energies, self.kinetic)
+        energy_watch.check(model, state, self.energies, self.kinetic, self.potentials)
 
     def snapshot(self):
         """What :meth:`restore` needs to continue this recorder (a checkpoint keeps it): the
         totals so far and where the files stand."""
         return {"energies": list(self.energies), "momenta": list(self.momenta),
                 "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
-                "kinetic": list(self.kinetic),
+                "kinetic": list(self.kinetic), "potentials": list(self.potentials),
                 "files": None if self.writer is None else self.writer.snapshot(),
                 "watched": None if self.watched is None else [w.snapshot() for w in self.watched]}
 
@@ -190,6 +192,7 @@ class Recorder:
         self.angular, self.carried = list(snapshot["angular"]), list(snapshot["carried"])
         self.frames = snapshot["frames"]
         self.kinetic = list(snapshot.get("kinetic", [0.0] * len(self.energies)))
+        self.potentials = list(snapshot.get("potentials", [0.0] * len(self.energies)))
         if self.watched is not None and snapshot.get("watched") is not None:
             for watcher, kept in zip(self.watched, snapshot["watched"]):
                 watcher.restore(kept)
