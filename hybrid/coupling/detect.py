@@ -67,9 +67,9 @@ def detect_all(model, state, nodes, rigid_bodies, h, rotation=None):
     # surface nodes against other deformable bodies' faces; rigid corners and edges against them
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
-    pairs.normal, pairs.gap = pair_edge_normals(model.fem, state.fem, nodes.offset, nodes.body,
-                                                pairs, margin)
-    pairs = _movable(pairs, anchored[pairs.a], anchored)
+    pairs.normal, pairs.gap, front = pair_edge_normals(model.fem, state.fem, nodes.offset, nodes.body,
+                                                       pairs, margin)
+    pairs = _movable(pairs, anchored[pairs.a], anchored, front)
     on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, bodies,
                                    nodes.offset, sweep, margin)
     fixed = rm.body_fixed[on_faces.a] if rm.body_count else np.zeros(on_faces.count, bool)
@@ -108,17 +108,20 @@ def _facing_faces(model, nodes, c_nodes, own, detect_again):
     return c_nodes
 
 
-def _movable(found, a_immovable, anchored):
+def _movable(found, a_immovable, anchored, front=None):
     """The contacts of ``found`` (:class:`SurfaceContacts` with places on side b) that can move:
     not those whose side a (``a_immovable`` (c,) bool: an anchored node, a fixed rigid body) and
     whose place (every corner it has weight on anchored, stacked nodes ``anchored``) are both
     held, which no impulse can move (no effective mass); nor those without a unit normal (a
-    place on an edge between two faces turned opposite ways)."""
+    place on an edge between two faces turned opposite ways); nor, with ``front`` (c,) bool,
+    those not met from the front (fem_contact.pair_edge_normals)."""
     if found.count == 0:
         return found
     held_place = np.all(anchored[found.corners] | (found.weights <= 0.0), axis=1)
     unit = np.abs(np.einsum("ij,ij->i", found.normal, found.normal) - 1.0) < 1e-6
     keep = unit & ~(a_immovable & held_place)
+    if front is not None:
+        keep &= front
     if keep.all():
         return found
     return type(found)(*(getattr(found, f.name)[keep] for f in fields(found)))

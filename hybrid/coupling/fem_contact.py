@@ -124,11 +124,15 @@ def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
     normals are any within its cone; the smooth surface's is the one: a soft slab's nodes ahead
     of a soft block sliding on it, in the dent it makes, met its front face as a wall, and the
     block lost a third of its speed without friction and tumbled. A node on an edge or a corner
-    of its own body (a spinning block's, grazing a ball) keeps the face's normal."""
+    of its own body (a spinning block's, grazing a ball) keeps the face's normal. Also returns
+    which pairs are met from the front ``(c,)`` bool: as with a rigid body, a node whose own face
+    turns more than 110 degrees away from b has b behind it and is not its contact (turned, its
+    gap read as a penetration: a shattered pane's top nodes, within the margin of a piece of the
+    lower half beside them, read as 4 mm inside it, and the recovery put 420 J of strain into
+    the pane in one step)."""
     own = _stacked_normals(models, states, node_offset, node_body, pairs.a)
-    normal, gap, _ = kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
-                                        own, float(EDGE_COS), float(near))
-    return normal, gap
+    return kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
+                              own, float(EDGE_COS), float(near))
 
 
 def _stacked_normals(models, states, node_offset, node_body, stacked, flat=True):
