@@ -2,11 +2,13 @@
 restitution at their time of impact, solved together with the resting contacts that pass them
 on, and the bodies are moved back by the time their impulses acted times the velocity they gave."""
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .shock import STACK_COS
 from .solver import normal_velocity
 
-# the collision pass may add at most this share of the bodies' kinetic energy (round-off)
+# the collision pass may add at most this share of a group's kinetic energy (round-off)
 ENERGY_TOL = 1e-9
 
 
@@ -41,17 +43,27 @@ def collide(out, problem, impact, support, tau, approach, h, gravity, settings):
     v0, w0 = v.copy(), w.copy()
     imp, swept = _solve(problem, np.where(impact, vn + (1.0 + contacts.restitution) * approach, held),
                         active, support, gravity, settings, v, w)
-    if _kinetic(problem.bodies, v, w, v0, w0) > ENERGY_TOL * (_kinetic(problem.bodies, v0, w0) + 1e-300):
-        # one restitution target per contact cannot all be met when impacts pass on through one
-        # another in a step (a row of balls, corners of a box): met as far as they can be, they
-        # added energy (five balls in a row, two of them moving, gained 40%). Then Poisson's
-        # rule: the inelastic impulses, and e times them again, which never adds energy
+    # one restitution target per contact cannot all be met when impacts pass on through one
+    # another in a step (a row of balls, corners of a box): met as far as they can be, they
+    # added energy (five balls in a row, two of them moving, gained 40%). Where they would, in a
+    # group of bodies touching through the pass's contacts, the group takes Poisson's rule: the
+    # inelastic impulses, and e times them again, which never adds energy
+    group = _groups(problem.bodies, ia, ib, active)
+    before = np.bincount(group, _kinetic(problem.bodies, v0, w0))
+    gained = np.bincount(group, _kinetic(problem.bodies, v, w) - _kinetic(problem.bodies, v0, w0))
+    poisson = gained > ENERGY_TOL * (before + 1e-300)
+    if poisson.any():
+        v_newton, w_newton, imp_newton = v.copy(), w.copy(), imp
         v[:], w[:] = v0, w0
         imp, swept = _solve(problem, np.where(impact, vn + approach, held), active, support,
                             gravity, settings, v, w)
-        e = float(contacts.restitution[impact].max())
-        v[:], w[:] = v0 + (1.0 + e) * (v - v0), w0 + (1.0 + e) * (w - w0)
-        imp *= 1.0 + e
+        e = np.zeros(len(before))
+        np.maximum.at(e, group[ia[impact]], contacts.restitution[impact])
+        body = poisson[group][:, None]
+        v[:] = np.where(body, v0 + (1.0 + e[group][:, None]) * (v - v0), v_newton)
+        w[:] = np.where(body, w0 + (1.0 + e[group][:, None]) * (w - w0), w_newton)
+        mine = poisson[group[ia]][:, None]
+        imp = np.where(mine, (1.0 + e[group[ia]][:, None]) * imp, imp_newton)
     out.collision_impulse = finite(imp)
     out.impact_dv = v - v0
     t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, len(v))
@@ -76,15 +88,22 @@ def _solve(problem, target, active, support, gravity, settings, v, w):
     return imp, swept
 
 
-def _kinetic(bodies, v, w, v0=None, w0=None):
-    """Kinetic energy (J) of the solver bodies at velocities ``v``, ``w``; less that at ``v0``,
-    ``w0`` when given (of the bodies they differ for only)."""
+def _kinetic(bodies, v, w):
+    """Kinetic energy (n,) J of each solver body at velocities ``v``, ``w``."""
     m = np.where(bodies.inv_mass > 0, 1.0 / np.where(bodies.inv_mass > 0, bodies.inv_mass, 1.0), 0.0)
     inertia = np.linalg.pinv(bodies.inv_inertia)
-    energy = 0.5 * (m * np.einsum("bi,bi->b", v, v) + np.einsum("bi,bij,bj->b", w, inertia, w))
-    if v0 is not None:
-        energy -= 0.5 * (m * np.einsum("bi,bi->b", v0, v0) + np.einsum("bi,bij,bj->b", w0, inertia, w0))
-    return float(energy.sum())
+    return 0.5 * (m * np.einsum("bi,bi->b", v, v) + np.einsum("bi,bij,bj->b", w, inertia, w))
+
+
+def _groups(bodies, ia, ib, active):
+    """Group label (n,) of each solver body: bodies that can move and touch through the
+    ``active`` contacts share one (static bodies and planes join none)."""
+    n = len(bodies.inv_mass)
+    movable = bodies.inv_mass > 0
+    ib0 = np.maximum(ib, 0)
+    edge = active & (ib >= 0) & movable[ia] & movable[ib0]
+    graph = coo_matrix((np.ones(int(edge.sum())), (ia[edge], ib0[edge])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 def _move_back(out, problem, t_contact, active, swept, v0, w0):
