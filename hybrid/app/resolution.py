@@ -229,7 +229,7 @@ class ImpactWatch:
         m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
         spacing = self._node_spacing(m)
-        c = near(model, state, j, CLOSE * spacing)
+        c = near(model, state, j, CLOSE * spacing, (old, _relevant_speed(m, body)))
         partners = {int(p): model.names[int(model.rigid_ids[p])] if p >= 0 else "plane"
                     for p in np.unique(c.partner)}
         touching.update((name, p) for p in partners.values())
@@ -304,16 +304,19 @@ class ImpactWatch:
 
 
 def _relevant(m, body, speed):
-    """Whether an approach at ``speed`` m/s matters to FEM body ``m`` (scene ``body``): its wave
+    """Whether an approach at ``speed`` m/s matters to FEM body ``m`` (scene ``body``)."""
+    return speed > 0 and speed >= _relevant_speed(m, body)
+
+
+def _relevant_speed(m, body):
+    """The least approach speed (m/s) that matters to FEM body ``m`` (scene ``body``): its wave
     stress ``rho c v`` reaches STRENGTH_SHARE of its yield or fracture stress, or for an elastic
     body a strain ``v / c`` of ELASTIC_STRAIN (``c = sqrt(E / rho)``)."""
-    if speed <= 0:
-        return False
     c_wave = np.sqrt(m.young / m.density)
     strengths = [v for v in (m.yield_stress, body.fracture_stress) if v is not None]
     if strengths:
-        return m.density * c_wave * speed >= STRENGTH_SHARE * min(strengths)
-    return speed / c_wave >= ELASTIC_STRAIN
+        return STRENGTH_SHARE * min(strengths) / (m.density * c_wave)
+    return ELASTIC_STRAIN * c_wave
 
 
 def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
