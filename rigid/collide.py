@@ -49,8 +49,9 @@ def collide(out, problem, impact, support, tau, approach, h, gravity, settings):
     # group of bodies touching through the pass's contacts, the group takes Poisson's rule: the
     # inelastic impulses, and e times them again, which never adds energy
     group = _groups(problem.bodies, ia, ib, active)
-    before = np.bincount(group, _kinetic(problem.bodies, v0, w0))
-    gained = np.bincount(group, _kinetic(problem.bodies, v, w) - _kinetic(problem.bodies, v0, w0))
+    energy0 = _kinetic(problem.bodies, v0, w0)
+    before = np.bincount(group, energy0)
+    gained = np.bincount(group, _kinetic(problem.bodies, v, w) - energy0)
     poisson = gained > ENERGY_TOL * (before + 1e-300)
     if poisson.any():
         v_newton, w_newton, imp_newton = v.copy(), w.copy(), imp
