@@ -69,6 +69,7 @@ def collide(out, problem, impact, support, tau, approach, h, gravity, settings):
     out.impact_dv = v - v0
     t_contact = _impulse_times(ia, ib, np.where(impact, tau, 0.0), support, len(v))
     _move_back(out, problem, t_contact, active, swept, v0, w0)
+    out.momentum_fix *= ~_held(problem.bodies, ia, ib, active, group)[group][:, None]
 
 
 def _solve(problem, target, active, support, gravity, settings, v, w):
@@ -105,6 +106,21 @@ def _groups(bodies, ia, ib, active):
     edge = active & (ib >= 0) & movable[ia] & movable[ib0]
     graph = coo_matrix((np.ones(int(edge.sum())), (ia[edge], ib0[edge])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
+
+
+def _held(bodies, ia, ib, active, group):
+    """Whether each group (of :func:`_groups`) touches a static body or a plane through an
+    ``active`` contact. A held group has no angular momentum of its own to keep (what holds it
+    takes any), so moving it back needs no momentum correction, and the correction would change
+    its spin's energy: a cube tumbling onto the ground with e = 1 gained 15% at dt = 1/240."""
+    movable = bodies.inv_mass > 0
+    a_free = (ia >= 0) & movable[np.maximum(ia, 0)]
+    b_free = (ib >= 0) & movable[np.maximum(ib, 0)]
+    held = np.zeros(group.max() + 1 if len(group) else 0, dtype=bool)
+    for free, other_free, side in ((a_free, b_free, ia), (b_free, a_free, ib)):
+        touch = active & free & ~other_free
+        held[group[side[touch]]] = True
+    return held
 
 
 def _move_back(out, problem, t_contact, active, swept, v0, w0):
