@@ -212,3 +212,39 @@ def test_the_energy_watch_counts_the_loads_work(sim):
     with pytest.raises(InstabilityError) as error:
         spinning.run(progress=False, log=lambda m: None)
     assert error.value.body == "bar" and "the loads' work counted" in error.value.quantity
+
+
+YIELDING_BAR = """
+[simulation]
+duration = 0.5
+dt = 0.001
+gravity = [0.0, 0.0, 0.0]
+output_fps = 20
+[[bodies]]
+name = "bar"
+model = "fem"
+shape = {{ type = "box", size = [0.1, 0.01, 0.01], resolution = 0.005 }}
+density = 2700.0
+young = 70e9
+yield_stress = 100e6
+[[bodies.anchors]]
+box = [[-1.0, -1.0, -1.0], [-0.049999, 1.0, 1.0]]
+[[bodies.loads]]
+box = [[0.049999, -1.0, -1.0], [1.0, 1.0, 1.0]]
+force = [{force}, 0.0, 0.0]
+"""
+
+
+@pytest.mark.parametrize("share", [0.9, 1.05])
+def test_a_load_above_the_plastic_limit_stops_the_run_saying_why(sim, share):
+    """A bar of 1 cm^2 and 100 MPa yield stress carries at most 10 kN: under 1.05 times that it
+    has no equilibrium and stretches until the energy watch stops it, whose message then says
+    that the load may exceed what the body carries once yielded (it said only 'unstable'); at
+    0.9 times it the bar runs to its end."""
+    s = sim(YIELDING_BAR.format(force=share * 1e-4 * 100e6))
+    if share < 1.0:
+        assert s.run(progress=False, log=lambda m: None)["status"] == "ok"
+        return
+    with pytest.raises(InstabilityError) as error:
+        s.run(progress=False, log=lambda m: None)
+    assert error.value.body == "bar" and "plastic limit load" in error.value.quantity
