@@ -395,3 +395,40 @@ def test_a_rigid_auto_body_struck_is_judged_at_the_speed_it_was_struck_and_a_fas
         assert w.speed == pytest.approx(np.sqrt(v0 ** 2 + 2 * g * (z0 - top)), rel=0.02)
     assert timed[1].need < 0.8 * timed[0].need
     assert rigid_when_struck[0] == "rigid"
+
+
+def test_contacts_are_looked_for_only_where_something_could_strike_fast_enough(sim, monkeypatch):
+    """A plate with a ball resting on it in zero gravity, another ball arriving at 10 m/s: the
+    plate's contacts are searched only in the steps where the fast ball is within reach (a slab
+    resting under a box searched every step, 7% of its step), and its blow is still judged."""
+    from hybrid.app import resolution
+    from hybrid.app.impact_contacts import near
+    calls = []
+    monkeypatch.setattr(resolution, "near", lambda *a, **k: calls.append(1) or near(*a, **k))
+    s = sim("""
+[simulation]
+dt = 1e-4
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "plate"
+model = "fem"
+shape = { type = "box", size = [0.16, 0.12, 0.01], resolution = 0.04 }
+density = 2700.0
+young = 70e9
+poisson = 0.33
+yield_stress = 35e6
+[[bodies]]
+name = "resting"
+shape = { type = "sphere", radius = 0.01 }
+position = [-0.04, 0.0, 0.015]
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.004 }
+density = 7800.0
+position = [0.04, 0.0, 0.06]
+velocity = [0.0, 0.0, -10.0]
+""")
+    s.advance(6e-3)
+    assert 0 < len(calls) < 20                        # of 60 steps: those with the ball in reach
+    assert [(w.body, w.partner) for w in s.impacts.warnings][:1] == [("plate", "ball")]
+    assert s.impacts.warnings[0].speed == pytest.approx(10.0, rel=0.02)

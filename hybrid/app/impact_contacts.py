@@ -32,28 +32,20 @@ class Near:
 def near(model, state, j, margin, fast=None):
     """:class:`Near` of FEM body ``j`` with rigid bodies and planes within ``margin`` m. The
     partners' points on its faces are looked for only on rigid bodies none of its nodes touch
-    (found by its nodes, the contact is judged by them) and, with ``fast`` = ``(old, speed)``,
-    only on those that could have met it at ``speed`` m/s or faster in the step from the coupled
-    state ``old`` (their speed and spin and the body's fastest node: a body resting on a face,
-    the common case, is not looked for every step)."""
+    (found by its nodes, the contact is judged by them) and, with ``fast`` = ``(bounds, speed)``,
+    only on those whose bound (b,) m/s on the speed they could have met it at in the step
+    (:func:`strike_speeds`) reaches ``speed`` m/s (a body resting on a face, the common case, is
+    not looked for every step)."""
     rm, rs, m = model.rigid, state.rigid, model.fem[j]
     k = len(m.surface_nodes)
     R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
     c = detect_points(rm, rs.position, R, state.fem[j].x[m.surface_nodes], np.zeros(k),
                       np.zeros(rm.body_count), margin, np.zeros(k), np.zeros(k))
-    # rigid bodies within reach of the body's bounding box and not met by its nodes (one that
-    # cannot move at all this step, reach -inf, is not looked at)
-    x = state.fem[j].x
-    outside = np.maximum(0.0, np.maximum(x.min(axis=0) - rs.position, rs.position - x.max(axis=0)))
-    looked = np.linalg.norm(outside, axis=1) <= rm.body_radius + margin
+    # rigid bodies within reach of the body's bounding box and not met by its nodes
+    looked = within_reach(model, state, j, margin)
     looked[c.body_b[c.body_b >= 0]] = False
     if fast is not None and looked.any():
-        old, speed = fast
-        v = reported_velocity(rm, old.rigid, model.gravity)
-        w = angular_velocity(rm, old.rigid)
-        bound = (np.linalg.norm(v, axis=1) + np.linalg.norm(w, axis=1) * rm.body_radius
-                 + float(np.sqrt((old.fem[j].v ** 2).sum(axis=1).max())))
-        looked &= bound >= speed
+        looked &= fast[0] >= fast[1]
     f = SurfaceContacts.stacked([])
     if looked.any():
         origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
@@ -67,6 +59,26 @@ def near(model, state, j, margin, fast=None):
                 corners=np.concatenate([np.repeat(c.body_a[:, None], 3, axis=1), f.corners]),
                 weights=np.concatenate([own, f.weights]), point=np.concatenate([c.point, f.point]),
                 normal=np.concatenate([c.normal, -f.normal]), gap=np.concatenate([c.gap, f.gap]))
+
+
+def within_reach(model, state, j, margin):
+    """Which rigid bodies (b,) are within ``margin`` m of FEM body ``j``'s bounding box."""
+    rs, x = state.rigid, state.fem[j].x
+    outside = np.maximum(0.0, np.maximum(x.min(axis=0) - rs.position, rs.position - x.max(axis=0)))
+    return np.linalg.norm(outside, axis=1) <= model.rigid.body_radius + margin
+
+
+def strike_speeds(model, old, j):
+    """``(per rigid body (b,), against a plane)``: bounds (m/s) on the speed at which each could
+    meet FEM body ``j`` in the step from the coupled state ``old`` (its speed and its spin times
+    its radius, plus the body's fastest node; a plane: that node alone)."""
+    rm = model.rigid
+    node = float(np.sqrt((old.fem[j].v ** 2).sum(axis=1).max())) if len(old.fem[j].v) else 0.0
+    if not rm.body_count:
+        return np.zeros(0), node
+    v = reported_velocity(rm, old.rigid, model.gravity)
+    w = angular_velocity(rm, old.rigid)
+    return np.linalg.norm(v, axis=1) + np.linalg.norm(w, axis=1) * rm.body_radius + node, node
 
 
 def approach(model, old, state, j, c):

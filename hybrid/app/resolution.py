@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .impact_contacts import approach, just_parked, near, partner_of, same_body
+from .impact_contacts import (approach, just_parked, near, partner_of, same_body, strike_speeds,
+                              within_reach)
 
 # an impact is examined when rho c v reaches this share of the body's yield or fracture stress
 STRENGTH_SHARE = 0.25
@@ -229,7 +230,15 @@ class ImpactWatch:
         m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
         spacing = self._node_spacing(m)
-        c = near(model, state, j, CLOSE * spacing, (old, _relevant_speed(m, body)))
+        relevant = _relevant_speed(m, body)
+        rigid, plane = strike_speeds(model, old, j)
+        if max(plane, rigid[within_reach(model, state, j, CLOSE * spacing)].max(initial=0.0)) < relevant:
+            # nothing within reach could meet the body fast enough to matter: no contact that
+            # begins now is judged, so none is looked for (a slab resting under a box looked for
+            # its contacts every step, 7% of the step); those it had are taken as kept
+            touching.update(pair for pair in self.touching if pair[0] == name)
+            return []
+        c = near(model, state, j, CLOSE * spacing, (rigid, relevant))
         partners = {int(p): model.names[int(model.rigid_ids[p])] if p >= 0 else "plane"
                     for p in np.unique(c.partner)}
         touching.update((name, p) for p in partners.values())
