@@ -314,3 +314,26 @@ def test_a_time_step_order_no_integrator_gives_is_not_trusted():
     levels = [np.array([[1.0 + 0.1 ** k]]) for k in range(3)]
     assert richardson(levels, highest=DT_ORDER_MOST).method == FINEST
     assert richardson(levels).method == RICHARDSON
+
+
+def test_a_study_whose_runs_fail_exits_3_and_prints_their_messages(tmp_path, capsys, scheduler):
+    """A batch script sees failed runs by the exit code (it was 0 even when every run failed),
+    and the runs' messages are printed and kept in convergence.csv (only their status was)."""
+    (tmp_path / "s.toml").write_text("""[simulation]
+duration = 0.05
+dt = 0.001
+gravity = [0.0, 0.0, 0.0]
+[[bodies]]
+name = "cube"
+model = "fem"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+young = 1e300
+angular_velocity = [0.0, 0.0, 1.0]
+""")
+    code = main(["converge", str(tmp_path / "s.toml"), "--dt", "2", "--scheduler", scheduler,
+                 "--out", str(tmp_path / "o"), "--quiet"])
+    assert code == 3
+    printed = capsys.readouterr()
+    assert printed.err.count("unstable: body 'cube'") == 2
+    rows = list(csv.DictReader(open(tmp_path / "o" / "convergence.csv")))
+    assert all(r["status"] == "unstable" and "body 'cube'" in r["error"] for r in rows)

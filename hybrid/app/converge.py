@@ -244,7 +244,7 @@ def _rows(scene, rungs, records, names, tol, refine_levels):
         summary_time = scene.simulation.duration
         row = {"id": record["id"], **dict(rung.group), "dt": rung.settings["simulation.dt"],
                "resolution": _resolution(rung, scene) if refine_levels > 1 else "",
-               "status": record["status"], "wall_s": record["wall_s"],
+               "status": record["status"], "error": record["error"] or "", "wall_s": record["wall_s"],
                "wall_per_sim_s": record["wall_s"] / summary_time if record["wall_s"] else ""}
         worst = 0.0
         for name in names:

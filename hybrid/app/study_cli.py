@@ -87,6 +87,21 @@ def run_command(args):
         return _bad(args.scene, f"--scheduler {args.scheduler}: {err}" if args.scheduler else str(err))
 
 
+# the exit code of a study some of whose runs failed or went unstable (its table written): that
+# of `hybrid run` for an unstable run, so a batch script sees it without reading the table
+RUNS_FAILED = 3
+
+
+def _say_failed(rows):
+    """Print each failed or unstable run's id and message (stderr); returns those rows."""
+    failed = [r for r in rows if r["status"] != "ok"]
+    for r in failed:
+        error = str(r["error"])        # an instability's message says "unstable: ..." itself
+        said = error if error.startswith(f"{r['status']}:") else f"{r['status']}: {error}"
+        print(f"{r['id']}: {said}", file=sys.stderr)
+    return failed
+
+
 def _bad(scene, message):
     print(f"{scene}: {message}; nothing was run", file=sys.stderr)
     return 2
@@ -96,14 +111,10 @@ def _sweep(args, out):
     from .study import sweep
     rows = sweep(args.scene, args.sets, out, zipped=args.zip, workers=args.workers,
                  scheduler=args.scheduler, progress=not args.quiet, plot=args.plot)
-    failed = [r for r in rows if r["status"] != "ok"]
-    for r in failed:
-        error = str(r["error"])        # an instability's message says "unstable: ..." itself
-        said = error if error.startswith(f"{r['status']}:") else f"{r['status']}: {error}"
-        print(f"{r['id']}: {said}", file=sys.stderr)
+    failed = _say_failed(rows)
     print(f"{len(rows) - len(failed)} of {len(rows)} runs ok; wrote {out}/results.csv"
           + (f" and {out}/{args.plot.partition(':')[0]}.png" if args.plot else ""))
-    return 0
+    return RUNS_FAILED if failed else 0
 
 
 def _converge(args, out):
@@ -118,10 +129,11 @@ def _converge(args, out):
     rows = converge(args.scene, out, dt_levels=args.dt, refine_levels=args.refine, meshes=meshes,
                     across=args.sets, quantities=args.quantity, tol=args.tol, workers=args.workers,
                     scheduler=args.scheduler, progress=not args.quiet)
+    _say_failed(rows)
     for line in report(rows, args.tol):
         print(line)
     print(f"wrote {out}/convergence.csv and {out}/convergence.png")
-    return 0
+    return RUNS_FAILED if any(r["status"] != "ok" for r in rows) else 0
 
 
 def report(rows, tol):
