@@ -272,3 +272,18 @@ def test_a_sigterm_swallowed_before_the_run_steps_stops_the_run_at_once(tmp_path
     finally:
         signal.signal(signal.SIGTERM, previous)
     assert sim.steps == 1 and (tmp_path / "out" / "checkpoint.npz").exists()
+
+
+def test_a_fresh_run_into_a_stopped_runs_folder_is_refused_and_keeps_its_checkpoint(capsys, stopped_quick):
+    """``hybrid run`` without --resume into a stopped run's folder removed its checkpoint and
+    summary at once, and started again from t = 0: one missing flag lost the run. It is refused
+    (exit 2), the checkpoint kept, and the message says both ways on; the resume still works."""
+    out, scene = stopped_quick
+    before = (out / "checkpoint.npz").read_bytes()
+    code = main(["run", str(scene), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "holds a stopped run" in err and "--resume" in err, err
+    assert (out / "checkpoint.npz").read_bytes() == before
+    assert json.loads((out / "summary.json").read_text())["status"] == "stopped"
+    code, err = resume_code(capsys, scene, out)
+    assert code == 0, err

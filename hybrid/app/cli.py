@@ -85,6 +85,12 @@ def _run(args):
               file=sys.stderr)
         return 2
     from .checkpoint import CheckpointError, Stopped, stop_on_signals
+    from .output_resume import CHECKPOINT
+    if not args.resume and (out / CHECKPOINT).exists():
+        # a run started afresh there would remove it: an hour's run lost to a missing flag
+        print(f"{path}: --out {out} holds a stopped run ({CHECKPOINT}): add --resume to continue "
+              f"it, or delete {out / CHECKPOINT} to start again there", file=sys.stderr)
+        return 2
     try:
         sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
     except SceneError as err:           # problems only the built bodies show
