@@ -300,7 +300,10 @@ class Simulation:
             if saver.stopped is not None:
                 result["status"] = "stopped"
             struck = {w.body for w in self.impacts.warnings}
-            for line in (rigid_hints(self.model, self.peaks.strains, struck)
+            # (a run stopped early has not seen its strains: a slab stopped after one step was
+            # told it never strained, which it did by 0.4 later)
+            for line in ([] if saver.stopped is not None else
+                         rigid_hints(self.model, self.peaks.strains, struck)
                          + frame_hints(self.model, self.peaks.strains, getattr(self, "spinning", {}))):
                 log(line)
             recorder.close(result)

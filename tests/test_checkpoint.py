@@ -287,3 +287,30 @@ def test_a_fresh_run_into_a_stopped_runs_folder_is_refused_and_keeps_its_checkpo
     assert json.loads((out / "summary.json").read_text())["status"] == "stopped"
     code, err = resume_code(capsys, scene, out)
     assert code == 0, err
+
+
+def test_a_run_stopped_early_gives_no_rigid_hint(tmp_path):
+    """A soft block stopped after its first step had not strained yet, and the log told it to be
+    rigid; the hint waits for a run that ends."""
+    scene = tmp_path / "block.toml"
+    scene.write_text("""[simulation]
+duration = 0.1
+dt = 0.005
+[[planes]]
+[[bodies]]
+name = "block"
+model = "fem"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0.0, 0.0, 0.2]
+young = 1e6
+""")
+    request = checkpoint.StopRequest()
+    request.signal = signal.SIGINT
+    lines = []
+    with pytest.raises(checkpoint.Stopped):
+        Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lines.append,
+                                        stop=request)
+    assert not any("model = \"rigid\"" in line for line in lines), lines
+    lines.clear()
+    Simulation.from_toml(scene).run(progress=False, log=lines.append, until=0.01)
+    assert any("model = \"rigid\"" in line for line in lines), lines      # a run that ends is told

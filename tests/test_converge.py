@@ -337,3 +337,11 @@ angular_velocity = [0.0, 0.0, 1.0]
     assert printed.err.count("unstable: body 'cube'") == 2
     rows = list(csv.DictReader(open(tmp_path / "o" / "convergence.csv")))
     assert all(r["status"] == "unstable" and "body 'cube'" in r["error"] for r in rows)
+
+
+def test_a_ladder_of_one_level_is_refused(tmp_path, capsys):
+    """``--dt 1`` without a mesh ladder ran one run and printed a table with no estimate."""
+    (tmp_path / "s.toml").write_text('[[bodies]]\nname = "b"\nshape = { type = "sphere", radius = 0.1 }\n')
+    code = main(["converge", str(tmp_path / "s.toml"), "--dt", "1", "--out", str(tmp_path / "o")])
+    assert code == 2 and "at least 2 levels" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -92,6 +92,9 @@ def ladder(scene, dt_levels, refine_levels=0, meshes=None, across=()):
     run has them at the same times. A list of Rung."""
     if dt_levels < 1 or refine_levels < 0:
         raise SettingError("--dt needs at least 1 level and --refine at least 0")
+    if dt_levels < 2 and refine_levels < 2:
+        raise SettingError(f"--dt {dt_levels}: a ladder needs at least 2 levels (3 for an observed "
+                           f"order), of time steps (--dt) or of meshes (--refine)")
     refined = _mesh_settings(scene, refine_levels, meshes or {})
     laddered = {"simulation.dt", "simulation.output_fps"} | set(refined)
     for key, _ in across:
