@@ -154,6 +154,10 @@ def test_bad_rows_and_shapes_are_rejected_before_writing(tmp_path):
 def test_new_run_replaces_stale_files_of_an_earlier_run(tmp_path):
     run_dir = tmp_path / "run"
     write_three_frames(run_dir)
+    # the earlier run's render showed its frames; a user's own file there stays
+    (run_dir / "render").mkdir()
+    for name in ("frame_00000.png", "old.mp4", "old.gif", "notes.txt"):
+        (run_dir / "render" / name).write_text("x")
     with RunWriter(run_dir, "demo") as writer:
         writer.write_frame(0.0, [box_piece(0.0)], [dict(zip(BODY_COLUMNS, body_rows(0.0)[0]))])
     times, paths, summary = read_run(run_dir)
@@ -161,6 +165,7 @@ def test_new_run_replaces_stale_files_of_an_earlier_run(tmp_path):
     assert sorted(p.name for p in (run_dir / "frames").iterdir()) == ["frame_00000.vtu"]
     assert not (run_dir / "regions.csv").exists()
     assert len((run_dir / "bodies.csv").read_text().splitlines()) == 2
+    assert [p.name for p in (run_dir / "render").iterdir()] == ["notes.txt"]
 
 
 def test_run_of_another_scene_into_the_same_directory_leaves_one_index(tmp_path):

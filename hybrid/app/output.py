@@ -206,6 +206,10 @@ class RunWriter:
                 stale.unlink()
         for name in (BODIES_CSV, REGIONS_CSV, SUMMARY_JSON, self.pvd_path.name):
             (self.out_dir / name).unlink(missing_ok=True)
+        # an earlier run's render (hybrid render) shows frames no longer there
+        render = self.out_dir / "render"
+        for stale in (*render.glob("frame_*.png"), *render.glob("*.mp4"), *render.glob("*.gif")):
+            stale.unlink()
         # another scene's index in the same directory named the frames just removed
         for index in self.out_dir.glob("*.pvd"):
             if f'file="{FRAMES_DIR}/' in index.read_text(errors="replace"):
