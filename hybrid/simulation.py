@@ -25,7 +25,7 @@ from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, 
                       rigid_hints, summary)
 from .app.scene import SceneError, load_scene
 from .app.scene.data import rechecked
-from .coupling.stability import StepFailure
+from .coupling.stability import OutputFailure, StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
 from .coupling.substep import advance_in_substeps
 
@@ -369,6 +369,8 @@ class Simulation:
                     break
         except InstabilityError as error:
             return error
+        except OSError as error:        # the disk, not the physics
+            return OutputFailure(self.time, error)
         except Exception as error:      # noqa: BLE001 (the run's boundary)
             # a bug or a case the simulator does not handle: the run still ends with its frames,
             # its summary and a message naming the time and the stage, not a traceback

@@ -229,3 +229,30 @@ def test_a_moving_anchor_run_does_not_quote_an_energy_drift(tmp_path):
     conservation = json.loads((tmp_path / "run" / "summary.json").read_text())["conservation"]
     assert conservation["energy_conserved_expected"] is False
     assert conservation["energy_relative_drift"] > 0.5          # the anchor's work, not an error
+
+
+def test_an_output_that_cannot_be_written_mid_run_is_said_so_not_unstable(tmp_path, monkeypatch, capsys):
+    """A full disk (or a folder made unwritable) during a run ended it as 'unstable: a step
+    failed ... in hybrid.app.vtu.write_vtu', exit 3, as if the physics had diverged: it is the
+    output, exit 2, status failed, and the frames written before stay."""
+    from hybrid.app import output
+    from hybrid.app.cli import main
+    write = output.write_vtu
+    written = []
+
+    def filling(path, *args, **kwargs):
+        if len(written) == 3:
+            raise OSError(28, "No space left on device")
+        written.append(path)
+        return write(path, *args, **kwargs)
+
+    monkeypatch.setattr(output, "write_vtu", filling)
+    monkeypatch.setenv("HYBRID_WRITER", "inline")
+    (tmp_path / "small.toml").write_text(SMALL_SCENE)
+    code = main(["run", str(tmp_path / "small.toml"), "--out", str(tmp_path / "run"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "could not write the run's output" in err and "No space left on device" in err
+    assert "unstable" not in err
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "failed"
+    assert len(list((tmp_path / "run" / "frames").glob("frame_*.vtu"))) == 3

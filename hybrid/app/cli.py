@@ -77,6 +77,7 @@ def _run(args):
     except SceneError as err:
         return _rejected(path, err)
     from .geometry import MeshError
+    from hybrid.coupling.stability import OutputFailure
     from hybrid.coupling.step import InstabilityError
     out = Path(args.out) if args.out else Path("outputs") / scene.name
     blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
@@ -117,7 +118,7 @@ def _run(args):
                               checkpoint_every=args.checkpoint_every, stop=stop)
     except InstabilityError as err:
         print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
-        return 3
+        return 2 if isinstance(err, OutputFailure) else 3
     except CheckpointError as err:      # the run folder changed since the checkpoint
         print(f"{path}: {err}", file=sys.stderr)
         return 2

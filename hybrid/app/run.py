@@ -14,6 +14,8 @@ import numpy as np
 from rigid.contacts import detect, detect_points
 from rigid import quaternion as quat
 
+from hybrid.coupling.stability import OutputFailure
+
 from . import energy_watch, observe
 from .output_resume import ResumableWriter
 
@@ -304,7 +306,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
     return {
         "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
         "scene_file": str(scene.source_path),
-        "status": "ok" if failure is None else "unstable",
+        "status": "ok" if failure is None else "failed" if isinstance(failure, OutputFailure) else "unstable",
         "error": None if failure is None else str(failure),
         "bodies": model.names,
         "simulated_time": state.time,

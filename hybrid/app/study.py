@@ -38,6 +38,7 @@ def run_variant(scene_file, out_dir):
     (``wall_s``: the run's stepping time, its summary's ``wall_time``, as for a run kept from
     before, so that runs compare alike; the whole task's time when it wrote no summary); never
     raises for a failed run."""
+    from hybrid.coupling.stability import OutputFailure
     from hybrid.coupling.step import InstabilityError
     from ..simulation import Simulation
     start = clock.perf_counter()
@@ -46,8 +47,8 @@ def run_variant(scene_file, out_dir):
                                                        log=lambda message: None)
         status, error = summary["status"], summary["error"]
         return {"status": status, "error": error, "wall_s": summary["wall_time"]}
-    except InstabilityError as failure:
-        status, error = "unstable", str(failure)
+    except InstabilityError as failure:     # (or its output could not be written: failed)
+        status, error = "failed" if isinstance(failure, OutputFailure) else "unstable", str(failure)
     except Exception as failure:        # noqa: BLE001 (one run's failure must not end the study)
         status = "failed"
         error = f"{type(failure).__name__}: {failure}".strip()

@@ -42,6 +42,18 @@ class StepFailure(InstabilityError):
         return cls(time, stage, error)
 
 
+class OutputFailure(StepFailure):
+    """Writing the run's output failed (a folder made unwritable, a full disk): not the physics,
+    so the message says so, not 'unstable' (the run ends as for a StepFailure, status
+    ``failed``)."""
+
+    def __init__(self, time, error):
+        RuntimeError.__init__(self, f"could not write the run's output at t = {time:.6g} s: "
+                                    f"{type(error).__name__}: {error}")
+        self.body, self.time, self.quantity, self.value = None, time, "output", float("nan")
+        self.stage, self.error = "output", error
+
+
 def check_finite(model, state):
     """Raise InstabilityError naming the first body whose state diverged."""
     rs = state.rigid
