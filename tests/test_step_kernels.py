@@ -87,6 +87,44 @@ def rest_triangles_reference(P, tri, around, Y, close, moved=None, facing=None):
     return tri[face[best]], weights, (row[tied], tri[face[tied]])
 
 
+def pseudo_normal_reference(P, tri, around, moved, f, weights):
+    """The angle-weighted pseudo-normal at the place of ``weights`` in triangle ``f`` now: the
+    triangle's normal inside it; on an edge, the sum of the normals of the two triangles holding
+    it; at a vertex, of the triangles around it, each times its angle there."""
+    held = tri[f][weights > 1e-12]
+    if len(held) == 3:
+        return unit_normals_reference((P[tri[f]] + moved[tri[f]])[None])[0]
+    around_s = around[held[0]][around[held[0]] >= 0]
+    g = around_s[(tri[around_s] == held[-1]).any(axis=1)]
+    now = P[tri[g]] + moved[tri[g]]
+    normals = unit_normals_reference(now)
+    if len(held) == 2:
+        total = normals.sum(axis=0)
+    else:
+        at = np.argmax(tri[g] == held[0], axis=1)
+        rows = np.arange(len(g))
+        u, w = now[rows, (at + 1) % 3] - now[rows, at], now[rows, (at + 2) % 3] - now[rows, at]
+        cos = np.einsum("ij,ij->i", u, w) / np.linalg.norm(u, axis=1) / np.linalg.norm(w, axis=1)
+        total = (np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * normals).sum(axis=0)
+    return total / np.linalg.norm(total)
+
+
+def outside_reference(P, tri, around, moved, x, candidates, size):
+    """The closest place to ``x`` in the ``candidates`` triangles now (the first of those as close
+    to 1e-12 of ``size``), the line from it to ``x`` and the height of ``x`` along the
+    pseudo-normal there."""
+    now = P[tri[candidates]] + moved[tri[candidates]]
+    a, b, c = now[:, 0], now[:, 1], now[:, 2]
+    v, w = closest_point_weights(np.broadcast_to(x, a.shape), a, b, c)
+    off = x - a - v[:, None] * (b - a) - w[:, None] * (c - a)
+    distance = np.einsum("ij,ij->i", off, off)
+    best = int(np.argmax(distance <= distance.min() + 1e-12 * size))
+    weights = np.array([1.0 - v[best] - w[best], v[best], w[best]])
+    line = x - weights @ now[best]
+    n = pseudo_normal_reference(P, tri, around, moved, candidates[best], weights)
+    return candidates[best], weights, line, line @ n
+
+
 def places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, facing):
     corners, weights, (tie_row, tie_corners) = rest_triangles_reference(P, tri, around, Y, close,
                                                                         moved, facing)
@@ -127,8 +165,19 @@ def places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, fac
             n[k] = distinct[int(np.argmax(against))]       # the face facing the node
             continue
         n[k] = line[k] / np.linalg.norm(line[k]) if clear else total
-    gap = np.einsum("ij,ij->i", line, n) - radius
-    return corners, weights, n, gap, len(tie_row)
+    # read behind its place but clearly in front of the surface where it is closest to it now
+    # (along the pseudo-normal there): met there, at its distance along the line to it
+    reading = np.einsum("ij,ij->i", line, n)
+    met = []
+    for k in np.nonzero(reading < 0.0)[0]:
+        candidates = around[close[k]].ravel()
+        f, w, to, height = outside_reference(P, tri, around, moved, X_now[k], candidates[candidates >= 0],
+                                             edge[k] ** 2)
+        if height > places.CLEAR * edge[k]:
+            corners[k], weights[k] = tri[f], w
+            n[k], reading[k] = to / np.linalg.norm(to), np.linalg.norm(to)
+            met.append(k)
+    return corners, weights, n, reading - radius, len(tie_row), np.array(met, dtype=np.int64)
 
 
 # --- the kernels against them ------------------------------------------------------------------
@@ -241,11 +290,109 @@ def test_places_match_the_numpy_triangles_turned_normals_and_gaps(seed):
     corners, weights, normal, gap = places.places(Y, close, around, tri, P, moved, grid_n, X_now,
                                                    radius, facing)
     want = places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, facing)
-    assert want[4] > 0                                   # ties were met
+    assert want[4] > 0 and len(want[5]) > 0      # ties were met, and points clearly outside read in
     np.testing.assert_array_equal(corners, want[0])
     np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(normal, want[2], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(gap, want[3], rtol=1e-12, atol=1e-13)
+
+
+def tet_index(corners):
+    """The surfaces of tetrahedra ``corners`` (t, 4, 3) (one-tet pieces of a shattered body), as a
+    body's rest surface whose surface nodes are every corner: (P, tri, around)."""
+    P = corners.reshape(-1, 3)
+    tri = []
+    for t in range(len(corners)):
+        for face in ((0, 1, 2), (0, 3, 1), (0, 2, 3), (1, 3, 2)):
+            f = [4 * t + i for i in face]
+            n = np.cross(P[f[1]] - P[f[0]], P[f[2]] - P[f[0]])
+            tri.append(f if n @ (P[f].mean(axis=0) - corners[t].mean(axis=0)) > 0 else f[::-1])
+    m = SimpleNamespace(rest_points=P, surface_nodes=np.arange(len(P)), surface=np.array(tri),
+                        cache=SimpleNamespace(surface_index=None))
+    _, tri, around = fem_contact._surface_index(m)
+    return P, tri, around
+
+
+def off_corners(rng, P, tri, around, count, reach):
+    """``count`` points (rows) a random distance up to ``reach`` off random corners of the
+    surface, in random directions within the corners' normal cones (conic blends of the normals
+    of the triangles around), so that the corner is each one's closest place: ``(x, corner,
+    direction, distance)``."""
+    corner = rng.choice(len(P), count)
+    direction = np.zeros((count, 3))
+    for k, c in enumerate(corner):
+        faces = around[c][around[c] >= 0]
+        direction[k] = rng.dirichlet(np.ones(len(faces))) @ unit_normals_reference(P[tri[faces]])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    distance = rng.uniform(0.2, 1.0, count) * reach
+    return P[corner] + distance[:, None] * direction, corner, direction, distance
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_places_match_the_numpy_pseudo_normals_off_sharp_edges_and_corners(seed):
+    # one-tet pieces (sharp edges and corners), points around their corners and edges, inside
+    # and out, the grid's place a percent of an edge off the corner: the kernel's reading of
+    # points clearly outside, along the pseudo-normals at edges and vertices, is numpy's
+    rng = np.random.default_rng(seed)
+    P, tri, around = tet_index(0.005 * rng.uniform(-1.0, 1.0, (6, 4, 3)) + 0.02 * np.arange(6)[:, None, None])
+    moved = 1e-5 * rng.standard_normal(P.shape)
+    x, corner, direction, _ = off_corners(rng, P, tri, around, 40, 0.004)
+    edge_end = tri[around[corner, 0], 1]
+    x[:10] = 0.5 * (P[corner[:10]] + P[edge_end[:10]]) + 0.002 * rng.standard_normal((10, 3))
+    x[10:15] = P[corner[10:15]] + 0.3 * (P[edge_end[10:15]] - P[corner[10:15]])    # on an edge
+    Y = P[corner] + 0.01 * (P[edge_end] - P[corner]) + 5e-5 * rng.standard_normal((40, 3))
+    close = cKDTree(P).query(Y, k=3)[1]
+    facing = -direction
+    facing[::2] = 0.0
+    radius = np.zeros(40)
+    corners, weights, normal, gap = places.places(Y, close, around, tri, P, moved, direction, x,
+                                                   radius, facing)
+    want = places_reference(P, tri, around, moved, Y, close, direction, x, radius, facing)
+    held = (want[1][want[5]] > 1e-12).sum(axis=1)
+    assert {1, 2} <= set(held.tolist())              # met at corners and on edges
+    np.testing.assert_array_equal(corners, want[0])
+    np.testing.assert_allclose(weights, want[1], rtol=1e-12, atol=1e-12)
+    # the line to a point 10 um off an edge 0.1 m out, made a unit normal: round-off times 1e4
+    np.testing.assert_allclose(normal, want[2], rtol=1e-12, atol=1e-10)
+    np.testing.assert_allclose(gap, want[3], rtol=1e-12, atol=1e-13)
+
+
+@pytest.mark.parametrize("facing", [False, True])
+def test_a_point_a_piece_s_width_off_a_one_tet_piece_s_corner_is_met_at_its_distance(facing):
+    # the shattered pane of benchmarks/pane_rebound.py (5 mm elements): a one-tet piece, nodes of
+    # other pieces up to 5 mm off its corners, the grid's closest place 50 um off the corner. Met
+    # along the face there facing them (or the first found), behind whose plane they lay, they
+    # were read up to 3.6 mm inside, and the pane blew up. Clearly outside, each must be met at
+    # its distance to the corner, along the line to it; a point pressed into the piece still
+    # reads its depth
+    rng = np.random.default_rng(7)
+    piece = np.array([[[0.0, 0.0, -5.0], [5.0, 0.0, -5.0], [5.0, 0.0, 0.0], [5.0, 5.0, 0.0]]]) * 1e-3
+    P, tri, around = tet_index(piece)
+    x, corner, direction, distance = off_corners(rng, P, tri, around, 200, 0.005)
+    to_y = rng.standard_normal((200, 3))
+    Y = P[corner] + 5e-5 * to_y / np.linalg.norm(to_y, axis=1, keepdims=True)
+    own = -direction if facing else np.zeros((200, 3))
+    _, _, normal, gap = places.places(Y, cKDTree(P).query(Y, k=3)[1], around, tri, P, np.zeros_like(P),
+                                      direction, x, np.zeros(200), own)
+    assert (gap > 0.0).all()
+    # the node of the pane that blew up: 5.0083 mm off the piece by its corner (5, 5, 0) mm, read
+    # 3.54 mm inside
+    node = np.array([[5.01499, 4.99567, 5.00828]]) * 1e-3
+    _, _, normal, gap = places.places(np.array([[4.95358e-3, 4.99752e-3, 2.6e-6]]), np.array([[3, 2, 1]]),
+                                      around, tri, P, np.zeros_like(P), np.array([[0.01218, 0.0, 0.99993]]),
+                                      node, np.zeros(1), np.array([[0.0, 0.0, 1.0]]) if facing else np.zeros((1, 3)))
+    a, b, c = P[tri[:, 0]], P[tri[:, 1]], P[tri[:, 2]]
+    v, w = closest_point_weights(np.repeat(node, 4, axis=0), a, b, c)
+    off = node - (a + v[:, None] * (b - a) + w[:, None] * (c - a))
+    off = off[np.argmin(np.linalg.norm(off, axis=1))]          # to the piece's closest place
+    assert gap[0] == pytest.approx(np.linalg.norm(off), rel=1e-9)
+    np.testing.assert_allclose(normal[0], off / np.linalg.norm(off), atol=1e-9)
+    # 0.2 mm behind the face (2, 1, 3) (x = 5 mm), under its centre: 0.2 mm deep
+    inside = np.array([[5.0e-3 - 2e-4, 5e-3 / 3, -5e-3 / 3]])
+    _, _, _, depth = places.places(inside + [[2e-4, 0.0, 0.0]], np.array([[1, 2, 3]]), around, tri, P,
+                                   np.zeros_like(P), np.array([[1.0, 0.0, 0.0]]), inside, np.zeros(1),
+                                   np.zeros((1, 3)))
+    assert depth[0] == pytest.approx(-2e-4, rel=1e-9)
 
 
 # --- the deformable body's step (fem.step_kernels) ---------------------------------------------

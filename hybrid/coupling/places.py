@@ -243,6 +243,92 @@ def _tied_normal(n, line, facing, faces, dist, count, best, size, triangles, P, 
 
 
 @nb.njit(cache=True)
+def _now_corners(f, triangles, P, moved, now):
+    """Triangle ``f``'s corners as they are now into ``now`` (3, 3)."""
+    for i in range(3):
+        for a in range(3):
+            now[i, a] = P[triangles[f, i], a] + moved[triangles[f, i], a]
+
+
+@nb.njit(cache=True)
+def _pseudo_normal(f, weights, triangles, around, P, moved, now):
+    """The angle-weighted pseudo-normal (Baerentzen and Aanaes, 2005) at the place of barycentric
+    ``weights`` (3,) in triangle ``f`` as it is now: the triangle's normal inside it; on an edge
+    (a weight within 1e-12 of zero), the sum of the normals of the triangles around its first
+    end that hold its other end too; at a vertex, of all the triangles around it, each weighted
+    by its angle there. A point whose closest place on the closed surface this is lies outside
+    it exactly when it lies in front of it along this normal; on a sharp edge or vertex, in
+    front of one face's plane or behind another's tells nothing (a tet's corner: 5 mm off it
+    along one face's normal, a point lies 1.7 mm behind the plane of each other face)."""
+    held = np.zeros(3, dtype=np.int64)
+    count = 0
+    for i in range(3):
+        if weights[i] > 1e-12:
+            held[count] = triangles[f, i]
+            count += 1
+    out = np.zeros(3)
+    if count == 3:
+        _now_corners(f, triangles, P, moved, now)
+        out[0], out[1], out[2] = unit_normal(now[0], now[1], now[2])
+        return out
+    s = held[0]
+    for slot in range(around.shape[1]):
+        g = around[s, slot]
+        if g < 0:
+            continue
+        at = -1
+        other = count == 1
+        for i in range(3):
+            if triangles[g, i] == s:
+                at = i
+            other = other or triangles[g, i] == held[1]
+        if not other:
+            continue
+        _now_corners(g, triangles, P, moved, now)
+        m0, m1, m2 = unit_normal(now[0], now[1], now[2])
+        angle = 1.0
+        if count == 1:
+            u, w = now[(at + 1) % 3] - now[at], now[(at + 2) % 3] - now[at]
+            cos = (u[0] * w[0] + u[1] * w[1] + u[2] * w[2]) / max(
+                np.sqrt((u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2])),
+                1e-300)
+            angle = np.arccos(min(max(cos, -1.0), 1.0))
+        out[0] += angle * m0
+        out[1] += angle * m1
+        out[2] += angle * m2
+    out /= max(np.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2]), 1e-300)
+    return out
+
+
+@nb.njit(cache=True)
+def _outside(x, faces, dist, count, size, triangles, around, P, moved, now):
+    """``(f, weights (3,), line (3,), height)``: the closest place to ``x`` (3,) in the candidate
+    ``faces`` as they are now (the first found among those as close to 1e-12 of ``size``, a
+    squared edge: at an edge or a vertex round-off would choose), the line from it to ``x`` and
+    how far ``x`` lies in front of the surface there, along its pseudo-normal
+    (:func:`_pseudo_normal`): negative behind it, in the body. ``dist`` (count,): scratch."""
+    least = np.inf
+    for t in range(count):
+        _now_corners(faces[t], triangles, P, moved, now)
+        v, w = closest_weights(x[0], x[1], x[2], now[0], now[1], now[2])
+        dist[t] = 0.0
+        for a in range(3):
+            o = x[a] - now[0, a] - v * (now[1, a] - now[0, a]) - w * (now[2, a] - now[0, a])
+            dist[t] += o * o
+        least = min(least, dist[t])
+    best = 0
+    while dist[best] > least + 1e-12 * size:
+        best += 1
+    best = faces[best]
+    _now_corners(best, triangles, P, moved, now)
+    v, w = closest_weights(x[0], x[1], x[2], now[0], now[1], now[2])
+    weights = np.array([1.0 - v - w, v, w])
+    line = x - (weights[0] * now[0] + weights[1] * now[1] + weights[2] * now[2])
+    n = _pseudo_normal(best, weights, triangles, around, P, moved, now)
+    return best, weights, line, line[0] * n[0] + line[1] * n[1] + line[2] * n[2]
+
+
+@nb.njit(cache=True)
 def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, facing):
     """Where rest surface points ``Y`` (p, 3) of a deformable body lie on its surface now.
 
@@ -260,7 +346,14 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, facing)
     third of their energy).
     ``X_now`` (p, 3): the points moved as the surface moved, ``radius`` (p,) m, ``facing``
     (p, 3) the points' own outward unit normals in the body's rest frame (nodes of other
-    deformable bodies; zero rows for points without one, see :func:`_tied_normal`). Returns
+    deformable bodies; zero rows for points without one, see :func:`_tied_normal`).
+    A point read as behind its place but lying clearly in front of the surface where it is
+    closest to it now (by more than CLEAR of the edge, :func:`_outside`) is met there, at its
+    true distance along the line to it: ``Y`` is the grid's closest place, off an edge or a
+    vertex by a percent of an edge, and a point a piece's width off that vertex met one face
+    there (tied, or the one facing it), behind whose plane it lay: a shattered pane's nodes 5 mm
+    off one-tet pieces' vertices were read 1 to 3.6 mm inside, the recovery strained the pieces
+    apart, and the pane blew up (benchmarks/pane_rebound.py, 5 mm elements). Returns
     ``(corners (p, 3), weights (p, 3), normal (p, 3), gap (p,))``: the triangle, the barycentric
     weights, the normal and the gap along it to the place as it is now."""
     p = len(Y)
@@ -297,5 +390,16 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, facing)
         n = _tied_normal(n, line, facing[k], faces, dist, count, best, e0 * e0 + e1 * e1 + e2 * e2,
                          triangles, P, moved, seen_n, rest, now)
         normal[k] = n
-        gap[k] = line[0] * n[0] + line[1] * n[1] + line[2] * n[2] - radius[k]
+        gap[k] = line[0] * n[0] + line[1] * n[1] + line[2] * n[2]
+        if gap[k] < 0.0:
+            size = e0 * e0 + e1 * e1 + e2 * e2
+            g, w3, line, height = _outside(X_now[k], faces, dist, count, size, triangles, around, P,
+                                           moved, now)
+            if height > CLEAR * np.sqrt(size):
+                corners[k] = triangles[g]
+                weights[k] = w3
+                length = np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
+                normal[k] = line / length
+                gap[k] = length
+        gap[k] -= radius[k]
     return corners, weights, normal, gap
