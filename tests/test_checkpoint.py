@@ -148,7 +148,7 @@ def stopped_quick(tmp_path):
     scene = tmp_path / "quick.toml"
     scene.write_text(QUICK)
     request = checkpoint.StopRequest()
-    request.signal = signal.SIGINT
+    request.set()                   # as on SIGINT
     with pytest.raises(checkpoint.Stopped) as stopped:
         Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lambda m: None,
                                         stop=request)

@@ -166,10 +166,16 @@ class Stopped(Exception):
 
 class StopRequest:
     """What a run checks after each step: ``signal``, the number of the first stop signal
-    received (None while there was none)."""
+    received (None while there was none). :meth:`set` asks for a stop from code (another
+    thread, a callback): the run stops as on that signal."""
 
     def __init__(self):
         self.signal = None
+
+    def set(self, signum=signal.SIGINT):
+        """Ask the run to stop after its step, as on ``signum`` (its exit code 128 + signum)."""
+        if self.signal is None:
+            self.signal = int(signum)
 
 
 @contextmanager
