@@ -143,8 +143,24 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
             todo.append(record)
             texts.append(text)
         records.append(record)
-    _dispatch(todo, texts, len(records), workers, scheduler, progress)
+    try:
+        _dispatch(todo, texts, len(records), workers, scheduler, progress)
+    except KeyboardInterrupt:
+        for record in todo:
+            if "status" not in record:
+                record.update(status="interrupted", error="interrupted (Ctrl-C) before it finished",
+                              wall_s=None)
+        raise StudyInterrupted(records) from None
     return records
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """A study stopped by Ctrl-C: ``records`` as :func:`execute` returns them, the runs it did not
+    finish with status ``interrupted`` (their table is written before it goes on)."""
+
+    def __init__(self, records):
+        super().__init__("interrupted")
+        self.records = records
 
 
 def _dispatch(todo, texts, total, workers, scheduler, progress):
@@ -202,7 +218,8 @@ def final_positions(folder):
 def result_row(record, settings):
     """A ``results.csv`` row: the swept values, status, error and the summary's figures."""
     row = dict(id=record["id"], **settings, status=record["status"], error=record["error"] or "")
-    summary = read_summary(record["folder"]) if record["status"] != "failed" else None
+    ended = record["status"] not in ("failed", "interrupted")   # (an interrupted run's files are partial)
+    summary = read_summary(record["folder"]) if ended else None
     row.update({k: "" for k in FIGURES})
     row["wall_s"] = record.get("wall_s") or ""
     if summary:
@@ -214,7 +231,7 @@ def result_row(record, settings):
                    angular_momentum_drift=c["angular_momentum_relative_drift"],
                    plastic_dissipation=summary["plastic_dissipation"],
                    cracks=f["cracks"], fragments=f["fragments"])
-    for body, xyz in final_positions(record["folder"]).items():
+    for body, xyz in (final_positions(record["folder"]) if ended else {}).items():
         row.update({f"{body}.{axis}": value for axis, value in zip("xyz", xyz)})
     row["folder"] = record["folder"]
     return row
@@ -273,10 +290,15 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
             raise
         raise _in_python_words(error) from None
     out = Path(out)
-    records = execute(variants, out, workers, scheduler, progress)
+    try:
+        records, stopped = execute(variants, out, workers, scheduler, progress), None
+    except StudyInterrupted as interrupted:
+        records, stopped = interrupted.records, interrupted
     out.mkdir(parents=True, exist_ok=True)
     table = [result_row(r, v.settings) for r, v in zip(records, variants)]
     write_table(table, out / "results.csv")
+    if stopped is not None:         # the runs that finished are in the table; a rerun keeps them
+        raise stopped
     if plot:
         from .plots import plot_sweep
         plot_sweep(table, [k for k, _ in pairs], plot, out)
