@@ -278,6 +278,11 @@ def test_a_mesh_ladder_needs_refine_and_replaces_a_shape(tmp_path, capsys):
     code = main(["converge", str(tmp_path / "s.toml"), "--mesh",
                  f"can={tmp_path / 'coarse.vtu'},{tmp_path / 'fine.vtu'}", "--out", str(tmp_path / "o")])
     assert code == 2 and "needs --refine N" in capsys.readouterr().err
+    # a missing file is named once (each level's run told it, under --set settings never given)
+    code = main(["converge", str(tmp_path / "s.toml"), "--refine", "2", "--mesh",
+                 f"can={tmp_path / 'coarse.vtu'},{tmp_path / 'gone.vtu'}", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("gone.vtu") == 1 and "--set" not in err, err
     meshes = {"can": [str(tmp_path / "coarse.vtu"), str(tmp_path / "fine.vtu")]}
     rungs = ladder(parse_scene(tomllib.loads(text), "s.toml", tmp_path), 1, 2, meshes)
     for rung, mesh in zip(rungs, meshes["can"]):

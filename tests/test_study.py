@@ -401,3 +401,13 @@ def test_a_sweep_stopped_by_ctrl_c_writes_its_table_with_the_runs_it_finished(tm
     assert [t["status"] for t in table] == ["ok", "interrupted"]
     assert table[0]["ball.z"] != "" and table[1].get("ball.z", "") == ""
     assert "Ctrl-C" in table[1]["error"]
+
+
+def test_a_value_given_twice_is_refused_before_anything_runs(tmp_path, capsys):
+    """0.3,0.30,3e-1 ran one variant three times into one folder and gave three identical rows."""
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    code = main(["sweep", str(scene), "--set", "simulation.duration=0.3,0.30,3e-1", "--out",
+                 str(tmp_path / "out"), "--quiet"])
+    assert code == 2 and "more than once" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

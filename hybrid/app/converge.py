@@ -134,6 +134,9 @@ def _mesh_settings(scene, levels, meshes):
             raise SettingError(f"--mesh {name}: no body '{name}'; bodies: {', '.join(bodies)}")
         if len(files) != levels:
             raise SettingError(f"--mesh {name}: lists {len(files)} meshes; --refine {levels} needs {levels}")
+        missing = [f for f in files if not Path(f).is_file()]
+        if missing:     # (else each level's run told it, under --set settings nobody gave)
+            raise SettingError(f"--mesh {name}: no such file: {', '.join(missing)}")
         out[f"bodies.{name}.mesh"] = [str(Path(f).resolve()) for f in files]
     for b in scene.bodies:
         if b.model != "rigid" and b.shape is not None and b.name not in meshes:

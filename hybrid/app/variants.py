@@ -184,7 +184,13 @@ def combinations(settings, zipped=False):
         rows = zip(*(v for _, v in settings))
     else:
         rows = itertools.product(*(v for _, v in settings))
-    return [dict(zip(keys, row)) for row in rows]
+    out = [dict(zip(keys, row)) for row in rows]
+    # the same variant twice (0.3,0.30,3e-1) ran as one folder and gave identical rows
+    for k, row in enumerate(out):
+        if row in out[:k]:
+            raise SettingError("the same variant is given more than once: "
+                               + ", ".join(f"{key}={value!r}" for key, value in row.items()))
+    return out
 
 
 def _absolute_meshes(data, base_dir):
