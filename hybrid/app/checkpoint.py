@@ -108,8 +108,10 @@ def _load(path):
     """``(manifest, arrays)`` of the checkpoint file; CheckpointError if it is missing, not a
     checkpoint, truncated or corrupted."""
     if not path.is_file():
-        raise CheckpointError(f"{path}: no checkpoint to resume from (a run writes one with "
-                              f"--checkpoint-every; a run that finished removes it)")
+        raise CheckpointError(f"{path}: no checkpoint to resume from (a run writes one when "
+                              f"stopped and every --checkpoint-every; a run that finished removes "
+                              f"it, and one ended at once by a second Ctrl-C or killed before its "
+                              f"first leaves none: run it again without --resume)")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {name: z[name] for name in z.files}       # reads all: checks every CRC
