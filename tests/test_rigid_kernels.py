@@ -268,3 +268,41 @@ def test_shared_loads_keep_the_patch_total_and_moment_and_push_only():
             basis = np.column_stack([np.ones(k), uv])
             fit = np.linalg.lstsq(basis, shared, rcond=None)[0]
             assert np.abs(basis @ fit - shared).max() < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_spinning_patches_kernel_matches_numpy_on_random_contacts(seed):
+    """The compiled patch finder (rigid.patches.spinning_patches) gives the patches of its numpy
+    reference: random contacts between a few bodies and a plane, some pairs on flat patches
+    (shared normal) spinning or still about it, some with scattered normals, some too few."""
+    from rigid.patches import spinning_patches, spinning_patches_numpy
+    rng = np.random.default_rng(seed)
+    bodies = 6
+    angular = rng.normal(size=(bodies, 3)) * rng.choice([0.0, 1e-4, 3.0], size=(bodies, 1))
+    rows_a, rows_b, points, normals = [], [], [], []
+    for _ in range(12):
+        a = int(rng.integers(bodies))
+        b = int(rng.integers(-1, bodies))
+        if b == a:
+            continue
+        k = int(rng.integers(1, 7))
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        flat = rng.random() < 0.7
+        for _ in range(k):
+            rows_a.append(a), rows_b.append(b)
+            points.append(rng.normal(size=3) * 0.1)
+            m = n if flat else n + 1e-3 * rng.normal(size=3)
+            normals.append(m / np.linalg.norm(m))
+    order = rng.permutation(len(rows_a))
+    body_a = np.array(rows_a, dtype=np.int64)[order]
+    body_b = np.array(rows_b, dtype=np.int64)[order]
+    point, normal = np.array(points)[order], np.array(normals)[order]
+    rigid_pair = rng.random(len(body_a)) < 0.9
+    got = spinning_patches(body_a, body_b, point, normal, rigid_pair, angular)
+    want = spinning_patches_numpy(body_a, body_b, point, normal, rigid_pair, angular)
+    assert (got is None) == (want is None)
+    if want is not None:
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert len(want[1]) > 1
