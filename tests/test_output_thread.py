@@ -151,3 +151,20 @@ def test_frames_read_back_exactly_when_unchanged_arrays_reuse_the_last_frames_en
         np.testing.assert_array_equal(mesh.cell_data["von_mises"][0], np.zeros(4))
         np.testing.assert_array_equal(mesh.cell_data["body_id"][1], [1, 1])
         np.testing.assert_array_equal(mesh.point_data["velocity"][4:], np.ones((5, 3)))
+
+
+def test_one_writer_thread_serves_frames_that_come_close_together_and_ends_at_wait():
+    """A new thread for every frame cost its start on the stepping thread each time: jobs
+    submitted within the linger reuse one thread, in order, and wait() ends it at once."""
+    import time
+    from hybrid.app.writer_thread import LINGER, WriterThread
+    writer = WriterThread()
+    threads, order = set(), []
+    for k in range(5):
+        writer.submit(lambda k=k: (threads.add(threading.get_ident()), order.append(k)))
+        time.sleep(0.2 * LINGER)
+    start = time.perf_counter()
+    writer.wait()
+    assert time.perf_counter() - start < 0.5 * LINGER
+    assert order == list(range(5)) and len(threads) == 1
+    assert not any(t.name == "writer" for t in threading.enumerate())
