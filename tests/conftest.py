@@ -7,8 +7,17 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import signal
+
 import numpy as np
 import pytest
+
+# the tests that stop runs with Ctrl-C stand for a user at a terminal: a suite started in the
+# background by a shell without job control (`(cmd &)`) inherits SIGINT ignored, and so would the
+# runs it starts (they then ran to their end); a handler of our own is reset to the default at
+# exec, so the runs start as a terminal starts them
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 from hybrid import Simulation
 from hybrid.app.scene import parse_scene
