@@ -389,3 +389,31 @@ def test_the_fork_server_ignores_ctrl_c_while_it_imports(tmp_path):
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "1"
+
+
+def test_writer_processes_do_not_run_the_main_script_again(tmp_path):
+    """Each writer process ran the run's main script again on start (Python's fork server drops
+    the script's path before 3.13.8): for the ``hybrid`` command, the project imported anew,
+    0.3-0.6 s before a run's first frame was written, so a short run's frames came late and its
+    close waited for them. The fork server imports the script once; its writer processes start
+    with it. Here a script counts its imports outside ``__main__`` while it starts three writer
+    processes, each answering: one import (the fork server's), not one a process."""
+    imports = tmp_path / "imports.txt"
+    script = tmp_path / "three_writers.py"
+    script.write_text(
+        "import time\n"
+        "from hybrid.app.writer_process import WriterProcess, fork_server\n"
+        "if __name__ != '__main__':\n"
+        f"    open({str(imports)!r}, 'a').write(__name__ + '\\n')\n"
+        "if __name__ == '__main__':\n"
+        "    fork_server.start()\n"
+        "    while not fork_server.ready():\n"
+        "        time.sleep(0.01)\n"
+        "    for k in range(3):\n"
+        f"        writer = WriterProcess({str(tmp_path)!r} + f'/out{{k}}', 'run.pvd')\n"
+        "        print(sorted(writer.state()) != [])\n"
+        "        writer.stop()\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True"] * 3          # each writer process answered
+    assert imports.read_text().split() == ["__mp_main__"]

@@ -21,7 +21,9 @@ from __future__ import annotations
 import atexit
 import multiprocessing
 import multiprocessing.forkserver
+import multiprocessing.spawn
 import multiprocessing.util
+import os
 import pickle
 import queue
 import re
@@ -318,14 +320,38 @@ def _start_fork_server():
     KeyboardInterrupt traceback into the run's output (it ignores SIGINT once its imports are
     done; its writer processes too). The spawn takes milliseconds; the imports happen after."""
     multiprocessing.get_context("forkserver").set_forkserver_preload(["__main__", __name__])
-    if threading.current_thread() is not threading.main_thread():
-        multiprocessing.forkserver.ensure_running()
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    main_path = multiprocessing.spawn.get_preparation_data("RunWriter").get("init_main_from_path")
+    if main_path is not None:
+        os.environ[_MAIN_PATH] = main_path
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
     try:
         multiprocessing.forkserver.ensure_running()
     finally:
-        signal.signal(signal.SIGINT, previous)
+        os.environ.pop(_MAIN_PATH, None)
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
+
+
+# The main script's path, handed to the fork server in its environment (see _preload_main).
+_MAIN_PATH = "HYBRID_FORK_SERVER_MAIN"
+
+
+def _preload_main() -> None:
+    """In the fork server (this module preloaded there): import the run's main script once, as
+    the server's ``__main__``, so that its writer processes do not each run it again. Python's
+    fork server means to do this for a preloaded ``"__main__"`` but, before 3.13.8, never
+    receives the script's path (CPython issues 98552, 126631), and each child then ran the main
+    script on start: for the ``hybrid`` command, the whole project imported again, 0.3-0.6 s
+    before a run's first frame was written. A script that fails to import is left to the
+    children, as before."""
+    path = os.environ.pop(_MAIN_PATH, None)
+    if path is None or getattr(sys.modules.get("__main__"), "__file__", None) == path:
+        return
+    try:
+        multiprocessing.spawn.import_main_path(path)
+    except Exception:                           # noqa: BLE001 (the children import it, as before)
+        pass
 
 
 def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
@@ -376,3 +402,6 @@ def _reply_error(replies, error: BaseException) -> None:
     except Exception:                       # noqa: BLE001
         error = RuntimeError(f"{type(error).__name__}: {error}")
     replies.send(("error", error, remote))
+
+
+_preload_main()
