@@ -33,28 +33,28 @@ def to_matrix(q):
 
 
 def from_matrix(R):
-    """Unit quaternions ``(..., 4)`` (w >= 0) of rotation matrices ``(..., 3, 3)``."""
+    """Unit quaternions ``(..., 4)`` (w >= 0) of rotation matrices ``(..., 3, 3)``.
+
+    Shepperd's method: the symmetric matrix ``K`` below has ``K = 4 q q^T`` for the rotation's
+    quaternion ``q`` (w, x, y, z), so any row of it is ``q`` times 4 times one component; the row
+    of the largest diagonal entry (4w^2, 4x^2, 4y^2 or 4z^2) divides by the largest component.
+    """
     R = np.asarray(R, dtype=float)
     m = R.reshape(-1, 3, 3)
-    t = np.trace(m, axis1=1, axis2=2)
-    # Shepperd's method: pick the largest of 4w^2, 4x^2, 4y^2, 4z^2 for stability
-    cand = np.stack([t, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
-    k = np.argmax(cand, axis=1)
-    q = np.empty((len(m), 4))
-    r = np.sqrt(np.maximum(1.0 + 2.0 * cand[np.arange(len(m)), k] - t, 1e-300))
-    s = 0.5 / r
-    i0 = k == 0
-    q[i0] = np.stack([0.5 * r[i0], (m[i0, 2, 1] - m[i0, 1, 2]) * s[i0],
-                      (m[i0, 0, 2] - m[i0, 2, 0]) * s[i0], (m[i0, 1, 0] - m[i0, 0, 1]) * s[i0]], 1)
-    i1 = k == 1
-    q[i1] = np.stack([(m[i1, 2, 1] - m[i1, 1, 2]) * s[i1], 0.5 * r[i1],
-                      (m[i1, 0, 1] + m[i1, 1, 0]) * s[i1], (m[i1, 0, 2] + m[i1, 2, 0]) * s[i1]], 1)
-    i2 = k == 2
-    q[i2] = np.stack([(m[i2, 0, 2] - m[i2, 2, 0]) * s[i2], (m[i2, 0, 1] + m[i2, 1, 0]) * s[i2],
-                      0.5 * r[i2], (m[i2, 1, 2] + m[i2, 2, 1]) * s[i2]], 1)
-    i3 = k == 3
-    q[i3] = np.stack([(m[i3, 1, 0] - m[i3, 0, 1]) * s[i3], (m[i3, 0, 2] + m[i3, 2, 0]) * s[i3],
-                      (m[i3, 1, 2] + m[i3, 2, 1]) * s[i3], 0.5 * r[i3]], 1)
+    t = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    K = np.empty((len(m), 4, 4))
+    K[:, 0, 0] = 1.0 + t
+    K[:, 1, 1] = 1.0 + 2.0 * m[:, 0, 0] - t
+    K[:, 2, 2] = 1.0 + 2.0 * m[:, 1, 1] - t
+    K[:, 3, 3] = 1.0 + 2.0 * m[:, 2, 2] - t
+    K[:, 0, 1] = K[:, 1, 0] = m[:, 2, 1] - m[:, 1, 2]
+    K[:, 0, 2] = K[:, 2, 0] = m[:, 0, 2] - m[:, 2, 0]
+    K[:, 0, 3] = K[:, 3, 0] = m[:, 1, 0] - m[:, 0, 1]
+    K[:, 1, 2] = K[:, 2, 1] = m[:, 0, 1] + m[:, 1, 0]
+    K[:, 1, 3] = K[:, 3, 1] = m[:, 0, 2] + m[:, 2, 0]
+    K[:, 2, 3] = K[:, 3, 2] = m[:, 1, 2] + m[:, 2, 1]
+    rows = np.arange(len(m))
+    q = K[rows, np.argmax(K[:, [0, 1, 2, 3], [0, 1, 2, 3]], axis=1)]
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     return normalize(q).reshape(R.shape[:-2] + (4,))
 

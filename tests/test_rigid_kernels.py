@@ -306,3 +306,21 @@ def test_spinning_patches_kernel_matches_numpy_on_random_contacts(seed):
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
         assert len(want[1]) > 1
+
+
+def test_quaternion_of_a_rotation_matrix_is_the_quaternion_that_made_it():
+    """``from_matrix`` inverts ``to_matrix`` (the quaternion with w >= 0): random rotations, turns
+    of nearly and exactly 180 degrees (w about 0, where the largest component is x, y or z) and
+    the identity; the result is a unit quaternion in any leading shape."""
+    rng = np.random.default_rng(7)
+    q = quat.normalize(rng.normal(size=(4000, 4)))
+    q[:300, 0] = rng.uniform(0.0, 1e-9, 300)             # half-turns, about random axes
+    q[300:303] = np.eye(4)[1:]                           # exact half-turns about x, y, z
+    q[303] = [1.0, 0.0, 0.0, 0.0]
+    q = quat.normalize(q) * np.where(q[:, :1] < 0, -1.0, 1.0)
+    back = quat.from_matrix(quat.to_matrix(q))
+    exact_half_turn = q[:, 0] == 0.0                     # q and -q are the same turn there
+    assert np.abs(back - q)[~exact_half_turn].max() < 1e-14
+    assert np.abs(np.abs(np.einsum("bi,bi->b", back, q)) - 1.0).max() < 1e-14
+    assert np.all(back[:, 0] >= 0.0)
+    assert quat.from_matrix(quat.to_matrix(q[:6]).reshape(2, 3, 3, 3)).shape == (2, 3, 4)
