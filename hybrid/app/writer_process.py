@@ -356,7 +356,7 @@ def _preload_main() -> None:
         return
     try:
         multiprocessing.spawn.import_main_path(path)
-    except Exception:                           # noqa: BLE001 (the children import it, as before)
+    except BaseException:       # noqa: BLE001 (also SystemExit: the children import it, as before)
         pass
 
 
