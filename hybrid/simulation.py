@@ -168,7 +168,8 @@ class Simulation:
         ``out`` then continues the run there, ending as the run would have without the stop.
         Raises SceneError for a scene file with problems and
         :class:`hybrid.app.checkpoint.CheckpointError` for a checkpoint that is missing, of
-        another scene, truncated or corrupted, or of another format version."""
+        another scene, truncated or corrupted, of another format version, or whose run folder
+        has lost or damaged a frame or table it counts."""
         return checkpoint.restore(cls.__new__(cls), load_scene(scene_path(path)), out)
 
     @property

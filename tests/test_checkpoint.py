@@ -198,14 +198,19 @@ def test_a_corrupted_checkpoint_is_refused(capsys, stopped_quick):
 @pytest.mark.parametrize("damage", ["garbage", "cut short"])
 def test_a_damaged_frame_the_checkpoint_counts_is_refused(capsys, stopped_quick, damage):
     """A frame the checkpoint counts, overwritten with garbage or cut short since: the resume
-    refuses it, naming the file (it went on, and left a frame no reader opens)."""
+    refuses it, naming the file (it went on, and left a frame no reader opens), before it says
+    it is resuming, and leaves the folder as it was."""
     out, scene = stopped_quick
     frame = sorted((out / "frames").glob("frame_*.vtu"))[0]
     data = frame.read_bytes()
     frame.write_bytes(b"garbage" * 100 if damage == "garbage" else data[:len(data) // 2])
-    code, err = resume_code(capsys, scene, out)
-    assert code == 2 and frame.name in err and "not a whole .vtu file" in err, err
-    assert "Traceback" not in err
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    code = main(["run", str(scene), "--out", str(out), "--resume", "--quiet"])
+    said = capsys.readouterr()
+    assert code == 2 and frame.name in said.err and "not a whole .vtu file" in said.err, said.err
+    assert "Traceback" not in said.err
+    assert "resuming" not in said.out, said.out
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 
 def rewritten(path, change):

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .codec import CodecError, decode, encode
-from .output_resume import CHECKPOINT, ResumeError
+from .output_resume import CHECKPOINT, ResumeError, check_folder
 
 FORMAT = "hybrid-checkpoint"
 VERSION = 1
@@ -272,6 +272,12 @@ def restore(sim, scene, out):
     model, state, events and counters; ``sim.resumed`` keeps what its next run continues from
     (:class:`Position`, the recorder's snapshot). Raises CheckpointError."""
     content = read(Path(out) / CHECKPOINT, scene)
+    files = content["recorder"].get("files")
+    if files is not None:           # said before the run starts, not once it has said "resuming"
+        try:
+            check_folder(out, files)
+        except (ResumeError, OSError) as error:
+            raise _changed(out, error) from None
     sim.scene, sim.warnings = scene, []
     sim.model, sim.state, sim.events = content["model"], content["state"], list(content["events"])
     sim.timings, sim.fem_time = content["timings"], content["fem_time"]
@@ -289,4 +295,8 @@ def resume_recorder(recorder, snapshot, out):
     try:
         recorder.restore(snapshot)
     except (ResumeError, OSError) as error:
-        raise CheckpointError(f"{out}: the run folder changed since the checkpoint ({error})") from None
+        raise _changed(out, error) from None
+
+
+def _changed(out, error):
+    return CheckpointError(f"{out}: the run folder changed since the checkpoint ({error})")

@@ -65,17 +65,10 @@ class ResumableWriter(RunWriter):
         """Take the run folder back to ``snapshot`` and append from there. Raises ResumeError
         when a frame or table the snapshot counts is missing or shorter."""
         self._wait()
+        check_folder(self.out_dir, snapshot)
         times = [float(t) for t in snapshot["times"]]
         files = [str(f) for f in snapshot["files"]]
-        for name in files:
-            if not (self.out_dir / name).is_file():
-                raise ResumeError(f"{self.out_dir / name}: missing, the checkpoint counts it")
-            if not _whole_vtu(self.out_dir / name):
-                raise ResumeError(f"{self.out_dir / name}: not a whole .vtu file (damaged since it "
-                                  f"was written), the checkpoint counts it")
         tables = {name: snapshot["tables"].get(name) for name in (BODIES_CSV, REGIONS_CSV)}
-        for name, length in tables.items():
-            self._check_table(name, length)
         for stale in self.frames_dir.iterdir() if self.frames_dir.is_dir() else ():
             if FRAME_PATTERN.match(stale.name) and f"{FRAMES_DIR}/{stale.name}" not in files:
                 stale.unlink()
@@ -91,14 +84,6 @@ class ResumableWriter(RunWriter):
         self._wait()
         self._started = True
 
-    def _check_table(self, name, length):
-        """ResumeError when the table ``name`` is missing or shorter than ``length`` bytes."""
-        path = Path(self.out_dir) / name
-        size = path.stat().st_size if path.is_file() else -1
-        if length is not None and size < length:
-            raise ResumeError(f"{path}: {'missing' if size < 0 else f'{size} bytes'}, the checkpoint "
-                              f"wrote {length}")
-
     def _cut(self, name, length):
         """The table ``name`` cut to ``length`` bytes (removed when the checkpoint had none)."""
         path = Path(self.out_dir) / name
@@ -107,6 +92,24 @@ class ResumableWriter(RunWriter):
             return
         with open(path, "r+b") as f:
             f.truncate(length)
+
+
+def check_folder(out_dir, snapshot):
+    """ResumeError when run folder ``out_dir`` no longer holds what a writer's ``snapshot``
+    counts: a frame missing or not a whole ``.vtu``, a table missing or shorter than it was."""
+    out_dir = Path(out_dir)
+    for name in (str(f) for f in snapshot["files"]):
+        if not (out_dir / name).is_file():
+            raise ResumeError(f"{out_dir / name}: missing, the checkpoint counts it")
+        if not _whole_vtu(out_dir / name):
+            raise ResumeError(f"{out_dir / name}: not a whole .vtu file (damaged since it "
+                              f"was written), the checkpoint counts it")
+    for name in (BODIES_CSV, REGIONS_CSV):
+        length, path = snapshot["tables"].get(name), out_dir / name
+        size = path.stat().st_size if path.is_file() else -1
+        if length is not None and size < length:
+            raise ResumeError(f"{path}: {'missing' if size < 0 else f'{size} bytes'}, the checkpoint "
+                              f"wrote {length}")
 
 
 def _whole_vtu(path):
