@@ -31,8 +31,10 @@ def does_work(model):
 
 def loads(model, state):
     """Potential energy (J) of the deformable bodies' loads, ``-sum f . x`` over their nodes:
-    constant forces, so the total energy with it is conserved as with gravity's."""
-    return -float(sum(np.einsum("ij,ij->", m.node_load, s.x) for m, s in zip(model.fem, state.fem)
+    constant forces, so the total energy with it is conserved as with gravity's (an auto body
+    held rigid by its anchors keeps its loads where they were)."""
+    parked = [(p.fem, p.state) for p in model.parked.values()]
+    return -float(sum(np.einsum("ij,ij->", m.node_load, s.x) for m, s in [*zip(model.fem, state.fem), *parked]
                       if np.any(m.node_load)))
 
 

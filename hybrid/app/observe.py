@@ -237,4 +237,18 @@ def totals(model, state):
         energy += fem_dyn.kinetic_energy(mm, s) + fem_dyn.elastic_energy(mm, s) - float(mm.node_mass @ (s.x @ g))
         P += fem_dyn.linear_momentum(mm, s)
         L += fem_dyn.angular_momentum(mm, s)
-    return energy, P, L
+    return energy + parked_energy(model), P, L
+
+
+def parked_energy(model):
+    """Energy (J) the auto bodies stepped as rigid keep that the rigid sums leave out: the elastic
+    energy of the deformed shape each keeps, and for one held by its anchors (a fixed rigid body)
+    its weight's potential energy where it is held; constant while they stay rigid."""
+    energy = 0.0
+    for i, k in enumerate(model.rigid_ids):
+        parked = model.parked.get(int(k))
+        if parked is not None:
+            energy += fem_dyn.elastic_energy(parked.fem, parked.state)
+            if model.rigid.body_fixed[i]:
+                energy -= float(parked.fem.node_mass @ (parked.state.x @ model.gravity))
+    return energy
