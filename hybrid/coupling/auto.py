@@ -183,7 +183,8 @@ def _calm_count(model, state, j, window):
     rigidify = thresholds(model, model.fem_ids[j])[0]
     if _approaching(model, state, j, rigidify):
         return 0
-    if _restless(m, s, rigidify, model.dt) or body_strain_measure(m, s.x, s.v, model.dt) >= rigidify:
+    if _restless(m, s, rigidify, model.dt) or body_strain_measure(m, s.x, s.v, model.dt) >= rigidify \
+            or _unbalanced(model, state, j):
         return -(window // 2)
     strength = model.scene.bodies[model.fem_ids[j]].fracture_stress
     if strength is not None:
@@ -205,6 +206,32 @@ def _restless(m, s, rigidify, h):
     calm (see RESTLESS)."""
     u = s.v if m.has_anchors else s.v - rigid_part(m, s.x, s.v)
     return float(np.abs(u).max()) > RESTLESS * rigidify * extent(m) / response_time(m, h)
+
+
+# an anchored body whose forces (weight, loads, anchor reactions, contacts) sum to more than this
+# part of its weight and loads is still accelerating as a whole, not at rest on its anchors
+BALANCE = 0.05
+
+
+def _unbalanced(model, state, j):
+    """Whether anchored FEM body ``j`` is not yet held by its anchors: the forces on it over the
+    last step (weight, loads, the anchors' reactions, its contacts' impulses over the step) sum to
+    more than BALANCE of its weight and loads. A beam let go straight sags into its bend with
+    strain rates below the rigidify strain (its whole sag is a strain of 1e-4), and turned rigid
+    then keeps the anchor reaction of that moment (a fifth to two fifths off its weight and
+    loads); a free body's balance is not checked (its contacts share its weight in many ways)."""
+    m, s = model.fem[j], state.fem[j]
+    if not m.has_anchors:
+        return False
+    weight = float(m.node_mass.sum()) * np.asarray(model.gravity, float)
+    held = weight + m.node_load.sum(axis=0)
+    scale = float(np.linalg.norm(weight)) + float(np.linalg.norm(m.node_load, axis=1).sum())
+    if scale == 0.0:
+        return False
+    net = held + s.node_reaction.sum(axis=0)
+    if state.touches is not None:
+        net = net + state.touches.of_body(model.fem_ids[j])[2].sum(axis=0) / model.dt
+    return float(np.linalg.norm(net)) > BALANCE * scale
 
 
 def _approaching(model, state, j, rigidify):
