@@ -269,6 +269,7 @@ class Simulation:
         or after :attr:`time`, an ``out`` that is (or lies in) a file, or the folder this
         simulation's last run wrote (a run into it again would replace that run's frames)."""
         out = self._checked_out(out)
+        checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
         if out is not None:             # a run refused above wrote nothing there
             self._last_out = out.resolve()
@@ -297,7 +298,8 @@ class Simulation:
             wall = clock.perf_counter() - wall0
             result = summary(self.scene, self.model, self.state, wall, recorder, failure,
                              self.events[position.first_event:], self.timings,
-                             (self.fem_time, self.stepped_time), self.peaks, self.impacts)
+                             (self.fem_time, self.stepped_time), self.peaks, self.impacts,
+                             position.first_step)
             if saver.stopped is not None:
                 result["status"] = "stopped"
             struck = {w.body for w in self.impacts.warnings}
@@ -319,6 +321,8 @@ class Simulation:
         """``out`` as a Path (None stays None), refused as :meth:`run` says."""
         if out is None:
             return None
+        if isinstance(out, str) and not out.strip():
+            raise ValueError("out '': give a folder's path (it is created if missing)")
         out = Path(out)
         blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
         if blocking is not None:
@@ -345,7 +349,7 @@ class Simulation:
         until = float(until)
         end_step = self.steps + int(round((until - self.time) / sim.dt))
         return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,
-                                   len(self.events)), None
+                                   len(self.events), self.steps), None
 
     def _steps(self, position, recorder, bar, log, saver):
         """Take steps until ``position.end_step``, recording frames at the output rate (at the

@@ -146,6 +146,27 @@ def test_run_refuses_times_and_folders_it_cannot_honour(tmp_path):
         sim.run(until=0.008, out=tmp_path / "run", progress=False, log=lambda m: None)
     summary = sim.run(until=0.008, out=tmp_path / "later", progress=False, log=lambda m: None)
     assert summary["status"] == "ok" and sim.time == pytest.approx(0.008)
+    # an empty out wrote into the current folder; checkpoint_every as --checkpoint-every takes it
+    with pytest.raises(ValueError, match="give a folder"):
+        sim.run(until=0.012, out="", progress=False, log=lambda m: None)
+    for every in (-1.0, float("nan"), "0.1", True):
+        with pytest.raises(ValueError, match="checkpoint_every must be"):
+            sim.run(until=0.012, out=tmp_path / "every", checkpoint_every=every, progress=False,
+                    log=lambda m: None)
+    assert not (tmp_path / "every").exists()
+
+
+def test_a_second_run_reports_its_own_steps_per_second(tmp_path):
+    """Steps count from the simulation's start; steps per second are the run's own steps over its
+    wall time (a run after 50 steps taken one by one and a run of none reported 50 over its few
+    milliseconds)."""
+    sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
+    for _ in range(5):
+        sim.step()
+    summary = sim.run(until=sim.time + 3 * sim.dt, out=tmp_path / "run", progress=False,
+                      log=lambda m: None)
+    assert summary["steps"] == 8
+    assert summary["steps_per_second"] * summary["wall_time"] == pytest.approx(3)
 
 
 def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):

@@ -17,6 +17,7 @@ on disk is always whole; each member carries the zip CRC, so a damaged one is re
 """
 import hashlib
 import json
+import math
 import os
 import signal
 import tempfile
@@ -52,12 +53,14 @@ class CheckpointError(Exception):
 class Position:
     """Where a run is and where it ends: until s (simulated time it runs to), end_step (the step
     it stops after), next_frame s (when the next frame is due), wall s (wall time of the run so
-    far, resumed runs included), first_event (index in ``Simulation.events`` of the run's first)."""
+    far, resumed runs included), first_event (index in ``Simulation.events`` of the run's first),
+    first_step (the simulation's step count when the run began)."""
     until: float
     end_step: int
     next_frame: float
     wall: float = 0.0
     first_event: int = 0
+    first_step: int = 0
 
 
 def scene_digest(scene):
@@ -81,7 +84,8 @@ def write(path, sim, position, recorder):
     content = {"model": sim.model, "state": sim.state, "events": sim.events[position.first_event:],
                "timings": sim.timings, "fem_time": sim.fem_time, "stepped_time": sim.stepped_time,
                "position": {"until": position.until, "end_step": position.end_step,
-                            "next_frame": position.next_frame, "wall": position.wall},
+                            "next_frame": position.next_frame, "wall": position.wall,
+                            "first_step": position.first_step},
                "recorder": recorder.snapshot()}
     tree, arrays = encode(content)
     manifest = {"format": FORMAT, "version": VERSION, "hybrid": _version(),
@@ -211,6 +215,17 @@ def stop_on_signals(signals=(signal.SIGINT, signal.SIGTERM)):
             signal.signal(s, h)
 
 
+def check_every(every):
+    """ValueError unless ``every`` is None or simulated seconds, finite and not negative (what
+    ``Simulation.run(checkpoint_every=...)`` takes, as ``--checkpoint-every`` does)."""
+    if every is None:
+        return
+    if isinstance(every, bool) or not isinstance(every, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(every) and every >= 0):
+        raise ValueError(f"checkpoint_every must be simulated seconds, 0 or more (0: a checkpoint "
+                         f"only when stopped; None: the default), got {every!r}")
+
+
 class Checkpoints:
     """When a run writes its checkpoints to ``out/checkpoint.npz`` (never without ``out``), and
     whether it was asked to stop. ``every``: simulated seconds between checkpoints (0: none but
@@ -254,7 +269,7 @@ class Checkpoints:
     def _write(self, recorder, now):
         """Write the checkpoint; its path, or None (logged) when it could not be written."""
         position = Position(self.position.until, self.position.end_step, self.position.next_frame,
-                            now - self.wall0, self.position.first_event)
+                            now - self.wall0, self.position.first_event, self.position.first_step)
         try:
             return write(self.path, self.sim, position, recorder)
         except (OSError, CodecError) as error:
@@ -283,7 +298,7 @@ def restore(sim, scene, out):
     sim.timings, sim.fem_time = content["timings"], content["fem_time"]
     sim.stepped_time = content["stepped_time"]
     p = content["position"]
-    sim.resumed = (Position(p["until"], p["end_step"], p["next_frame"], p["wall"], 0),
+    sim.resumed = (Position(p["until"], p["end_step"], p["next_frame"], p["wall"], 0, p.get("first_step", 0)),
                    content["recorder"])
     return sim
 

@@ -298,11 +298,12 @@ def frame_hints(model, strains, spinning=()):
 
 
 def summary(scene, model, state, wall, recorder, failure, events, timings, fem_time=None,
-            peaks=None, impacts=None):
+            peaks=None, impacts=None, first_step=0):
     """The run's ``summary.json`` content. ``fem_time``: ``(seconds stepped as FEM by body name,
     seconds simulated)``, for the ``models`` section. ``peaks``: the run's
     :class:`hybrid.app.peaks.Peaks` (the ``peaks`` section), ``impacts``: its
-    :class:`hybrid.app.resolution.ImpactWatch` (``impact_warnings``)."""
+    :class:`hybrid.app.resolution.ImpactWatch` (``impact_warnings``). ``first_step``: the step
+    count the run began at (its steps per second count its own steps)."""
     return {
         "scene": scene.raw | {"simulation": scene.raw.get("simulation", {}) | {"name": scene.name}},
         "scene_file": str(scene.source_path),
@@ -313,7 +314,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
         "steps": state.steps,
         "frames": recorder.frames,
         "wall_time": wall,
-        "steps_per_second": state.steps / wall if wall > 0 else None,
+        "steps_per_second": (state.steps - first_step) / wall if wall > 0 else None,
         "plastic_dissipation": observe.plastic_dissipation(model, state),
         "plastic_dissipation_note": "plastic work (J) dissipated by von Mises flow in bodies with a "
                                     "yield_stress, since the start; 0 when no body has one",
