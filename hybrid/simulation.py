@@ -31,7 +31,7 @@ from .coupling.substep import advance_in_substeps
 
 # most sub-steps a step with an impact is taken in (a scene's resolve_impacts)
 MAX_SUBSTEPS = 64
-from .scenes import builtin_path
+from .scenes import builtin_path, scene_path
 
 
 @dataclass(frozen=True)
@@ -404,13 +404,3 @@ class Simulation:
         plastic = np.broadcast_to(fields["plastic_strain"], (m.tet_count,)).copy()
         return Body(kind=kind, points=s.x.copy(), tets=m.tets.copy(), von_mises=fields["von_mises"],
                     principal_stress=fields["principal_stress"], plastic_strain=plastic, **pose)
-
-
-def scene_path(path_or_name):
-    """The scene file a user named: an existing path or anything that looks like one (a .toml
-    file, a path with folders: the loader reports it if missing), else the built-in scene of that
-    name; KeyError naming the built-in scenes for a bare name that is neither."""
-    path = Path(path_or_name)
-    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
-        return path
-    return builtin_path(str(path_or_name))

@@ -282,3 +282,14 @@ def test_a_body_reports_its_mass_and_the_progress_of_a_log_ends_once():
     bar.update(0.01, 10, force=True)
     lines = stream.getvalue().splitlines()
     assert sum(line.startswith("100.0%") for line in lines) == 1
+
+
+def test_what_is_no_scene_is_refused_saying_what_a_simulation_is_built_from():
+    """None or a dict raised an AttributeError from deep inside; TOML text given as a path was
+    echoed whole as an unknown built-in scene's name."""
+    for wrong in (None, {"simulation": {"duration": 1.0}}, 3.0):
+        with pytest.raises(TypeError, match="scene file's path, a built-in scene's name or a parsed Scene"):
+            Simulation(wrong)
+    with pytest.raises(KeyError, match="TOML text is not read as a scene") as refused:
+        Simulation.from_toml(SCENE)
+    assert len(str(refused.value)) < 300

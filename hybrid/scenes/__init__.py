@@ -19,11 +19,34 @@ def builtin_names():
 
 def builtin_path(name):
     """Path of the built-in scene ``name``; KeyError naming the built-in scenes if there is none."""
-    path = FOLDER / f"{name}.toml"
-    if not isinstance(name, str) or "/" in name or "\\" in name or not path.is_file():
+    if isinstance(name, str) and "\n" in name:
+        shown = name.strip().splitlines()[0][:40] if name.strip() else ""
+        raise KeyError(f"no built-in scene or scene file {shown!r}...: TOML text is not read "
+                       f"as a scene; write it to a .toml file, or build Simulation("
+                       f"hybrid.app.scene.parse_scene(tomllib.loads(text), name, folder))")
+    if not isinstance(name, str) or "/" in name or "\\" in name or not (FOLDER / f"{name}.toml").is_file():
         raise KeyError(f"no built-in scene {name!r}; built-in scenes: {', '.join(builtin_names())} "
                        f"(or give the path of a .toml file)")
-    return path
+    return FOLDER / f"{name}.toml"
+
+
+def scene_path(path_or_name):
+    """The scene file a user named: an existing path or anything that looks like one (a .toml
+    file, a path with folders: the loader reports it if missing), else the built-in scene of that
+    name; KeyError naming the built-in scenes for a bare name that is neither."""
+    if isinstance(path_or_name, str) and "\n" in path_or_name:
+        return builtin_path(path_or_name)                   # TOML text: refused, saying so
+    path = Path(path_or_name)
+    if path.suffix == ".toml" or len(path.parts) > 1 or _exists(path):
+        return path
+    return builtin_path(str(path_or_name))
+
+
+def _exists(path):
+    try:
+        return path.exists()
+    except OSError:             # a name too long for a file
+        return False
 
 
 def builtin_summary(name):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .parse import SceneError, parse_scene
+from .records import Scene
 
 
 def scene_data(scene):
@@ -22,7 +23,12 @@ def scene_data(scene):
 def rechecked(scene):
     """``scene`` when its tables read back as a valid scene (SceneError naming every field a
     change made invalid), with its tables as ``raw`` (which ``summary.json`` shows) when it is
-    no longer the scene its ``raw`` reads as (changed in Python)."""
+    no longer the scene its ``raw`` reads as (changed in Python). TypeError for what is no
+    :class:`Scene`."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"a simulation is built from a scene file's path, a built-in scene's name "
+                        f"or a parsed Scene (hybrid.app.scene.load_scene or parse_scene), not "
+                        f"{type(scene).__name__}")
     source = str(scene.source_path)
     data = scene_data(scene)
     parse_scene(data, source, Path(source).parent)
