@@ -82,3 +82,20 @@ def vertex_normals(vertices, triangles):
         np.add.at(n, triangles[:, k], face_n)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return n / np.where(length > 0, length, 1.0)
+
+
+def merge_coincident(vertices, triangles, tolerance=1e-9):
+    """``(vertices, triangles, merged)``: vertices closer than ``tolerance`` times the mesh's
+    extent made one (a surface whose triangles each carry their own corners, as some exporters
+    write them), triangles renumbered; ``merged``: how many vertices were dropped."""
+    v = np.asarray(vertices, dtype=float)
+    scale = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
+    if scale == 0.0:
+        return v, triangles, 0
+    keys = np.round((v - v.min(axis=0)) / (tolerance * scale)).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    merged = len(v) - len(first)
+    if not merged:
+        return v, triangles, 0
+    return v[first], inverse.reshape(-1)[triangles], merged
+

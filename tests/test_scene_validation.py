@@ -447,6 +447,38 @@ def test_tet_mesh_loader_flips_negative_tets_with_a_warning_naming_them(tmp_path
     assert np.allclose(volume, 1 / 6)
 
 
+def test_a_surface_written_as_separate_triangles_is_joined_where_its_corners_coincide(tmp_path):
+    """An exporter that writes each triangle with its own three corners (a triangle soup) gave
+    "surface is not closed: 72 boundary edges" for .obj and .vtu, while .stl (whose reader
+    merges corners) was taken: the corners are now joined where they coincide, in every format,
+    and the cube's volume and outward orientation come out as from a shared-vertex file."""
+    from rigid import trimesh
+    triangles = CUBE_QUADS[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
+    soup = CUBE_POINTS[triangles].reshape(-1, 3) * 2.0            # 36 corners for 8 vertices
+    for name in ("soup.obj", "soup.vtu"):
+        meshio.write(tmp_path / name, meshio.Mesh(soup, [("triangle", np.arange(36).reshape(-1, 3))]))
+        vertices, faces = geometry.load_surface(tmp_path / name)
+        assert vertices.shape == (8, 3) and faces.shape == (12, 3) and trimesh.is_closed(faces)
+        assert math.isclose(trimesh.signed_volume(vertices, faces), 8.0)
+
+
+def test_a_tet_mesh_in_pieces_that_share_no_node_is_warned_of(tmp_path):
+    """A body meshed as two halves whose interface nodes are doubled (a common export slip) was
+    taken silently, and its free half fell away from the anchored one: the loader names the
+    pieces and the doubled nodes."""
+    right = CUBE_POINTS + [1.0, 0.0, 0.0]                 # shares the face x = 0.5, nodes doubled
+    meshio.write(tmp_path / "halves.vtu", meshio.Mesh(np.vstack([CUBE_POINTS, right]),
+                                                       [("tetra", np.vstack([CUBE_TETS, CUBE_TETS + 8]))]))
+    with pytest.warns(geometry.MeshWarning) as caught:
+        geometry.load_tet_mesh(tmp_path / "halves.vtu")
+    said = [str(w.message) for w in caught if "share no node" in str(w.message)]
+    assert len(said) == 1 and "form 2 pieces that share no node (the largest has 6 of 12 tets)" in said[0]
+    assert "4 nodes lie on others" in said[0]
+    with pytest.warns(geometry.MeshWarning) as caught:                 # one piece: no such warning
+        geometry.load_tet_mesh(write_tet_cube(tmp_path / "cube.vtu"))
+    assert not [w for w in caught if "share no node" in str(w.message)]
+
+
 def test_quadratic_tets_give_order_two_and_keep_edge_nodes_consistent(tmp_path):
     # one negatively oriented tetra10: corners swapped, edge nodes at the true midpoints
     corners = np.array([[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1]], float)

@@ -139,6 +139,10 @@ def surface_from_mesh(mesh, path):
         if not parts:
             raise MeshError(path, f"no triangle, quad or tetra cells (found: {_cell_summary(mesh)})")
         triangles = _node_indices(np.concatenate(parts), len(points), "surface", path)
+        # corners written once per triangle (a "triangle soup") joined where they coincide
+        points, triangles, _ = trimesh.merge_coincident(points, triangles)
+        triangles = triangles[(triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2])
+                              & (triangles[:, 2] != triangles[:, 0])]
     vertices, triangles, _ = trimesh.compact(points, triangles)
     _check_closed(triangles, path)
     volume = trimesh.signed_volume(vertices, triangles)
@@ -168,7 +172,24 @@ def load_tet_mesh(path):
     if len(flipped):
         warnings.warn(f"{path}: {len(flipped)} of {len(tets)} tets were inverted (negative volume) "
                       f"and have been reoriented: {index_list(flipped)}", MeshWarning, stacklevel=2)
+    pieces, largest = _pieces(tets, len(points))
+    if pieces > 1:
+        doubled = trimesh.merge_coincident(points, tets[:, :4])[2]
+        warnings.warn(f"{path}: its tets form {pieces} pieces that share no node (the largest has "
+                      f"{largest} of {len(tets)} tets); the pieces of one FEM body move apart as if "
+                      f"separate bodies" + (f" ({doubled} nodes lie on others: merge them to join "
+                      f"the pieces)" if doubled else ""), MeshWarning, stacklevel=2)
     return points, tets, order
+
+
+def _pieces(tets, node_count):
+    """``(pieces, tets of the largest)``: the tets' groups joined through shared nodes."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    rows = np.repeat(tets[:, 0], tets.shape[1])
+    graph = coo_matrix((np.ones(len(rows)), (rows, tets.ravel())), shape=(node_count, node_count))
+    count, label = connected_components(graph, directed=False)
+    return count, int(np.bincount(label[tets[:, 0]]).max())
 
 
 def _check_closed(triangles, path):

@@ -307,8 +307,10 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "cells: `order = 2` on a tetra mesh adds a node at the middle of every (straight) edge, "
           "`order = 1` on a tetra10 mesh keeps the corner nodes only. Tets with zero volume are "
           "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
-          "listing them by index. Every cell must name nodes the file has, and the points may span "
-          "at most 1e12 m.",
+          "listing them by index; tets in pieces that share no node are warned of (with the nodes "
+          "that lie on others, doubled at an interface). A surface's corners are joined where they "
+          "coincide (triangles written each with its own corners). Every cell must name nodes the "
+          "file has, and the points may span at most 1e12 m.",
           "A body whose fields give no usable body is rejected naming the field: a shape so small "
           "that its volume underflows, or a deformable body placed so far from the origin that its "
           "elements lose their volume in double precision.",
