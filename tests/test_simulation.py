@@ -293,3 +293,27 @@ def test_what_is_no_scene_is_refused_saying_what_a_simulation_is_built_from():
     with pytest.raises(KeyError, match="TOML text is not read as a scene") as refused:
         Simulation.from_toml(SCENE)
     assert len(str(refused.value)) < 300
+
+
+def test_a_mesh_path_changed_in_python_is_read_where_it_was_checked(tmp_path, monkeypatch):
+    """A relative mesh path set with dataclasses.replace was checked against the scene file's
+    folder (as the file's own paths are) but read from the current folder: another file, another
+    mass, no message; a path given as a string raised AttributeError. Both now read the file the
+    check found, next to the scene file."""
+    import dataclasses
+    import meshio
+    from hybrid.app.scene import load_scene
+    (tmp_path / "sub" / "m").mkdir(parents=True)
+    (tmp_path / "m").mkdir()
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    meshio.write(tmp_path / "sub" / "m" / "tet.vtu", meshio.Mesh(points * 0.2, [("tetra", [[0, 1, 2, 3]])]))
+    meshio.write(tmp_path / "m" / "tet.vtu", meshio.Mesh(points * 0.1, [("tetra", [[0, 1, 2, 3]])]))
+    (tmp_path / "sub" / "scene.toml").write_text(
+        '[simulation]\nduration = 0.01\ndt = 0.001\n[[bodies]]\nname = "b"\nmodel = "fem"\n'
+        'young = 1e6\ndensity = 1000\nshape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene(tmp_path / "sub" / "scene.toml")
+    for mesh in (Path("m/tet.vtu"), "m/tet.vtu"):
+        body = dataclasses.replace(scene.bodies[0], shape=None, mesh=mesh)
+        sim = Simulation(dataclasses.replace(scene, bodies=(body,)))
+        assert sim.body("b").mass == pytest.approx(1000 * 0.2 ** 3 / 6)     # sub/m/tet.vtu's

@@ -31,12 +31,13 @@ def rechecked(scene):
                         f"{type(scene).__name__}")
     source = str(scene.source_path)
     data = scene_data(scene)
-    parse_scene(data, source, Path(source).parent)
+    # read back as a file with these tables would be: mesh paths then lead where they were checked
+    read = parse_scene(data, source, Path(source).parent)
     try:
         same = bool(parse_scene(scene.raw, source, Path(source).parent) == scene)
     except (SceneError, ValueError):        # (ValueError: numpy arrays put in a record)
         same = False
-    return scene if same else replace(scene, raw=data)
+    return scene if same else replace(read, raw=data)
 
 
 def _table(record):
