@@ -201,9 +201,10 @@ AUTO = Section("bodies.auto", "auto = { ... }", "When a `model = \"auto\"` body 
               "body uses at most half its yield strain `yield_stress / young` (and half "
               "`fracture_stress / young`), so it is deformable before anything yields or cracks. "
               "Must exceed `rigidify_strain`."),
-    Field("window", "integer", 10, "", "Steps the strain rate must stay low before rigidifying; "
-          "also the fewest steps between two switches of a body (but a fragment under "
-          "`rigid_fragment_tets`).", low=1),
+    Field("window", "integer", 10, "", "Steps the strain rate must stay low before rigidifying, "
+          "so also the fewest steps a body turned deformable stays so (but a fragment under "
+          "`rigid_fragment_tets`); a body turned rigid turns deformable at the first step that "
+          "would strain it.", low=1, high=1_000_000),
     Field("fracture_margin", "number", 0.5, "", "A breakable body rigidifies only while its largest "
           "principal stress is below this fraction of `fracture_stress`.", low=0.0, high=1.0,
           low_open=True),
