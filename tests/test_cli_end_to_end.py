@@ -122,7 +122,9 @@ def test_summary_reports_steps_timing_and_conservation(small_run):
     assert "energy_relative_drift" in summary["conservation"]
     # gravity and a plane act: momentum is not expected to be conserved
     assert summary["conservation"]["momentum_conserved_expected"] is False
-    assert summary["conservation"]["energy_conserved_expected"] is True
+    # friction on the plane (and the default restitution of 0.5): energy is not conserved
+    assert summary["conservation"]["energy_conserved_expected"] is False
+    assert summary["conservation"]["energy_changed_by"] == ["friction", "restitution below 1"]
 
 
 def test_render_writes_non_blank_pngs_and_a_movie(small_run):
@@ -233,6 +235,7 @@ def test_a_moving_anchor_run_does_not_quote_an_energy_drift(tmp_path):
     assert "energy drift not measured: moving anchors do work" in result.stdout
     conservation = json.loads((tmp_path / "run" / "summary.json").read_text())["conservation"]
     assert conservation["energy_conserved_expected"] is False
+    assert "moving anchors" in conservation["energy_changed_by"]
     assert conservation["energy_relative_drift"] > 0.5          # the anchor's work, not an error
 
 

@@ -317,3 +317,27 @@ def test_a_mesh_path_changed_in_python_is_read_where_it_was_checked(tmp_path, mo
         body = dataclasses.replace(scene.bodies[0], shape=None, mesh=mesh)
         sim = Simulation(dataclasses.replace(scene, bodies=(body,)))
         assert sim.body("b").mass == pytest.approx(1000 * 0.2 ** 3 / 6)     # sub/m/tet.vtu's
+
+
+@pytest.mark.parametrize("changes, changed_by", [
+    ("", []),
+    ("planes = 1", ["friction"]),
+    ('model = "fem"\nyoung = 1e6', ["backward Euler"]),
+    ('model = "fem"\nyoung = 1e6\nintegrator = "newmark"\nyield_stress = 1e5', ["plastic flow"]),
+])
+def test_the_summary_says_what_may_change_a_scenes_energy(tmp_path, changes, changed_by):
+    """energy_conserved_expected was true in a plastic, inelastic, frictional scene (it looked at
+    moving anchors only); it now lists what in the scene may change the energy. Two frictionless
+    perfectly elastic bodies in zero gravity change nothing; a plane with its default friction
+    does."""
+    plane = "[[planes]]\npoint = [0, 0, -1]\nrestitution = 1.0\n" if changes == "planes = 1" else ""
+    changes = "" if plane else changes
+    text = ("[simulation]\nduration = 0.004\ndt = 0.002\ngravity = [0, 0, 0]\n" + plane +
+            "[[bodies]]\nname = \"a\"\nshape = { type = \"box\", size = [0.1, 0.1, 0.1] }\n"
+            f"friction = 0.0\nrestitution = 1.0\n{changes}\n"
+            "[[bodies]]\nname = \"b\"\nshape = { type = \"sphere\", radius = 0.05 }\n"
+            "position = [1.0, 0.0, 0.0]\nfriction = 0.0\nrestitution = 1.0\n")
+    sim = Simulation(parse_scene(tomllib.loads(text), "<test>", Path(".")))
+    conservation = sim.run(progress=False, log=lambda m: None)["conservation"]
+    assert conservation["energy_changed_by"] == changed_by
+    assert conservation["energy_conserved_expected"] is (not changed_by)

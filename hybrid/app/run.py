@@ -215,11 +215,11 @@ class Recorder:
         # energy (a body falling from rest at z = 0 has a total energy of zero throughout)
         K = np.array(self.kinetic)
         carried = [float(K.max()), float(np.max(np.abs(E - K - E[0] + K[0])))] if len(K) == len(E) > 0 else []
-        # a moving anchor does work on its body: the energy then changes by design
-        moving = any(np.any(m.anchor_velocity) for m in model.fem)
+        changers = energy_changers(model)
         return {
             "momentum_conserved_expected": bool(no_external),
-            "energy_conserved_expected": not moving,
+            "energy_conserved_expected": not changers,
+            "energy_changed_by": changers,
             "energy_relative_drift": _drift(E, E[0], carried) if len(E) else None,
             "linear_momentum_relative_drift": _drift(P, P[0], [c[0] for c in self.carried]) if len(P) else None,
             "angular_momentum_relative_drift": _drift(L, L[0], [c[1] for c in self.carried]) if len(L) else None,
@@ -232,6 +232,27 @@ class Recorder:
                     "contact or damping, and not where an anchor moves (it does work); momenta only "
                     "without gravity, planes, fixed bodies or anchors",
         }
+
+
+def energy_changers(model):
+    """What in the scene may change its total energy, in the summary's words: "moving anchors"
+    (they do work on their bodies), "friction", "restitution below 1", "damping", "backward
+    Euler" (the default integrator of deformable bodies damps their vibrations), "plastic flow"
+    and "fracture" (friction and restitution only where something can touch something); empty
+    when the energy is expected to be conserved."""
+    scene = model.scene
+    deformable = [b for b in scene.bodies if b.model != "rigid"]
+    touching = (*scene.bodies, *scene.planes) if len(scene.bodies) + len(scene.planes) > 1 else ()
+    found = {
+        "moving anchors": any(np.any(m.anchor_velocity) for m in model.fem),
+        "friction": any(x.friction > 0 for x in touching),
+        "restitution below 1": any(x.restitution < 1 for x in touching),
+        "damping": any(b.damping.mass > 0 or b.damping.stiffness > 0 for b in deformable),
+        "backward Euler": any(b.integrator == "backward_euler" for b in deformable),
+        "plastic flow": any(b.yield_stress is not None for b in deformable),
+        "fracture": any(b.fracture_stress is not None for b in deformable),
+    }
+    return [name for name, present in found.items() if present]
 
 
 def stepping(model, strains, fem_time, simulated):
