@@ -139,10 +139,11 @@ def surface_from_mesh(mesh, path):
         if not parts:
             raise MeshError(path, f"no triangle, quad or tetra cells (found: {_cell_summary(mesh)})")
         triangles = _node_indices(np.concatenate(parts), len(points), "surface", path)
-        # corners written once per triangle (a "triangle soup") joined where they coincide
-        points, triangles, _ = trimesh.merge_coincident(points, triangles)
-        triangles = triangles[(triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2])
-                              & (triangles[:, 2] != triangles[:, 0])]
+        if not trimesh.is_closed(triangles):
+            # corners written once per triangle (a "triangle soup"): joined where they coincide
+            points, triangles, _ = trimesh.merge_coincident(points, triangles)
+            triangles = triangles[(triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2])
+                                  & (triangles[:, 2] != triangles[:, 0])]
     vertices, triangles, _ = trimesh.compact(points, triangles)
     _check_closed(triangles, path)
     volume = trimesh.signed_volume(vertices, triangles)
