@@ -394,17 +394,19 @@ def test_the_fork_server_ignores_ctrl_c_while_it_imports(tmp_path):
 def test_writer_processes_do_not_run_the_main_script_again(tmp_path):
     """Each writer process ran the run's main script again on start (Python's fork server drops
     the script's path before 3.13.8): for the ``hybrid`` command, the project imported anew,
-    0.3-0.6 s before a run's first frame was written, so a short run's frames came late and its
-    close waited for them. The fork server imports the script once; its writer processes start
-    with it. Here a script counts its imports outside ``__main__`` while it starts three writer
-    processes, each answering: one import (the fork server's), not one a process."""
+    0.3-0.6 s before a run's first frame was written, and a script's top-level code (removing
+    its output folder, say) ran in every writer. Here a script counts its imports outside
+    ``__main__`` while it starts three writer processes, each answering: none; then a process of
+    its own with a function of the script, which imports it there: one."""
     imports = tmp_path / "imports.txt"
     script = tmp_path / "three_writers.py"
     script.write_text(
-        "import time\n"
+        "import multiprocessing, time\n"
         "from hybrid.app.writer_process import WriterProcess, fork_server\n"
         "if __name__ != '__main__':\n"
         f"    open({str(imports)!r}, 'a').write(__name__ + '\\n')\n"
+        "def mine():\n"
+        f"    open({str(tmp_path)!r} + '/mine.txt', 'w').write('ran')\n"
         "if __name__ == '__main__':\n"
         "    fork_server.start()\n"
         "    while not fork_server.ready():\n"
@@ -412,8 +414,13 @@ def test_writer_processes_do_not_run_the_main_script_again(tmp_path):
         "    for k in range(3):\n"
         f"        writer = WriterProcess({str(tmp_path)!r} + f'/out{{k}}', 'run.pvd')\n"
         "        print(sorted(writer.state()) != [])\n"
-        "        writer.stop()\n")
+        "        writer.stop()\n"
+        f"    print(open({str(imports)!r}, 'a').tell())\n"
+        "    own = multiprocessing.get_context('forkserver').Process(target=mine)\n"
+        "    own.start()\n"
+        "    own.join()\n")
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["True"] * 3          # each writer process answered
-    assert imports.read_text().split() == ["__mp_main__"]
+    assert done.stdout.split() == ["True"] * 3 + ["0"]      # each writer answered; no import yet
+    assert imports.read_text().split() == ["__mp_main__"]     # the own process's
+    assert (tmp_path / "mine.txt").read_text() == "ran"

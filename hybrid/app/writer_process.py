@@ -27,11 +27,13 @@ import os
 import pickle
 import queue
 import re
+import runpy
 import signal
 import sys
 import threading
 import time
 import traceback
+import types
 import weakref
 from collections import deque
 from pathlib import Path
@@ -325,10 +327,9 @@ def _start_fork_server():
     that, so a Ctrl-C to the process group while it imports the project does not print its
     KeyboardInterrupt traceback into the run's output (it ignores SIGINT once its imports are
     done; its writer processes too). The spawn takes milliseconds; the imports happen after."""
-    multiprocessing.get_context("forkserver").set_forkserver_preload(["__main__", __name__])
+    multiprocessing.get_context("forkserver").set_forkserver_preload([__name__])
     main_path = multiprocessing.spawn.get_preparation_data("RunWriter").get("init_main_from_path")
-    if main_path is not None:
-        os.environ[_MAIN_PATH] = main_path
+    os.environ.update({} if main_path is None else {_MAIN_PATH: main_path})
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
     try:
@@ -339,25 +340,30 @@ def _start_fork_server():
             signal.signal(signal.SIGINT, previous)
 
 
-# The main script's path, handed to the fork server in its environment (see _preload_main).
-_MAIN_PATH = "HYBRID_FORK_SERVER_MAIN"
+_MAIN_PATH = "HYBRID_FORK_SERVER_MAIN"      # the main script's path, for _preload_main
 
 
 def _preload_main() -> None:
-    """In the fork server (this module preloaded there): import the run's main script once, as
-    the server's ``__main__``, so that its writer processes do not each run it again. Python's
-    fork server means to do this for a preloaded ``"__main__"`` but, before 3.13.8, never
-    receives the script's path (CPython issues 98552, 126631), and each child then ran the main
-    script on start: for the ``hybrid`` command, the whole project imported again, 0.3-0.6 s
-    before a run's first frame was written. A script that fails to import is left to the
-    children, as before."""
+    """In the fork server (this module preloaded there): a stand-in for the run's main script as
+    ``__main__``, with its path, so that children do not each run the script on start (for the
+    ``hybrid`` command, the whole project imported again, 0.3-0.6 s before a run's first frame;
+    a script's top-level code, such as removing an output folder, in every writer process). The
+    script runs only when a child asks the stand-in for one of its names: writers never do."""
     path = os.environ.pop(_MAIN_PATH, None)
     if path is None or getattr(sys.modules.get("__main__"), "__file__", None) == path:
         return
-    try:
-        multiprocessing.spawn.import_main_path(path)
-    except BaseException:       # noqa: BLE001 (also SystemExit: the children import it, as before)
-        pass
+    stand_in = types.ModuleType("__mp_main__")
+    stand_in.__file__ = path
+
+    def __getattr__(name):
+        if name.startswith("__") and name.endswith("__"):
+            raise AttributeError(name)
+        stand_in.__dict__.update(runpy.run_path(path, run_name="__mp_main__"))
+        del stand_in.__getattr__
+        return getattr(stand_in, name)
+
+    stand_in.__getattr__ = __getattr__
+    sys.modules["__main__"] = sys.modules["__mp_main__"] = stand_in
 
 
 def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
