@@ -251,8 +251,9 @@ def test_points_off_their_nodes_match_the_numpy_filter(seed):
     across = x[surface_nodes[close]] - points
     normal = n_rest @ R.T
     across -= np.einsum("ij,ij->i", across, normal)[:, None] * normal
-    reference = np.einsum("ij,ij->i", across, across) > off ** 2
-    keep = kernels.off_nodes_kept(x, surface_nodes, close, points, n_rest, R, off)
+    behind = np.einsum("ij,ij->i", x[surface_nodes[close]] - points, normal)
+    reference = (np.einsum("ij,ij->i", across, across) > off ** 2) | (behind > 0.05)
+    keep = kernels.off_nodes_kept(x, surface_nodes, close, points, n_rest, R, off, 0.05)
     assert np.array_equal(keep, reference) and keep.any() and not keep.all()
 
 

@@ -182,6 +182,10 @@ def _current_nearest(m, s, x):
     return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
+# a rigid point this share of the off-node distance behind its nearest node is kept (_against)
+OFF_NODE_DEPTH = 0.01
+
+
 def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None):
     """Points ``x`` (p, 3) world (with ``radius`` (p,) m, default 0) against FEM body b's surface,
     those closer than ``reach`` (p,) m, ``motion`` being b's :func:`_motion`: ``(rows, corners,
@@ -189,7 +193,9 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
     node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
     With ``off_nodes`` (m), points within that distance of their nearest node across the normal
-    are left out (that node's own contact covers them). ``facing`` (p, 3): the points' own
+    are left out (that node's own contact covers them), unless they lie more than
+    ``OFF_NODE_DEPTH * off_nodes`` behind it (under it: a box's edge sunk under a soft pad's rim
+    node that slid out past it, which meets the box at its own height). ``facing`` (p, 3): the points' own
     outward unit normals (world; nodes of another deformable body), which choose the face they
     meet at b's sharp edges (places.places); None: none."""
     radius = np.zeros(len(x)) if radius is None else radius
@@ -213,7 +219,7 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     close = _nearest_nodes(mb, Y)
     if off_nodes is not None:
         keep = np.nonzero(kernels.off_nodes_kept(sb.x, mb.surface_nodes, close[:, 0], x[near],
-                                                 n_rest[near], R, off_nodes))[0]
+                                                 n_rest[near], R, off_nodes, OFF_NODE_DEPTH * off_nodes))[0]
         near, Y, close = near[keep], Y[keep], close[keep]
         if not len(near):
             return near, np.zeros((0, 3), np.int64), np.zeros((0, 3)), near, np.zeros((0, 3)), \

@@ -152,10 +152,11 @@ def nearest_rows_of(x, rows, queries):
 
 
 @nb.njit(cache=True)
-def off_nodes_kept(x, surface_nodes, close, points, n_rest, R, distance):
+def off_nodes_kept(x, surface_nodes, close, points, n_rest, R, distance, depth):
     """Which ``points`` (q, 3) world lie farther than ``distance`` (m) across their normal
     (``n_rest`` (q, 3) turned by ``R``) from the current position ``x`` of their nearest surface
-    node ``surface_nodes[close]`` (q,): ``(q,)`` bool (hybrid.coupling.fem_contact._against)."""
+    node ``surface_nodes[close]`` (q,), or more than ``depth`` (m) behind it along the normal,
+    under it rather than over it: ``(q,)`` bool (hybrid.coupling.fem_contact._against)."""
     q = len(points)
     keep = np.empty(q, dtype=np.bool_)
     for k in range(q):
@@ -166,7 +167,7 @@ def off_nodes_kept(x, surface_nodes, close, points, n_rest, R, distance):
         m2 = n_rest[k, 0] * R[2, 0] + n_rest[k, 1] * R[2, 1] + n_rest[k, 2] * R[2, 2]
         along = a0 * m0 + a1 * m1 + a2 * m2
         a0, a1, a2 = a0 - along * m0, a1 - along * m1, a2 - along * m2
-        keep[k] = a0 * a0 + a1 * a1 + a2 * a2 > distance * distance
+        keep[k] = along > depth or a0 * a0 + a1 * a1 + a2 * a2 > distance * distance
     return keep
 
 
