@@ -158,7 +158,7 @@ BAD_SCENES = {
                                                      'auto = { window = 100000000000000000000 }'),
                                  "auto.window' must be an integer in [1, 1e+06]"),
     "auto_table_on_a_rigid_body": (SMALL_SCENE.replace('name = "box"', 'name = "box"\nauto = { window = 5 }'),
-                                   "'auto' needs model = \"auto\" or fragment_model = \"auto\""),
+                                   "'auto' needs model = \"auto\" (this body has model = \"rigid\")"),
     "anchor_holds_nothing": (SMALL_SCENE + 'model = "fem"\nyoung = 1e6\n'
                              '[[bodies.anchors]]\nbox = [[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]\n', "[[bodies.anchors]] 0 box"),
     "mesh_too_fine": (SMALL_SCENE.replace("size = [0.2, 0.1, 0.1] }", "size = [0.2, 0.1, 0.1], resolution = 1e-4 }"),

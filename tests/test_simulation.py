@@ -293,6 +293,8 @@ def test_what_is_no_scene_is_refused_saying_what_a_simulation_is_built_from():
     with pytest.raises(KeyError, match="TOML text is not read as a scene") as refused:
         Simulation.from_toml(SCENE)
     assert len(str(refused.value)) < 300
+    with pytest.raises(KeyError, match="no built-in scene"):            # too long for a file name
+        Simulation.from_toml("x" * 5000)
 
 
 def test_a_mesh_path_changed_in_python_is_read_where_it_was_checked(tmp_path, monkeypatch):
@@ -322,8 +324,9 @@ def test_a_mesh_path_changed_in_python_is_read_where_it_was_checked(tmp_path, mo
 @pytest.mark.parametrize("changes, changed_by", [
     ("", []),
     ("planes = 1", ["friction"]),
-    ('model = "fem"\nyoung = 1e6', ["backward Euler"]),
-    ('model = "fem"\nyoung = 1e6\nintegrator = "newmark"\nyield_stress = 1e5', ["plastic flow"]),
+    ('model = "fem"\nyoung = 1e6', ["deformable contact", "backward Euler"]),
+    ('model = "fem"\nyoung = 1e6\nintegrator = "newmark"\nyield_stress = 1e5',
+     ["deformable contact", "plastic flow"]),
 ])
 def test_the_summary_says_what_may_change_a_scenes_energy(tmp_path, changes, changed_by):
     """energy_conserved_expected was true in a plastic, inelastic, frictional scene (it looked at

@@ -236,7 +236,8 @@ class Recorder:
 
 def energy_changers(model):
     """What in the scene may change its total energy, in the summary's words: "moving anchors"
-    (they do work on their bodies), "friction", "restitution below 1", "damping", "backward
+    (they do work on their bodies), "friction", "restitution below 1", "deformable contact"
+    (inelastic whatever the restitution), "damping", "backward
     Euler" (the default integrator of deformable bodies damps their vibrations), "plastic flow"
     and "fracture" (friction and restitution only where something can touch something); empty
     when the energy is expected to be conserved."""
@@ -247,6 +248,8 @@ def energy_changers(model):
         "moving anchors": any(np.any(m.anchor_velocity) for m in model.fem),
         "friction": any(x.friction > 0 for x in touching),
         "restitution below 1": any(x.restitution < 1 for x in touching),
+        # (restitution acts on rigid contacts: a deformable body's contacts are inelastic)
+        "deformable contact": bool(touching) and bool(deformable),
         "damping": any(b.damping.mass > 0 or b.damping.stiffness > 0 for b in deformable),
         "backward Euler": any(b.integrator == "backward_euler" for b in deformable),
         "plastic flow": any(b.yield_stress is not None for b in deformable),

@@ -24,7 +24,7 @@ def builtin_path(name):
         raise KeyError(f"no built-in scene or scene file {shown!r}...: TOML text is not read "
                        f"as a scene; write it to a .toml file, or build Simulation("
                        f"hybrid.app.scene.parse_scene(tomllib.loads(text), name, folder))")
-    if not isinstance(name, str) or "/" in name or "\\" in name or not (FOLDER / f"{name}.toml").is_file():
+    if not isinstance(name, str) or "/" in name or "\\" in name or not _is_file(FOLDER / f"{name}.toml"):
         raise KeyError(f"no built-in scene {name!r}; built-in scenes: {', '.join(builtin_names())} "
                        f"(or give the path of a .toml file)")
     return FOLDER / f"{name}.toml"
@@ -45,6 +45,13 @@ def scene_path(path_or_name):
 def _exists(path):
     try:
         return path.exists()
+    except OSError:             # a name too long for a file
+        return False
+
+
+def _is_file(path):
+    try:
+        return path.is_file()
     except OSError:             # a name too long for a file
         return False
 

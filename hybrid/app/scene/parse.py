@@ -115,8 +115,7 @@ def _parse_body(table, source, index, base_dir, problems):
     if valid(model) and not fem_model:
         for f in BODY.fields:
             if f.fem and f.name in given:
-                needs = "model = \"auto\" or fragment_model = \"auto\"" if f.name == "auto" else \
-                    "model = \"fem\" or \"auto\""
+                needs = "model = \"auto\"" if f.name == "auto" else "model = \"fem\" or \"auto\""
                 problems.append(where.problem(f.name, f"needs {needs} (this body has model = \"{model}\")"))
     if fem_model and values["fixed"] is True:
         problems.append(where.problem("fixed", f"needs model = \"rigid\" (this body has model = "
