@@ -168,3 +168,24 @@ def test_one_writer_thread_serves_frames_that_come_close_together_and_ends_at_wa
     assert time.perf_counter() - start < 0.5 * LINGER
     assert order == list(range(5)) and len(threads) == 1
     assert not any(t.name == "writer" for t in threading.enumerate())
+
+
+def test_the_index_keeps_up_while_frames_keep_coming(tmp_path, monkeypatch):
+    """The .pvd was rewritten only when no frame waited, so a run whose frames came faster than
+    its writer wrote them listed 219 of 1,763 frames on disk when killed outright. A writer that
+    is never idle now rewrites it every BUSY_INDEX times index_every: frames written busy for
+    longer than that are listed before the run closes."""
+    import time
+    from hybrid.app import vtu
+    (tmp_path / "frames").mkdir()
+    files = vtu.FrameFiles(str(tmp_path), "busy.pvd", index_every=0.01)
+    rng = np.random.default_rng(3)
+    checked = RunWriter(tmp_path / "check", "c", background=False)._check_pieces([piece(0.0, rng)])
+    start = time.monotonic()
+    k = 0
+    while time.monotonic() - start < 3 * vtu.BUSY_INDEX * 0.01:
+        files.run(("frame", 0.01 * k, f"frame_{k:05d}.vtu", checked, {"von_mises": ()},
+                   {"velocity": (3,)}, output.BODIES_CSV, output.BODY_COLUMNS, []), idle=False)
+        k += 1
+    listed = (tmp_path / "busy.pvd").read_text().count("<DataSet ")
+    assert k > 3 and listed > 0               # never idle: before, no .pvd until the run closed

@@ -278,6 +278,10 @@ def pvd_text(times: Sequence[float], files: Sequence[str]) -> str:
 FRAMES_DIR = "frames"
 
 
+# a writer that is never idle (frames keep coming) rewrites the .pvd every this many index_every
+BUSY_INDEX = 10
+
+
 class FrameFiles:
     """The files of one run as written so far, and the jobs that write them.
 
@@ -303,7 +307,7 @@ class FrameFiles:
 
     def run(self, job: tuple, idle: bool) -> Any:
         """Run ``job``; then, when ``idle`` (no job waits) and the ``.pvd`` was last written
-        ``index_every`` s ago, bring it up to date. An error writes the ``.pvd`` first, so the
+        ``index_every`` s ago (``BUSY_INDEX`` times that when not idle), bring it up to date. An error writes the ``.pvd`` first, so the
         index lists every frame on disk, and is raised."""
         if job[0] not in self.JOBS:
             raise ValueError(f"unknown writer job {job[0]!r}")
@@ -312,7 +316,8 @@ class FrameFiles:
         except BaseException:
             self.index()
             raise
-        if idle and time.monotonic() - self.index_time >= self.index_every:
+        # while frames keep coming (none idle), at most every BUSY_INDEX times as long
+        if time.monotonic() - self.index_time >= self.index_every * (1 if idle else BUSY_INDEX):
             self.index()
         return result
 
