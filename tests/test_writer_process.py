@@ -424,3 +424,26 @@ def test_writer_processes_do_not_run_the_main_script_again(tmp_path):
     assert done.stdout.split() == ["True"] * 3 + ["0"]      # each writer answered; no import yet
     assert imports.read_text().split() == ["__mp_main__"]     # the own process's
     assert (tmp_path / "mine.txt").read_text() == "ran"
+
+
+def test_a_run_whose_writer_process_is_killed_ends_as_an_output_failure(tmp_path, monkeypatch):
+    """A writer process killed from outside ended the run as 'unstable' (exit 3), as if the
+    physics had diverged: it is an output failure (status failed, as a full disk)."""
+    import hybrid.app.writer_process as wp
+
+    def killed(self, job, always=False):
+        if self._process.exitcode is None:
+            os.kill(self.pid, signal.SIGKILL)
+            self._process.join(5.0)
+        original(self, job, always)
+        self._read(block=True)
+
+    original = wp.WriterProcess.submit
+    out = run_with(tmp_path, monkeypatch, "process", "first")          # a run that writes
+    assert read_run(out)[2]["status"] == "ok"
+    monkeypatch.setattr(wp.WriterProcess, "submit", killed)
+    from hybrid.coupling.stability import OutputFailure
+    with pytest.raises(OutputFailure, match="writer process"):
+        run_with(tmp_path, monkeypatch, "process", "killed")
+    from hybrid.app.output import read_summary
+    assert read_summary(tmp_path / "killed")["status"] == "failed"

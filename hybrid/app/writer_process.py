@@ -42,8 +42,9 @@ from .frame_input import KeptArrays
 from .vtu import FrameFiles
 
 
-class WriterProcessError(RuntimeError):
-    """The writer process ended without saying why (killed, or out of memory)."""
+class WriterProcessError(OSError):
+    """The writer process ended without saying why (killed, or out of memory): an output failure
+    (an OSError, as a full disk), not the physics."""
 
 
 class RemoteTraceback(Exception):
@@ -166,7 +167,7 @@ class WriterProcess:
                 self._process.join(5.0)
                 self._error = self._error or WriterProcessError(
                     f"the writer process (pid {self.pid}) ended unexpectedly (exit code "
-                    f"{self._process.exitcode}); the frames it wrote stay, with a .pvd listing them")
+                    f"{self._process.exitcode}); the frames it wrote stay (the .pvd may not list the last ones)")
                 return
             if kind == "done":
                 done, self.seconds, result = values
