@@ -84,18 +84,22 @@ def vertex_normals(vertices, triangles):
     return n / np.where(length > 0, length, 1.0)
 
 
-def merge_coincident(vertices, triangles, tolerance=1e-9):
-    """``(vertices, triangles, merged)``: vertices closer than ``tolerance`` times the mesh's
-    extent made one (a surface whose triangles each carry their own corners, as some exporters
-    write them), triangles renumbered; ``merged``: how many vertices were dropped."""
+def merge_coincident(vertices, triangles, tolerance=1e-6):
+    """``(vertices, triangles, merged)``: vertices within ``tolerance`` times the mesh's extent of
+    each other made one (a surface whose triangles each carry their own corners, as some
+    exporters write them, in single precision too), triangles renumbered; ``merged``: how many
+    vertices were dropped."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
     v = np.asarray(vertices, dtype=float)
     scale = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
-    if scale == 0.0:
+    pairs = cKDTree(v).query_pairs(tolerance * scale, output_type="ndarray") if scale > 0 else ()
+    if not len(pairs):
         return v, triangles, 0
-    keys = np.round((v - v.min(axis=0)) / (tolerance * scale)).astype(np.int64)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    merged = len(v) - len(first)
-    if not merged:
-        return v, triangles, 0
-    return v[first], inverse.reshape(-1)[triangles], merged
-
+    n = len(v)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    first = np.full(count, n)
+    np.minimum.at(first, label, np.arange(n))
+    return v[first], label[triangles], n - count

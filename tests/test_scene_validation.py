@@ -455,11 +455,12 @@ def test_a_surface_written_as_separate_triangles_is_joined_where_its_corners_coi
     from rigid import trimesh
     triangles = CUBE_QUADS[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
     soup = CUBE_POINTS[triangles].reshape(-1, 3) * 2.0            # 36 corners for 8 vertices
-    for name in ("soup.obj", "soup.vtu"):
-        meshio.write(tmp_path / name, meshio.Mesh(soup, [("triangle", np.arange(36).reshape(-1, 3))]))
+    rounded = soup + np.random.default_rng(5).uniform(-1e-7, 1e-7, soup.shape)     # single precision
+    for name, corners in (("soup.obj", soup), ("soup.vtu", soup), ("rounded.vtu", rounded)):
+        meshio.write(tmp_path / name, meshio.Mesh(corners, [("triangle", np.arange(36).reshape(-1, 3))]))
         vertices, faces = geometry.load_surface(tmp_path / name)
         assert vertices.shape == (8, 3) and faces.shape == (12, 3) and trimesh.is_closed(faces)
-        assert math.isclose(trimesh.signed_volume(vertices, faces), 8.0)
+        assert math.isclose(trimesh.signed_volume(vertices, faces), 8.0, rel_tol=1e-6)
 
 
 def test_a_tet_mesh_in_pieces_that_share_no_node_is_warned_of(tmp_path):
