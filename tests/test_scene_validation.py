@@ -480,6 +480,17 @@ def test_a_tet_mesh_in_pieces_that_share_no_node_is_warned_of(tmp_path):
     assert not [w for w in caught if "share no node" in str(w.message)]
 
 
+def test_a_mesh_hundreds_of_metres_across_is_said_to_be_perhaps_in_millimetres(tmp_path):
+    """A 0.4 m box written in millimetres read as a 400 m box of 1.6e10 kg with no word."""
+    meshio.write(tmp_path / "mm.vtu", meshio.Mesh(CUBE_POINTS * 400.0, [("tetra", CUBE_TETS)]))
+    for load in (geometry.load_tet_mesh, geometry.load_surface):
+        with pytest.warns(geometry.MeshWarning, match="spans 400 m .*check the file's units"):
+            load(tmp_path / "mm.vtu")
+    with pytest.warns(geometry.MeshWarning) as caught:                      # 1 m: no such word
+        geometry.load_tet_mesh(write_tet_cube(tmp_path / "cube.vtu"))
+    assert not [w for w in caught if "units" in str(w.message)]
+
+
 def test_quadratic_tets_give_order_two_and_keep_edge_nodes_consistent(tmp_path):
     # one negatively oriented tetra10: corners swapped, edge nodes at the true midpoints
     corners = np.array([[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1]], float)

@@ -159,7 +159,22 @@ def load_surface(path):
     Reads any format meshio reads; see :func:`surface_from_mesh` for which cells are used.
     Raises MeshError naming the file when the file is missing or unreadable, or the surface unusable.
     """
-    return surface_from_mesh(read_mesh(path), Path(path))
+    mesh = read_mesh(path)
+    _large(mesh.points, path)
+    return surface_from_mesh(mesh, Path(path))
+
+
+# a mesh spanning more than this (m) is said to be large: its units may be millimetres
+LARGE_MESH = 100.0
+
+
+def _large(points, path):
+    """A :class:`MeshWarning` for a mesh spanning more than LARGE_MESH metres."""
+    span = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    if span > LARGE_MESH:
+        warnings.warn(f"{path}: the mesh spans {span:.3g} m (meshes are read in metres; one written "
+                      f"in millimetres reads 1000 times too large: check the file's units)",
+                      MeshWarning, stacklevel=3)
 
 
 def load_tet_mesh(path):
@@ -169,7 +184,9 @@ def load_tet_mesh(path):
     :class:`MeshWarning` naming them by index. Raises MeshError naming the file when the file is
     missing or unreadable, has no tet cells, or has degenerate tets.
     """
-    points, tets, order, flipped = tets_from_mesh(read_mesh(path), Path(path))
+    mesh = read_mesh(path)
+    _large(mesh.points, path)
+    points, tets, order, flipped = tets_from_mesh(mesh, Path(path))
     if len(flipped):
         warnings.warn(f"{path}: {len(flipped)} of {len(tets)} tets were inverted (negative volume) "
                       f"and have been reoriented: {index_list(flipped)}", MeshWarning, stacklevel=2)
