@@ -31,7 +31,7 @@ from .coupling.substep import advance_in_substeps
 
 # most sub-steps a step with an impact is taken in (a scene's resolve_impacts)
 MAX_SUBSTEPS = 64
-from .scenes import builtin_path, scene_path
+from .scenes import scene_path
 
 
 @dataclass(frozen=True)
