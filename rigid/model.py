@@ -182,6 +182,11 @@ def posed_points(vertices, owner, position, rotation):
                               + turn[:, :, 2] * vertices[:, 2:])
 
 
+def posed_by_orientation(vertices, owner, position, orientation):
+    """:func:`posed_points` with the bodies' rotations given as unit quaternions (b, 4)."""
+    return posed_points(vertices, owner, position, quat.to_matrix(orientation))
+
+
 def body_pose_in_shape_frame(model, state):
     """World pose of each body's own (shape) frame: rotation (b,3,3) and origin (b,3)."""
     R = quat.to_matrix(state.orientation)

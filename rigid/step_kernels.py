@@ -7,7 +7,9 @@ matrices, world inverse inertia and angular velocity (rigid.model.world_inverse_
 ``drift_bodies`` the positions, angular momenta and orientations after a step (rigid.step.drift);
 ``contact_targets`` the contact pass's target normal velocities; ``impact_kinematics`` the normal
 velocity, normal acceleration, time of impact and approach speed of each contact
-(rigid.resolve.time_of_impact).
+(rigid.resolve.time_of_impact); ``body_report`` a frame's rows of the bodies (the positions,
+shape-frame orientations, velocities at the frame's time, angular velocities and kinetic energies
+of rigid.model and rigid.quaternion.from_matrix).
 """
 import math
 
@@ -190,3 +192,73 @@ def body_speeds(velocity, angular, radius):
         out[b] = (math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
                   + math.sqrt(w0 * w0 + w1 * w1 + w2 * w2) * radius[b])
     return out
+
+
+@nb.njit(cache=True)
+def body_report(position, q, velocity, L, contact_dv, fixed, mass, body_inv_inertia,
+                shape_rotation, gravity, last_dt):
+    """Each body's row of a frame's report, (b, 14): centre of mass (3), orientation of its own
+    (shape) frame (4, w >= 0: rigid.quaternion.from_matrix of R S^T), velocity at the state's
+    time (3: rigid.model.reported_velocity), angular velocity I^-1 L (3) and kinetic energy (J,
+    0 for a fixed body: rigid.model.kinetic_energy), in one pass."""
+    n = len(q)
+    out = np.empty((n, 14))
+    R = np.empty((n, 3, 3))
+    inv_inertia = np.empty((n, 3, 3))
+    g0, g1, g2 = gravity[0], gravity[1], gravity[2]
+    g_norm = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    step = g_norm * last_dt
+    report = last_dt != 0.0 and step != 0.0
+    up0, up1, up2 = 0.0, 0.0, 0.0
+    if report:
+        up0, up1, up2 = -g0 / g_norm, -g1 / g_norm, -g2 / g_norm
+    K, m_scratch = np.empty((4, 4)), np.empty((3, 3))
+    for b in range(n):
+        v0, v1, v2 = velocity[b, 0], velocity[b, 1], velocity[b, 2]
+        if report and not fixed[b]:
+            support = min(max(contact_dv[b, 0] * up0 + contact_dv[b, 1] * up1
+                              + contact_dv[b, 2] * up2, 0.0), step)
+            v0 += 0.5 * (g0 * last_dt + support * up0)
+            v1 += 0.5 * (g1 * last_dt + support * up1)
+            v2 += 0.5 * (g2 * last_dt + support * up2)
+        _rotation(q, b, R)
+        _sandwich(R, b, body_inv_inertia, inv_inertia)
+        w0, w1, w2 = _times(inv_inertia, b, L[b, 0], L[b, 1], L[b, 2])
+        m = 0.0 if fixed[b] else mass[b]
+        ke = 0.5 * m * (v0 * v0 + v1 * v1 + v2 * v2) \
+            + 0.5 * (w0 * L[b, 0] + w1 * L[b, 1] + w2 * L[b, 2])
+        _shape_quaternion(R, b, shape_rotation, K, m_scratch, out[b, 3:7])
+        out[b, 0], out[b, 1], out[b, 2] = position[b, 0], position[b, 1], position[b, 2]
+        out[b, 7], out[b, 8], out[b, 9] = v0, v1, v2
+        out[b, 10], out[b, 11], out[b, 12] = w0, w1, w2
+        out[b, 13] = ke
+    return out
+
+
+@nb.njit(cache=True)
+def _shape_quaternion(R, b, S, K, m, q):
+    """q (4,) = the unit quaternion (w >= 0) of m = R[b] S[b]^T, by Shepperd's method as
+    rigid.quaternion.from_matrix: the row of K = 4 q q^T of its largest diagonal entry (K and m
+    scratch)."""
+    for i in range(3):
+        for k in range(3):
+            m[i, k] = R[b, i, 0] * S[b, k, 0] + R[b, i, 1] * S[b, k, 1] + R[b, i, 2] * S[b, k, 2]
+    t = m[0, 0] + m[1, 1] + m[2, 2]
+    K[0, 0] = 1.0 + t
+    K[1, 1] = 1.0 + 2.0 * m[0, 0] - t
+    K[2, 2] = 1.0 + 2.0 * m[1, 1] - t
+    K[3, 3] = 1.0 + 2.0 * m[2, 2] - t
+    K[0, 1] = K[1, 0] = m[2, 1] - m[1, 2]
+    K[0, 2] = K[2, 0] = m[0, 2] - m[2, 0]
+    K[0, 3] = K[3, 0] = m[1, 0] - m[0, 1]
+    K[1, 2] = K[2, 1] = m[0, 1] + m[1, 0]
+    K[1, 3] = K[3, 1] = m[0, 2] + m[2, 0]
+    K[2, 3] = K[3, 2] = m[1, 2] + m[2, 1]
+    row = 0
+    for i in range(1, 4):
+        if K[i, i] > K[row, row]:
+            row = i
+    sign = -1.0 if K[row, 0] < 0 else 1.0
+    norm = math.sqrt(K[row, 0] ** 2 + K[row, 1] ** 2 + K[row, 2] ** 2 + K[row, 3] ** 2)
+    for i in range(4):
+        q[i] = sign * K[row, i] / norm

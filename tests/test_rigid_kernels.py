@@ -324,3 +324,36 @@ def test_quaternion_of_a_rotation_matrix_is_the_quaternion_that_made_it():
     assert np.abs(np.abs(np.einsum("bi,bi->b", back, q)) - 1.0).max() < 1e-14
     assert np.all(back[:, 0] >= 0.0)
     assert quat.from_matrix(quat.to_matrix(q[:6]).reshape(2, 3, 3, 3)).shape == (2, 3, 4)
+
+
+@pytest.mark.parametrize("last_dt", [0.0, 1e-3])
+def test_body_report_matches_the_numpy_rows(last_dt):
+    """A frame's rows from one compiled pass: the reported velocities, angular velocities,
+    kinetic energies and shape-frame orientations that rigid.model and quaternion.from_matrix give
+    (fixed bodies with no kinetic energy; supported bodies report no half step of gravity)."""
+    from types import SimpleNamespace
+    from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_energy, reported_velocity
+    from rigid.step_kernels import body_report
+    rng = np.random.default_rng(3)
+    n = 300
+    q, _, inv_inertia, L = _bodies(rng, n)
+    fixed = rng.random(n) < 0.2
+    model = SimpleNamespace(body_fixed=fixed, body_mass=np.where(fixed, np.inf, rng.uniform(0.1, 5, n)),
+                            body_inv_inertia=np.where(fixed[:, None], 0.0, inv_inertia),
+                            shape_rotation=quat.to_matrix(quat.normalize(rng.normal(size=(n, 4)))),
+                            shape_offset=rng.normal(size=(n, 3)))
+    state = SimpleNamespace(position=rng.normal(size=(n, 3)), orientation=q,
+                            velocity=rng.normal(size=(n, 3)), angular_momentum=L,
+                            contact_dv=rng.normal(scale=0.01, size=(n, 3)), last_dt=last_dt)
+    g = np.array([0.3, -0.2, -9.81])
+    table = body_report(state.position, q, state.velocity, L, state.contact_dv, fixed,
+                        model.body_mass, model.body_inv_inertia, model.shape_rotation, g, last_dt)
+    v = reported_velocity(model, state, g)
+    w = angular_velocity(model, state)
+    R_shape, _ = body_pose_in_shape_frame(model, state)
+    np.testing.assert_array_equal(table[:, :3], state.position)
+    np.testing.assert_allclose(table[:, 3:7], quat.from_matrix(R_shape), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(table[:, 7:10], v, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(table[:, 10:13], w, rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(table[:, 13], kinetic_energy(model, state, v, w), rtol=1e-13, atol=1e-14)
+    assert (table[fixed, 13] == 0).all()

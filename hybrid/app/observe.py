@@ -5,8 +5,8 @@ from fem import dynamics as fem_dyn
 from fem.plasticity import elastic_stress
 from fem.stress import principal_stress_max
 from rigid import quaternion as quat
-from rigid.model import (angular_velocity, body_pose_in_shape_frame, kinetic_energy, posed_points,
-                         reported_velocity)
+from rigid.model import kinetic_energy, posed_by_orientation, reported_velocity
+from rigid.step_kernels import body_report
 
 from hybrid.coupling.switch import fem_state
 
@@ -65,10 +65,10 @@ def frame_pieces(model, state):
         piece.cell_data["fragment_of"] = np.int64(origin[piece.body_id])
     if model.rigid.body_count:
         rs = state.rigid
-        R = quat.to_matrix(rs.orientation)
         for vertices, vertex_body, triangles, cell_id, fragment_of in _rigid_runs(model, pieces, origin):
             # the writer poses the surfaces: a frame hands over the poses, and the surfaces once
-            points = Deferred(posed_points, (vertices, vertex_body, rs.position, R), (3,), len(vertices))
+            points = Deferred(posed_by_orientation, (vertices, vertex_body, rs.position, rs.orientation),
+                              (3,), len(vertices))
             pieces.append(FramePiece(cell_id, points, [("triangle", triangles)],
                                      cell_data={"fragment_of": fragment_of}))
     pieces.sort(key=lambda p: int(np.min(p.body_id)))
@@ -123,17 +123,16 @@ def body_rows(model, state):
     t = float(state.time)
     rm, rs = model.rigid, state.rigid
     if rm.body_count:
-        v = reported_velocity(rm, rs, model.gravity)
-        w = angular_velocity(rm, rs)
-        ke = kinetic_energy(rm, rs, v, w)
-        R_shape, _ = body_pose_in_shape_frame(rm, rs)
-        q = quat.from_matrix(R_shape)
+        # x, q, v, w, kinetic energy of every rigid body in one compiled pass
+        table = body_report(rs.position, rs.orientation, rs.velocity, rs.angular_momentum,
+                            rs.contact_dv, rm.body_fixed, rm.body_mass, rm.body_inv_inertia,
+                            rm.shape_rotation, np.asarray(model.gravity, float), float(rs.last_dt))
         ids = [int(k) for k in model.rigid_ids]
-        for i, k in enumerate(ids):
-            if k in model.parked:
-                q[i] = _parked_orientation(model, state, i, k)
+        for k in model.parked:
+            i = ids.index(k)
+            table[i, 3:7] = _parked_orientation(model, state, i, k)
         # one conversion of the whole table to Python floats (not one per value)
-        table = np.column_stack([rs.position, q, v, w, ke]).tolist()
+        table = table.tolist()
         rows = {k: (t, model.names[k], *values, "rigid") for k, values in zip(ids, table)}
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
         weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix

@@ -28,6 +28,7 @@ import pickle
 import queue
 import re
 import runpy
+import select
 import signal
 import sys
 import threading
@@ -111,6 +112,9 @@ class WriterProcess:
         self._process.start()
         receive.close()
         send.close()
+        # whether a reply waits: one poll(2) call (Connection.poll builds a selector each time)
+        self._replied = select.poll()
+        self._replied.register(self._replies.fileno(), select.POLLIN)
         # the pipe is fed by a thread of its own, so the caller never waits for a full pipe (a
         # child starting, or behind); a pipe of 1 MB takes a frame in one write
         _widen(self._jobs)
@@ -158,7 +162,7 @@ class WriterProcess:
 
     def _read(self, block: bool) -> None:
         """Take the child's replies (blocking for one when ``block``)."""
-        while not self._gone and (block or self._replies.poll()):
+        while not self._gone and (block or self._replied.poll(0)):
             block = False
             try:
                 kind, *values = self._replies.recv()
@@ -242,19 +246,13 @@ def _feed(outbox, jobs) -> None:
             pass            # the child is gone: WriterProcess._read reports it
 
 
-def _widen(connection) -> int:
-    """Make the pipe of ``connection`` hold 1 MB if the system allows; its capacity (bytes, 0 if
-    unknown)."""
+def _widen(connection) -> None:
+    """Make the pipe of ``connection`` hold 1 MB if the system allows."""
     try:
         import fcntl
-        set_size, get_size = getattr(fcntl, "F_SETPIPE_SZ", 1031), getattr(fcntl, "F_GETPIPE_SZ", 1032)
-        try:
-            fcntl.fcntl(connection.fileno(), set_size, 1 << 20)
-        except OSError:
-            pass
-        return fcntl.fcntl(connection.fileno(), get_size)
+        fcntl.fcntl(connection.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)
     except (ImportError, OSError):
-        return 0
+        pass
 
 
 def _finish(process, outbox, timeout: float = 60.0) -> None:
