@@ -5,7 +5,7 @@ from fem import dynamics as fem_dyn
 from fem.plasticity import elastic_stress
 from fem.stress import principal_stress_max
 from rigid import quaternion as quat
-from rigid.model import kinetic_energy, posed_by_orientation, reported_velocity
+from rigid.model import posed_by_orientation
 from rigid.step_kernels import body_report
 
 from hybrid.coupling.switch import fem_state
@@ -109,6 +109,16 @@ def _rigid_runs(model, fem_pieces, origin):
     return out
 
 
+def rigid_table(model, state):
+    """Every rigid body's report (b, 14) at the state's time, from one compiled pass
+    (rigid.step_kernels.body_report): centre of mass (3), orientation of its shape frame (4),
+    velocity (3, rigid.model.reported_velocity), angular velocity (3), kinetic energy (J)."""
+    rm, rs = model.rigid, state.rigid
+    return body_report(rs.position, rs.orientation, rs.velocity, rs.angular_momentum,
+                       rs.contact_dv, rm.body_fixed, rm.body_mass, rm.body_inv_inertia,
+                       rm.shape_rotation, np.asarray(model.gravity, float), float(rs.last_dt))
+
+
 def body_rows(model, state):
     """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy,model`` in scene
     order; ``model`` is how the body was stepped (``rigid`` or ``fem``).
@@ -121,12 +131,8 @@ def body_rows(model, state):
     """
     rows = {}
     t = float(state.time)
-    rm, rs = model.rigid, state.rigid
-    if rm.body_count:
-        # x, q, v, w, kinetic energy of every rigid body in one compiled pass
-        table = body_report(rs.position, rs.orientation, rs.velocity, rs.angular_momentum,
-                            rs.contact_dv, rm.body_fixed, rm.body_mass, rm.body_inv_inertia,
-                            rm.shape_rotation, np.asarray(model.gravity, float), float(rs.last_dt))
+    if model.rigid.body_count:
+        table = rigid_table(model, state)
         ids = [int(k) for k in model.rigid_ids]
         for k in model.parked:
             i = ids.index(k)
@@ -187,7 +193,7 @@ def momentum_scales(model, state):
     rm, rs = model.rigid, state.rigid
     if rm.body_count:
         free = ~rm.body_fixed
-        p = np.where(free, rm.body_mass, 0.0)[:, None] * reported_velocity(rm, rs, model.gravity)
+        p = np.where(free, rm.body_mass, 0.0)[:, None] * rigid_table(model, state)[:, 7:10]
         linear += float(np.linalg.norm(p, axis=1).sum())
         angular += float(np.linalg.norm(np.cross(rs.position, p), axis=1).sum()
                          + np.linalg.norm(np.where(free[:, None], rs.angular_momentum, 0.0), axis=1).sum()
@@ -202,9 +208,8 @@ def momentum_scales(model, state):
 def body_energies(model, state):
     """Per body (by name) its kinetic energy, plus its elastic energy for an FEM body (J)."""
     out = {}
-    rm, rs = model.rigid, state.rigid
-    if rm.body_count:
-        ke = kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity))
+    if model.rigid.body_count:
+        ke = rigid_table(model, state)[:, 13]
         out = {model.names[k]: float(e) for k, e in zip(model.rigid_ids, ke)}
     for k, m, s in zip(model.fem_ids, model.fem, state.fem):
         out[model.names[k]] = fem_dyn.kinetic_energy(m, s) + fem_dyn.elastic_energy(m, s)
@@ -213,9 +218,7 @@ def body_energies(model, state):
 
 def kinetic(model, state):
     """The kinetic energy of every moving body (J), at the state's time."""
-    rm, rs = model.rigid, state.rigid
-    total = float(kinetic_energy(rm, rs, reported_velocity(rm, rs, model.gravity)).sum()) \
-        if rm.body_count else 0.0
+    total = float(rigid_table(model, state)[:, 13].sum()) if model.rigid.body_count else 0.0
     return total + sum(fem_dyn.kinetic_energy(m, s) for m, s in zip(model.fem, state.fem))
 
 
@@ -226,10 +229,10 @@ def totals(model, state):
     energy, P, L = 0.0, np.zeros(3), np.zeros(3)
     rm, rs = model.rigid, state.rigid
     if rm.body_count:
-        free = ~rm.body_fixed
-        v = reported_velocity(rm, rs, g)
-        m = np.where(free, rm.body_mass, 0.0)
-        energy += float(kinetic_energy(rm, rs, v).sum() - (m * (rs.position @ g)).sum())
+        table = rigid_table(model, state)
+        v = table[:, 7:10]
+        m = np.where(rm.body_fixed, 0.0, rm.body_mass)
+        energy += float(table[:, 13].sum() - (m * (rs.position @ g)).sum())
         P += (m[:, None] * v).sum(axis=0)
         L += (np.cross(rs.position, m[:, None] * v) + rs.angular_momentum).sum(axis=0)
     for mm, s in zip(model.fem, state.fem):
