@@ -189,12 +189,12 @@ def stop_on_signals(signals=(signal.SIGINT, signal.SIGTERM)):
     """While in the block, the first SIGINT or SIGTERM sets the yielded :class:`StopRequest`
     (a run given it finishes its step, writes a checkpoint and stops); a second one ends the
     process as the signal would (KeyboardInterrupt for SIGINT, exit 128 + its number otherwise).
-    Nothing is installed outside the main thread. A SIGTERM the entry point's handler was given
-    before (hybrid.app.entry: its exception swallowed by a callback it landed in) is taken as
-    given here."""
+    Nothing is installed outside the main thread. A signal the entry point's handler was given
+    before (hybrid.app.entry: its exception swallowed where it landed) is taken as given here."""
     request = StopRequest()
-    if getattr(signal.getsignal(signal.SIGTERM), "received", False):
-        request.signal = signal.SIGTERM
+    for s in signals:
+        if request.signal is None and getattr(signal.getsignal(s), "received", False):
+            request.signal = s
     if threading.current_thread() is not threading.main_thread():
         yield request
         return

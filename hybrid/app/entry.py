@@ -17,25 +17,26 @@ class _Terminated(BaseException):
     run given SIGTERM while it started ran to its end)."""
 
 
-class _OnTerm:
-    """The SIGTERM handler before a run steps: raises :class:`_Terminated`, and keeps that it did
-    (``received``). Raised inside a callback (an import lock's, a weakref's) the exception is
-    printed as ignored and the command goes on; a run that then starts stepping finds the
-    handler it replaces with ``received`` set and stops at once
-    (hybrid.app.checkpoint.stop_on_signals)."""
+class _OnSignal:
+    """A handler of SIGINT or SIGTERM before a run steps: raises ``error`` (KeyboardInterrupt or
+    :class:`_Terminated`), and keeps that it did (``received``). Raised inside a callback (an
+    import lock's, a weakref's) or a library's bare ``except`` the exception is swallowed and the
+    command goes on; a run that then starts stepping finds the handler it replaces with
+    ``received`` set and stops at once (hybrid.app.checkpoint.stop_on_signals)."""
 
-    def __init__(self):
-        self.received = False
+    def __init__(self, error):
+        self.error, self.received = error, False
 
     def __call__(self, signum, frame):
         self.received = True
-        raise _Terminated()
+        raise self.error()
 
 
 def main(argv=None):
     """Run the command line (:func:`hybrid.app.cli.main`) with SIGINT and SIGTERM ending it
     cleanly; returns its exit code."""
-    previous = signal.signal(signal.SIGTERM, _OnTerm())
+    previous = {signal.SIGINT: signal.signal(signal.SIGINT, _OnSignal(KeyboardInterrupt)),
+                signal.SIGTERM: signal.signal(signal.SIGTERM, _OnSignal(_Terminated))}
     try:
         from .cli import main as command
         return command(argv)
@@ -46,4 +47,5 @@ def main(argv=None):
         print("hybrid: stopped (SIGTERM)", file=sys.stderr)
         return 143
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
