@@ -65,6 +65,57 @@ def orient_outward(vertices, triangles):
     return triangles
 
 
+def shells(triangles):
+    """``(count, label)``: the connected pieces of a surface (triangles joined through shared
+    vertices) and each triangle's piece (m,)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    t = np.asarray(triangles, dtype=np.int64)
+    n = int(t.max()) + 1 if len(t) else 0
+    rows, cols = t[:, [0, 1]].ravel(), t[:, [1, 2]].ravel()
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    used, piece = np.unique(label[t[:, 0]], return_inverse=True)
+    return len(used), piece.ravel()
+
+
+def winding_number(point, vertices, triangles):
+    """How many times the closed surface winds around ``point`` (3,): the triangles' solid
+    angles seen from it over 4 pi (Van Oosterom and Strackee); about 1 inside an outward
+    surface, -1 inside an inward one, 0 outside."""
+    v = np.asarray(vertices, dtype=float)[np.asarray(triangles)] - np.asarray(point, dtype=float)
+    a, b, c = v[:, 0], v[:, 1], v[:, 2]
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb \
+        + np.einsum("ij,ij->i", b, c) * la
+    return float(2.0 * np.arctan2(numerator, denominator).sum() / (4.0 * np.pi))
+
+
+def orient_shells(vertices, triangles):
+    """The triangles of a closed surface with every piece facing away from the solid: a piece
+    inside an even number of others (the outer surface; an island inside a cavity) outward, one
+    inside an odd number (a cavity's wall) inward, however each was written. Nesting is read from
+    the winding number of one vertex of each piece about the pieces whose box holds its box."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    count, label = shells(triangles)
+    if count <= 1:
+        return orient_outward(vertices, triangles)
+    v = np.asarray(vertices, dtype=float)
+    order = np.argsort(label, kind="stable")
+    members = np.split(order, np.cumsum(np.bincount(label, minlength=count))[:-1])
+    corners = [v[np.unique(triangles[m])] for m in members]
+    low, high = np.array([c.min(axis=0) for c in corners]), np.array([c.max(axis=0) for c in corners])
+    out = triangles.copy()
+    for k, m in enumerate(members):
+        holds = np.flatnonzero(np.all(low <= low[k], axis=1) & np.all(high >= high[k], axis=1))
+        depth = sum(abs(winding_number(corners[k][0], v, triangles[members[j]])) > 0.5
+                    for j in holds if j != k)
+        if (signed_volume(v, triangles[m]) > 0) != (depth % 2 == 0):
+            out[m] = triangles[m][:, ::-1]
+    return out
+
+
 def compact(vertices, triangles):
     """Drop vertices no triangle uses; returns (vertices, triangles, kept_vertex_indices)."""
     used = np.unique(triangles)

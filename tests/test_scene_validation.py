@@ -557,3 +557,37 @@ def test_fixed_on_a_deformable_body_is_refused_and_the_anchors_named(tmp_path, m
     assert only_problem(path) == (f"{path}: [bodies] \"box\" (bodies[0]): field 'fixed' needs "
                                   f"model = \"rigid\" (this body has model = \"{model}\"; a "
                                   "deformable body is held by [[bodies.anchors]])")
+
+
+def _box_quads(half, offset=0.0):
+    """A box's 8 corners (centred at ``offset``) and its 6 faces as quads facing outward."""
+    return CUBE_POINTS * 2 * half + offset, CUBE_QUADS
+
+
+@pytest.mark.parametrize("inner_written", ["inward", "outward"])
+def test_a_surface_with_a_cavity_has_the_mass_of_its_shell_however_the_cavity_faces(tmp_path, inner_written):
+    """A hollow box (outer side 0.4 m, cavity 0.2 m) whose cavity's wall is written facing out
+    of the cavity added the cavity's volume (18 kg instead of 14 at 250 kg/m^3): each piece of
+    a surface now faces away from the solid by how deep it lies among the others, so both ways
+    of writing it weigh 250 * (0.064 - 0.008) = 14 kg, with the inertia of the shell; an island
+    inside the cavity adds its own volume."""
+    from rigid import trimesh
+    from rigid.mass import mass_properties
+    outer, quads = _box_quads(0.2)
+    inner, _ = _box_quads(0.1)
+    island, _ = _box_quads(0.025)
+    inner_quads = quads if inner_written == "outward" else quads[:, ::-1]
+    points = np.concatenate([outer, inner, island])
+    faces = np.concatenate([quads, inner_quads + 8, quads[:, ::-1] + 16])   # the island written inward
+    for name, count in (("hollow.obj", 2), ("island.obj", 3)):
+        pieces = faces[: 6 * count]
+        meshio.write(tmp_path / name, meshio.Mesh(points[: 8 * count], [("quad", pieces)]))
+        vertices, triangles = geometry.load_surface(tmp_path / name)
+        volume = 0.064 - 0.008 + (0.05 ** 3 if count == 3 else 0.0)
+        assert math.isclose(trimesh.signed_volume(vertices, triangles), volume, rel_tol=1e-12)
+        props = mass_properties(vertices, triangles, 250.0)
+        mass, com, inertia = props.mass, props.com, props.inertia
+        assert math.isclose(mass, 250.0 * volume, rel_tol=1e-12)
+        # a centred box's moment about an axis through its centre: m a^2 / 6 (a its side)
+        moment = 250.0 * (0.4 ** 5 - 0.2 ** 5 + (0.05 ** 5 if count == 3 else 0.0)) / 6
+        assert np.allclose(np.diag(inertia), moment, rtol=1e-10) and np.allclose(com, 0.0, atol=1e-14)

@@ -146,11 +146,11 @@ def surface_from_mesh(mesh, path):
                                   & (triangles[:, 2] != triangles[:, 0])]
     vertices, triangles, _ = trimesh.compact(points, triangles)
     _check_closed(triangles, path)
-    volume = trimesh.signed_volume(vertices, triangles)
+    triangles = trimesh.orient_shells(vertices, triangles)      # a cavity's wall facing into it
     scale = np.ptp(vertices, axis=0).max()
-    if abs(volume) <= 1e-12 * scale ** 3:
+    if trimesh.signed_volume(vertices, triangles) <= 1e-12 * scale ** 3:
         raise MeshError(path, "surface encloses zero volume")
-    return vertices, trimesh.orient_outward(vertices, triangles)
+    return vertices, triangles
 
 
 def load_surface(path):
