@@ -350,3 +350,30 @@ def test_a_ladder_of_one_level_is_refused(tmp_path, capsys):
     code = main(["converge", str(tmp_path / "s.toml"), "--dt", "1", "--out", str(tmp_path / "o")])
     assert code == 2 and "at least 2 levels" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_position_at_the_end_is_judged_against_how_far_the_body_moved():
+    """``body.com@end`` was judged against the body's distance from the origin (its end value
+    alone), so a scene placed away from the origin passed any ``--tol``: a body 100 m from the
+    origin that falls 1 cm, its end position off by a first-order 1e-4 m per unit of dt, is
+    judged against the centimetre it moved, as the whole series ``body.com`` is."""
+    from types import SimpleNamespace
+    from hybrid.app.converge import estimate_group
+    from hybrid.app.quantities import Quantity
+
+    class Run:
+        def __init__(self, dt):
+            t = np.linspace(0.0, 1.0, 11)
+            z = 100.0 - 0.01 * t ** 2 - 1e-2 * dt * t        # off by a first-order error
+            self.series = Quantity(t, np.column_stack([np.zeros_like(t), np.zeros_like(t), z]))
+
+        def get(self, name):
+            return Quantity(None, self.series.values[-1:]) if name.endswith("@end") else self.series
+
+    runs = [(SimpleNamespace(i=i, j=0), Run(0.04 / 2 ** i)) for i in range(4)]
+    out = estimate_group(runs, ["box.com@end", "box.com"])
+    errors, _, method, scale = out["box.com@end"]
+    assert method == RICHARDSON
+    assert scale == pytest.approx(0.01, rel=1e-2)             # the travel, not 100 m
+    assert errors[0, 0] / scale == pytest.approx(1e-2 * 0.04 / 0.01, rel=1e-2)
+    assert out["box.com"][3] == pytest.approx(scale, rel=1e-2)

@@ -181,8 +181,19 @@ def estimate_group(runs, names, ratio=2.0):
             errors[r.i, r.j] = qty.distance(at[(r.i, r.j)], reference)
             column = [at[(i, r.j)] for i in range(r.i, min(r.i + 3, I + 1)) if (i, r.j) in at]
             orders[r.i, r.j] = observed_orders(column, ratio)[0][0] if len(column) == 3 else None
-        out[name] = (errors, orders, method, qty.scale(name, reference) if reference is not None else None)
+        out[name] = (errors, orders, method, _scale(name, reference, ok))
     return out
+
+
+def _scale(name, reference, ok):
+    """The scale of quantity ``name`` (quantities.scale) in a group whose runs are ``ok``: a
+    position's at the end by how far the finest run moved it over the whole run (its end value
+    alone says where the body is, not how far it went)."""
+    if reference is None:
+        return None
+    if name.endswith("@end") and qty.positional(name) and ok:
+        return qty.scale(name, ok[max(ok)].get(name.removesuffix("@end")).values)
+    return qty.scale(name, reference)
 
 
 def pareto(points):

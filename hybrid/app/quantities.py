@@ -173,9 +173,16 @@ def resampled(quantity, times):
                             for c in range(quantity.values.shape[1])])
 
 
+def positional(name):
+    """Whether quantity ``name`` is a position or displacement (its error is judged against how
+    far it moved)."""
+    return name.removesuffix("@end").rsplit(".", 1)[-1] in POSITIONAL
+
+
 def scale(name, reference):
     """The size the error of quantity ``name`` is judged against: how far it moved from its first
-    value for positions and displacements, its largest magnitude otherwise."""
-    if name.removesuffix("@end").rsplit(".", 1)[-1] in POSITIONAL and len(reference) > 1:
+    value for positions and displacements (``reference`` a whole series of them), its largest
+    magnitude otherwise."""
+    if positional(name) and len(reference) > 1:
         return float(np.max(np.linalg.norm(reference - reference[0], axis=1)))
     return float(np.max(np.linalg.norm(reference, axis=1)))
