@@ -256,6 +256,34 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
     assert not children()
 
 
+def test_auto_handing_over_at_the_close_keeps_every_frame_in_the_index(tmp_path, monkeypatch):
+    """A writer process that takes the files over at the run's close (the fork server up only
+    at the last frame) was told the thread's ``.pvd`` listed every frame, which the thread
+    rewrites at most every ``index_every`` s: the final index left out frames on disk (seen
+    after a resumed ``shatter``). It is told what the index lists and brings it up to date."""
+    from hybrid.app import writer_process
+
+    class Server:                          # up at the fifth frame's region rows
+        calls = 0
+
+        def start(self):
+            pass
+
+        def ready(self):
+            self.calls += 1
+            return self.calls > 9
+
+    def launched(writer, k):
+        if k == 4:
+            writer._launch.join()           # started: the close's index job hands over
+
+    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(RunWriter, "auto_after", 0.0)
+    pids = write_auto_and_inline(tmp_path, 5, launched)      # (the .pvd byte for byte too)
+    assert pids == [None] * 10
+    assert not children()
+
+
 def test_auto_writes_from_the_first_frame_in_a_process_when_the_fork_server_is_up(tmp_path):
     """A later run of a process (the fork server up) writes through a writer process from its
     first frame, nothing on the thread: the files are those written in place."""

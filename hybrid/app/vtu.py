@@ -359,21 +359,21 @@ class FrameFiles:
 
     def state(self) -> dict:
         """Where the files stand: ``count``, ``times``, ``files``, ``tables`` (name -> bytes
-        written, tables flushed), ``index_time``."""
+        written, tables flushed), ``listed`` (frames the ``.pvd`` on disk lists), ``index_time``."""
         for f in self.tables.values():
             f.flush()
         return {"count": self.count, "times": list(self.times), "files": list(self.files),
                 "tables": {name: f.tell() for name, f in self.tables.items()},
-                "index_time": self.index_time}
+                "listed": self.pvd_listed, "index_time": self.index_time}
 
     def restore(self, state: dict) -> None:
         """Continue files that stand at ``state`` (from :meth:`state`, or a checkpoint's files
-        taken back to it): the ``.pvd`` on disk lists its frames, its tables exist with exactly
-        those lengths and are appended to."""
+        taken back to it): the ``.pvd`` on disk lists ``listed`` of its frames (all of them if
+        not said), its tables exist with exactly those lengths and are appended to."""
         self.close()
         self.count, self.times, self.files = int(state["count"]), list(state["times"]), list(state["files"])
         self.pvd_lines = [pvd_line(t, f) for t, f in zip(self.times, self.files)]
-        self.pvd_listed = len(self.pvd_lines)
+        self.pvd_listed = int(state.get("listed", len(self.pvd_lines)))
         self.index_time = state.get("index_time", -math.inf)
         for name in state["tables"]:
             self.tables[name] = open(self.out_dir / name, "a", encoding="utf-8", newline="")
