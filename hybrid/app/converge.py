@@ -258,7 +258,7 @@ def _rows(scene, rungs, records, names, tol, refine_levels):
     estimates = {g: estimate_group(runs, names) for g, runs in groups.items()}
     rows = []
     for rung, record in zip(rungs, records):
-        summary_time = scene.simulation.duration
+        summary_time = float(rung.settings.get("simulation.duration", scene.simulation.duration))
         row = {"id": record["id"], **dict(rung.group), "dt": rung.settings["simulation.dt"],
                "resolution": _resolution(rung, scene) if refine_levels > 1 else "",
                "status": record["status"], "error": record["error"] or "", "wall_s": record["wall_s"],
