@@ -334,10 +334,33 @@ def test_the_convergence_report_says_why_it_has_no_extrapolation():
     failed = report([row(0.01), row(0.005, "unstable"), row(0.0025)], 0.01)
     assert "runs of the ladder did not finish ok" in failed[0]
     erratic = report([row(0.01), row(0.005), row(0.0025)], 0.01)
-    assert "the observed order is erratic" in erratic[0]
+    assert "do not shrink steadily at one order" in erratic[0]
     none = report([row(0.01, "unstable"), row(0.005, "failed")], 0.01)
     assert "no run finished ok" in none[0] and "every run failed" in none[-1]
     assert not any("add --dt levels" in line for line in none)
+
+
+def test_the_convergence_report_tells_each_group_of_a_set_apart():
+    """``--set bodies.bar.integrator=backward_euler,newmark`` makes two ladders: one was
+    extrapolated and the other not, and the report said both were differences from the finest
+    run, and that the recommended run (from the extrapolated one) was measured against an
+    unconverged run. Each group is now reported by itself."""
+    from hybrid.app.study_cli import report
+
+    def row(k, dt, integrator, method, recommended=False):
+        return {"id": f"{k:03d}", "bodies.bar.integrator": integrator, "dt": dt, "resolution": "",
+                "status": "ok", "error:bar.com": 0.01, "estimate:bar.com": method,
+                "recommended": recommended, "max_relative_error": 0.01, "wall_per_sim_s": 1.0 + k}
+    rows = [row(0, 0.01, "backward_euler", "richardson"),
+            row(1, 0.005, "backward_euler", "richardson", recommended=True),
+            row(2, 0.0025, "backward_euler", "richardson"),
+            row(3, 0.01, "newmark", "finest-difference"), row(4, 0.005, "newmark", "finest-difference"),
+            row(5, 0.0025, "newmark", "finest-difference")]
+    lines = report(rows, 0.05)
+    told = [line for line in lines if "differences from the finest run" in line]
+    assert len(told) == 1 and told[0].startswith("bar.com (bodies.bar.integrator=newmark): "), lines
+    assert lines[-1].startswith("recommended: dt = 0.005 s") and "not converged" not in lines[-1], lines
+    assert "bodies.bar.integrator=backward_euler" in lines[-1]
 
 
 @pytest.mark.parametrize("plot, ok", [("simulated_time", True), ("ball.z", True), ("nobody.z", False)])

@@ -196,6 +196,19 @@ def _scale(name, reference, ok):
     return qty.scale(name, reference)
 
 
+def row_groups(rows):
+    """The rows of each group of a study (one per combination of the settings it was run
+    across with ``--set``): ``[(label, rows)]``, the label ``""`` for a study of one group, else
+    ``"key=value, ..."``."""
+    columns = list(rows[0]) if rows else []
+    keys = columns[1:columns.index("dt")] if "dt" in columns else []
+    groups = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    return [(", ".join(f"{k}={v}" for k, v in zip(keys, values)), members)
+            for values, members in groups.items()]
+
+
 def pareto(points):
     """Indices of the (cost, error) points no other point beats in both (ties kept)."""
     best = []

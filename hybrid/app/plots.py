@@ -66,17 +66,20 @@ def plot_sweep(rows, keys, plot, out):
 
 def plot_convergence(rows, names, tol, path):
     """``path`` (a PNG): each quantity's error relative to its scale against wall time per
-    simulated second, log-log, one line per quantity; the Pareto-best runs ringed, the
+    simulated second, log-log, one line per quantity (and group of a ``--set``); the Pareto-best runs ringed, the
     recommended one starred, ``tol`` dashed."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=100)
+    from .converge import row_groups
     scored = [r for r in rows if r["max_relative_error"] != ""]
-    for name in names:
-        points = sorted((r["wall_per_sim_s"], _relative(r, name)) for r in scored
-                        if r[f"error:{name}"] != "")
-        points = [(c, e) for c, e in points if e is not None and e > 0]
-        if points:
-            ax.loglog(*zip(*points), "o-", ms=4, label=name + ("" if _trusted(rows, name) else " (vs finest)"))
+    for group, members in row_groups(rows):        # a line per quantity and --set group
+        for name in names:
+            points = sorted((r["wall_per_sim_s"], _relative(r, name)) for r in members
+                            if r in scored and r[f"error:{name}"] != "")
+            points = [(c, e) for c, e in points if e is not None and e > 0]
+            if points:
+                ax.loglog(*zip(*points), "o-", ms=4, label=name + (f" [{group}]" if group else "")
+                          + ("" if _trusted(members, name) else " (vs finest)"))
     front = [r for r in scored if r["pareto"] and r["max_relative_error"] > 0]
     if front:
         ax.loglog([r["wall_per_sim_s"] for r in front], [r["max_relative_error"] for r in front], "o",
@@ -84,7 +87,9 @@ def plot_convergence(rows, names, tol, path):
     picked = [r for r in scored if r["recommended"] and r["max_relative_error"] > 0]
     if picked:
         ax.loglog(picked[0]["wall_per_sim_s"], picked[0]["max_relative_error"], "*", ms=16,
-                  color="gold", mec="black", label=f"recommended: dt = {picked[0]['dt']:.3g} s")
+                  color="gold", mec="black", label=f"recommended: dt = {picked[0]['dt']:.3g} s"
+                  + (f", resolution = {picked[0]['resolution']}" if picked[0]["resolution"] != "" else "")
+                  + "".join(f", {g}" for g, members in row_groups(rows) if g and picked[0] in members))
     ax.axhline(tol, ls="--", color="grey", lw=1, label=f"tol = {tol:g}")
     ax.set_xlabel("wall time per simulated second (s)")
     ax.set_ylabel("estimated error / quantity's scale")

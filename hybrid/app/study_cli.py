@@ -137,30 +137,37 @@ def _converge(args, out):
 
 
 def report(rows, tol):
-    """Lines for the terminal: each quantity's estimate, and the recommended setting."""
+    """Lines for the terminal: each quantity's estimate (in each group of runs a ``--set`` made),
+    and the recommended setting."""
+    from .converge import row_groups
     names = [k.split(":", 1)[1] for k in rows[0] if k.startswith("error:")]
-    lines, against_finest = [], False
-    ok = [r for r in rows if r["status"] == "ok"]
-    # a ladder gives an order from three levels: with two, or runs missing, there is none to test
-    levels = max(len({r["dt"] for r in rows}), len({r["resolution"] for r in rows}))
-    why = ("no run finished ok: nothing to estimate" if not ok else
-           f"a ladder of {levels} levels gives no observed order (three or more do)" if levels < 3
-           else "runs of the ladder did not finish ok" if len(ok) < len(rows)
-           else "the observed order is erratic (contact events, fracture, runs swinging about the "
-                "limit)")
-    for name in names:
-        methods = {r[f"estimate:{name}"] for r in rows}
-        if methods != {"richardson"}:
-            against_finest = True
-            lines.append(f"{name}: {why}: its errors are differences from the finest run, not an "
-                         f"extrapolation" if ok else f"{name}: {why}")
-    if ok and levels == 3 and not against_finest:
+    lines, third_level = [], False
+    for label, group in row_groups(rows):
+        ok = [r for r in group if r["status"] == "ok"]
+        # a ladder gives an order from three levels: with two, or runs missing, there is none to test
+        levels = max(len({r["dt"] for r in group}), len({r["resolution"] for r in group}))
+        why = ("no run finished ok: nothing to estimate" if not ok else
+               f"a ladder of {levels} levels gives no observed order (three or more do)" if levels < 3
+               else "runs of the ladder did not finish ok" if len(ok) < len(group)
+               else "the differences between levels do not shrink steadily at one order (contact "
+                    "events, fracture, runs swinging about the limit, or a coarsest level too coarse)")
+        trusted = True
+        for name in names:
+            if {r[f"estimate:{name}"] for r in group} != {"richardson"}:
+                trusted = False
+                name = f"{name} ({label})" if label else name
+                lines.append(f"{name}: {why}: its errors are differences from the finest run, not an "
+                             f"extrapolation" if ok else f"{name}: {why}")
+        third_level |= bool(ok) and levels == 3 and trusted
+    if third_level:
         lines.append("each order was observed once (three levels): a fourth level (--dt 4, or "
                      "--refine 4) checks that it holds")
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"{r['id']}: {r['status']} (left out of the estimates)")
     pick = next((r for r in rows if r["recommended"]), None)
+    against_finest = pick is not None and any(pick[f"estimate:{n}"] != "richardson" for n in names)
+    ok = [r for r in rows if r["status"] == "ok"]
     if not ok:
         lines.append("no estimate: every run failed (their messages are above and in "
                      "convergence.csv)")
@@ -169,6 +176,7 @@ def report(rows, tol):
                      f"(or --refine) and run again (finished runs are kept)")
     else:
         setting = f"dt = {pick['dt']:.4g} s" + (f", resolution = {pick['resolution']}" if pick["resolution"] != "" else "")
+        setting += "".join(f", {label}" for label, group in row_groups(rows) if label and pick in group)
         lines.append(f"recommended: {setting} ({pick['id']}): largest estimated relative error "
                      f"{pick['max_relative_error']:.2g} (tol {tol:g}) at {pick['wall_per_sim_s']:.3g} s "
                      f"of wall time per simulated second"
