@@ -266,7 +266,7 @@ def test_a_signal_swallowed_before_the_run_steps_stops_the_run_at_once(tmp_path,
     first step and stops (the run had gone on to its end, exit 0; for SIGINT seen once in the
     suite, with Python's own handler, which keeps no record)."""
     from hybrid.app import entry
-    error = entry._Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+    error = entry.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
     handler = entry._OnSignal(error)
     with pytest.raises(error):
         handler(signum, None)

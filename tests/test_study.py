@@ -402,28 +402,33 @@ def test_ctrl_c_stops_a_sweep_with_one_line_and_no_worker_tracebacks(tmp_path):
     assert "Traceback" not in err and "ERROR" not in err, err
 
 
-def test_a_sweep_stopped_by_ctrl_c_writes_its_table_with_the_runs_it_finished(tmp_path, monkeypatch):
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_a_sweep_stopped_by_ctrl_c_writes_its_table_with_the_runs_it_finished(tmp_path, monkeypatch,
+                                                                              signal_name):
     """Ctrl-C on a sweep wrote no results.csv, though runs had finished: the table is written
     (the unfinished runs as `interrupted`, without the partial files' figures) and the
-    interruption goes on to the caller (the command line exits 130)."""
+    interruption goes on to the caller (the command line exits 130). SIGTERM (a batch
+    scheduler's) did the same without even the table; now as Ctrl-C, then exit 143."""
     from hybrid.app import study as study_module
+    from hybrid.app.entry import Terminated
+    stop = KeyboardInterrupt if signal_name == "SIGINT" else Terminated
 
     def one_then_ctrl_c(todo, texts, total, workers, scheduler, progress):
         record, text = todo[0], texts[0]
         Path(record["folder"]).mkdir(parents=True)
         Path(record["scene_file"]).write_text(text)
         record.update(study_module.run_variant(record["scene_file"], record["folder"]))
-        raise KeyboardInterrupt
+        raise stop
 
     monkeypatch.setattr(study_module, "_dispatch", one_then_ctrl_c)
     scene = tmp_path / "drop.toml"
     scene.write_text(DROP)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(stop):
         sweep(scene, ["bodies.ball.restitution=0.2,0.8"], out=tmp_path / "out", workers=1)
     table = list(csv.DictReader(open(tmp_path / "out" / "results.csv")))
     assert [t["status"] for t in table] == ["ok", "interrupted"]
     assert table[0]["ball.z"] != "" and table[1].get("ball.z", "") == ""
-    assert "Ctrl-C" in table[1]["error"]
+    assert ("Ctrl-C" if signal_name == "SIGINT" else "SIGTERM") in table[1]["error"]
 
 
 def test_a_value_given_twice_is_refused_before_anything_runs(tmp_path, capsys):

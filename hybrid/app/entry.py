@@ -11,7 +11,7 @@ import signal
 import sys
 
 
-class _Terminated(BaseException):
+class Terminated(BaseException):
     """SIGTERM arrived outside a run's stepping (a BaseException, as KeyboardInterrupt is: the
     broad ``except Exception`` of a step or a cache lookup must not swallow it; one did, and a
     run given SIGTERM while it started ran to its end)."""
@@ -19,7 +19,7 @@ class _Terminated(BaseException):
 
 class _OnSignal:
     """A handler of SIGINT or SIGTERM before a run steps: raises ``error`` (KeyboardInterrupt or
-    :class:`_Terminated`), and keeps that it did (``received``). Raised inside a callback (an
+    :class:`Terminated`), and keeps that it did (``received``). Raised inside a callback (an
     import lock's, a weakref's) or a library's bare ``except`` the exception is swallowed and the
     command goes on; a run that then starts stepping finds the handler it replaces with
     ``received`` set and stops at once (hybrid.app.checkpoint.stop_on_signals)."""
@@ -36,14 +36,14 @@ def main(argv=None):
     """Run the command line (:func:`hybrid.app.cli.main`) with SIGINT and SIGTERM ending it
     cleanly; returns its exit code."""
     previous = {signal.SIGINT: signal.signal(signal.SIGINT, _OnSignal(KeyboardInterrupt)),
-                signal.SIGTERM: signal.signal(signal.SIGTERM, _OnSignal(_Terminated))}
+                signal.SIGTERM: signal.signal(signal.SIGTERM, _OnSignal(Terminated))}
     try:
         from .cli import main as command
         return command(argv)
     except KeyboardInterrupt:
         print("hybrid: interrupted (Ctrl-C)", file=sys.stderr)
         return 130
-    except _Terminated:
+    except Terminated:
         print("hybrid: stopped (SIGTERM)", file=sys.stderr)
         return 143
     finally:

@@ -21,6 +21,7 @@ import time as clock
 import traceback
 from pathlib import Path
 
+from .entry import Terminated
 from .output import BODIES_CSV, read_summary
 from .scene import SceneError
 from .variants import SettingError, combinations, make_variants, setting_pairs
@@ -145,22 +146,23 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
         records.append(record)
     try:
         _dispatch(todo, texts, len(records), workers, scheduler, progress)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated) as stop:
+        said = "stopped (SIGTERM)" if isinstance(stop, Terminated) else "interrupted (Ctrl-C)"
         for record in todo:
             if "status" not in record:
-                record.update(status="interrupted", error="interrupted (Ctrl-C) before it finished",
-                              wall_s=None)
-        raise StudyInterrupted(records) from None
+                record.update(status="interrupted", error=f"{said} before it finished", wall_s=None)
+        raise StudyInterrupted(records, stop) from None
     return records
 
 
 class StudyInterrupted(KeyboardInterrupt):
-    """A study stopped by Ctrl-C: ``records`` as :func:`execute` returns them, the runs it did not
-    finish with status ``interrupted`` (their table is written before it goes on)."""
+    """A study stopped by Ctrl-C or SIGTERM (``stop``, the exception that stopped it):
+    ``records`` as :func:`execute` returns them, the runs it did not finish with status
+    ``interrupted`` (their table is written before the stop goes on)."""
 
-    def __init__(self, records):
+    def __init__(self, records, stop=None):
         super().__init__("interrupted")
-        self.records = records
+        self.records, self.stop = records, stop
 
 
 def _dispatch(todo, texts, total, workers, scheduler, progress):
@@ -298,7 +300,7 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     table = [result_row(r, v.settings) for r, v in zip(records, variants)]
     write_table(table, out / "results.csv")
     if stopped is not None:         # the runs that finished are in the table; a rerun keeps them
-        raise stopped
+        raise stopped.stop if isinstance(stopped.stop, Terminated) else stopped
     if plot:
         from .plots import plot_sweep
         plot_sweep(table, [k for k, _ in pairs], plot, out)
