@@ -307,7 +307,8 @@ class Simulation:
             # told it never strained, which it did by 0.4 later)
             for line in ([] if saver.stopped is not None else
                          rigid_hints(self.model, self.peaks.strains, struck)
-                         + frame_hints(self.model, self.peaks.strains, getattr(self, "spinning", {}))):
+                         + frame_hints(self.model, self.peaks.strains, getattr(self, "spinning", {}),
+                                       self.peaks.turns)):
                 log(line)
             recorder.close(result)
         if failure is not None:

@@ -21,7 +21,7 @@ def tet_fields(fem_model, fem_state, deferred=False):
     the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1).
     ``deferred``: ``principal_stress`` as a :class:`hybrid.app.vtu.Deferred` of the stresses,
     computed by the run's writer (the batched eigenvalues are most of a frame's fields' time)."""
-    e, vm, _ = element_strains(fem_model, fem_state)
+    e, vm, _, _ = element_strains(fem_model, fem_state)
     sigma = elastic_stress(strain_tensors(e), 0.0, fem_model.mu, fem_model.lam)
     principal = Deferred(principal_stress_max, sigma) if deferred else principal_stress_max(sigma)
     fields = {"von_mises": vm, "principal_stress": principal,

@@ -30,8 +30,8 @@ class Peaks:
     def __init__(self):
         self.bodies = {}
         # per body stepped as FEM, by its own name: the largest element strain (elastic, Frobenius
-        # norm) over every step
-        self.strains = {}
+        # norm) over every step, and the largest turn of an element in the body's frame (rad)
+        self.strains, self.turns = {}, {}
 
     def update(self, model, state):
         """Take in the step that ended in ``state`` (``model``: the coupled model it was taken
@@ -42,10 +42,11 @@ class Peaks:
         for k, m, s in zip(model.fem_ids, model.fem, state.fem):
             name = model.names[origin[int(k)]]
             peak = self.bodies.setdefault(name, {q: (0.0, 0.0) for q in QUANTITIES})
-            e, vm, mean = element_strains(m, s)
+            e, vm, mean, turn = element_strains(m, s)
             _raise(peak, "von_mises", vm, state.time)
             own = model.names[int(k)]
             self.strains[own] = max(self.strains.get(own, 0.0), largest_strain(m, vm, mean))
+            self.turns[own] = max(self.turns.get(own, 0.0), float(turn.max(initial=0.0)))
             candidates = np.nonzero(mean + vm * (2.0 / 3.0) > peak["principal_stress"][0])[0]
             if len(candidates):
                 stress = elastic_stress(strain_tensors(e[candidates]), 0.0, m.mu, m.lam)
@@ -62,18 +63,20 @@ class Peaks:
         """Plain data a checkpoint keeps (see :meth:`restore`)."""
         return {"peaks": {name: {q: [float(v), float(t)] for q, (v, t) in peak.items()}
                           for name, peak in self.bodies.items()},
-                "strains": dict(self.strains)}
+                "strains": dict(self.strains), "turns": dict(self.turns)}
 
     def restore(self, snapshot):
         """Continue from a :meth:`snapshot` (or one of the peaks alone, as checkpoints without
-        the strains held them: the strains then start from those steps on)."""
-        peaks, strains = snapshot, {}
-        if set(snapshot) == {"peaks", "strains"} and isinstance(snapshot["strains"], dict) \
+        the strains held them: the strains, and turns, then start from those steps on)."""
+        peaks, strains, turns = snapshot, {}, {}
+        if set(snapshot) in ({"peaks", "strains"}, {"peaks", "strains", "turns"}) \
+                and isinstance(snapshot["strains"], dict) \
                 and all(isinstance(v, (int, float)) for v in snapshot["strains"].values()):
-            peaks, strains = snapshot["peaks"], snapshot["strains"]
+            peaks, strains, turns = snapshot["peaks"], snapshot["strains"], snapshot.get("turns", {})
         self.bodies = {name: {q: (float(v), float(t)) for q, (v, t) in peak.items()}
                        for name, peak in peaks.items()}
         self.strains = {name: float(v) for name, v in strains.items()}
+        self.turns = {name: float(v) for name, v in turns.items()}
 
 
 def largest_strain(m, von_mises, mean):
@@ -90,9 +93,10 @@ def largest_strain(m, von_mises, mean):
 
 
 def element_strains(m, s):
-    """``(e (t, 6), von Mises (t,) Pa, mean stress (t,) Pa)`` of a body's elements (model ``m``,
-    state ``s``): each element's mean elastic strain (components ``_PAIRS``; the plastic strain
-    taken off), whose stress is fem.stress.element_stress's (to round-off), in one compiled pass
+    """``(e (t, 6), von Mises (t,) Pa, mean stress (t,) Pa, turn (t,) rad)`` of a body's elements
+    (model ``m``, state ``s``): each element's mean elastic strain (components ``_PAIRS``; the
+    plastic strain taken off) and the turn its displacement gradient holds (the norm of its skew
+    part, an angle in the small-angle sense: linear elasticity takes it for no strain), whose stress is fem.stress.element_stress's (to round-off), in one compiled pass
     over the elements (the batched products of element_stress took 3 ms a step for 7,680 tets in
     the floating frame, 5 ms for 9,600 corotated ones)."""
     G = m.cache.mean_gradients
@@ -146,7 +150,7 @@ def _element_strains(x, c, R, rest_offsets, tet_nodes, G, eps_p, mu, lam):
         d0, d1, d2 = x[node, 0] - c[0], x[node, 1] - c[1], x[node, 2] - c[2]
         for i in range(3):
             u[node, i] = d0 * R[0, i] + d1 * R[1, i] + d2 * R[2, i] - rest_offsets[node, i]
-    e, vm, mean = np.zeros((t, 6)), np.empty(t), np.empty(t)
+    e, vm, mean, turn = np.zeros((t, 6)), np.empty(t), np.empty(t), np.empty(t)
     grad = np.empty((3, 3))
     for k in range(t):
         grad[:] = 0.0
@@ -155,8 +159,8 @@ def _element_strains(x, c, R, rest_offsets, tet_nodes, G, eps_p, mu, lam):
             for i in range(3):
                 for j in range(3):
                     grad[i, j] += u[node, i] * G[k, a, j]
-        _strain_row(k, grad, eps_p, mu, lam, e, vm, mean)
-    return e, vm, mean
+        _strain_row(k, grad, eps_p, mu, lam, e, vm, mean, turn)
+    return e, vm, mean, turn
 
 
 @nb.njit(cache=True)
@@ -166,7 +170,7 @@ def _element_strains_turned(x, tet_R, rest_points, tet_nodes, G, eps_p, mu, lam)
     the element's mean (its translation strains nothing; far from the origin it keeps the
     digits), as fem.stress._corotated_displacement forms it."""
     t, b = tet_nodes.shape
-    e, vm, mean = np.zeros((t, 6)), np.empty(t), np.empty(t)
+    e, vm, mean, turn = np.zeros((t, 6)), np.empty(t), np.empty(t), np.empty(t)
     grad = np.empty((3, 3))
     for k in range(t):
         grad[:] = 0.0
@@ -185,13 +189,15 @@ def _element_strains_turned(x, tet_R, rest_points, tet_nodes, G, eps_p, mu, lam)
                     - (D0 if i == 0 else D1 if i == 1 else D2)
                 for j in range(3):
                     grad[i, j] += u * G[k, a, j]
-        _strain_row(k, grad, eps_p, mu, lam, e, vm, mean)
-    return e, vm, mean
+        _strain_row(k, grad, eps_p, mu, lam, e, vm, mean, turn)
+    return e, vm, mean, turn
 
 
 @nb.njit(cache=True, inline="always")
-def _strain_row(k, grad, eps_p, mu, lam, e, vm, mean):
+def _strain_row(k, grad, eps_p, mu, lam, e, vm, mean, turn):
     """Element k's row of :func:`_element_strains` from its mean displacement gradient ``grad``."""
+    turn[k] = 0.5 * np.sqrt((grad[2, 1] - grad[1, 2]) ** 2 + (grad[0, 2] - grad[2, 0]) ** 2
+                            + (grad[1, 0] - grad[0, 1]) ** 2)
     p = k if eps_p.shape[0] == len(e) else 0
     e[k, 0] = grad[0, 0] - eps_p[p, 0]
     e[k, 1] = grad[1, 1] - eps_p[p, 1]

@@ -5,6 +5,7 @@ through :class:`hybrid.app.output.RunWriter` when the run has an output folder a
 conserved quantities of every recorded frame for the summary either way.
 """
 import logging
+import math
 import sys
 import time as clock
 from contextlib import contextmanager
@@ -258,18 +259,22 @@ def energy_changers(model):
     return [name for name, present in found.items() if present]
 
 
-def stepping(model, strains, fem_time, simulated):
-    """The summary's ``models`` section: per body stepped as FEM (by name, ``strains``: the
-    largest elastic strain it reached over every step, hybrid.app.peaks.Peaks.strains) how it was
-    modelled, the fraction of the run's simulated time (``simulated`` s) it was stepped as FEM
-    (``fem_time``: seconds by name) and that strain; auto bodies never stepped as FEM (fracture
-    pieces turned rigid at once) too, with fraction 0 and no strain."""
+def stepping(model, peaks, fem_time, simulated):
+    """The summary's ``models`` section: per body stepped as FEM (by name, from ``peaks``, the
+    run's hybrid.app.peaks.Peaks or None: the largest elastic strain it reached over every step,
+    and the largest turn of an element in its frame) how it was modelled, the fraction of the
+    run's simulated time (``simulated`` s) it was stepped as FEM (``fem_time``: seconds by name),
+    that strain and that turn (degrees, atan of the skew part of the displacement gradient); auto
+    bodies never stepped as FEM (fracture pieces turned rigid at once) too, with fraction 0 and no
+    strain."""
+    strains, turns = ({}, {}) if peaks is None else (peaks.strains, peaks.turns)
     scene_models = {b.name: b.model for b in model.scene.bodies}
     names = list(strains) + [b.name for b in model.scene.bodies
                              if b.model == "auto" and b.name not in strains]
     return {name: {"model": scene_models.get(name, "fem"),
                    "fem_time_fraction": fem_time.get(name, 0.0) / simulated if simulated > 0 else None,
-                   "largest_strain": strains.get(name)}
+                   "largest_strain": strains.get(name),
+                   "largest_turn_degrees": math.degrees(math.atan(turns[name])) if name in turns else None}
             for name in names}
 
 
@@ -301,23 +306,39 @@ def rigid_hints(model, strains, struck=()):
 # 5% at about 18 degrees; a rubber cantilever at P L^2 / E I = 2 read 0.088, its tip 35% past
 # the elastica, without a word
 FLOATING_STRAIN = 0.05
+# the largest turn of an element in the floating frame beyond which the same is said (the skew
+# part of its displacement gradient, t): linear elasticity takes it for no strain, and moves the
+# element's points along the tangents, turning it by atan(t) and stretching it sqrt(1 + t^2)-fold
+# (5% at 18 degrees); a bar hinged along one edge swung and swelled 8,000-fold in volume with a
+# linear strain of 5e-5
+FLOATING_TURN = 0.32
 
 
-def frame_hints(model, strains, spinning=()):
+def frame_hints(model, strains, spinning=(), turns=None):
     """Log lines suggesting ``frame = "corotated"`` for floating-frame bodies whose largest
-    strain over every step (``strains``, as for :func:`stepping`) passed FLOATING_STRAIN: linear
-    elasticity in one best-fit frame does not follow the large rotation of a part of the body;
-    not for bodies named in ``spinning`` (warned that their step turns them too far: the
-    corotated frame would not help)."""
-    lines = []
+    strain over every step (``strains``, as for :func:`stepping`) passed FLOATING_STRAIN, or
+    whose largest element turn in their frame (``turns``, rad, hybrid.app.peaks.Peaks.turns)
+    passed FLOATING_TURN: linear elasticity in one best-fit frame (the world's for an anchored
+    body) does not follow the large rotation of a part of the body; not for bodies named in
+    ``spinning`` (warned that their step turns them too far: the corotated frame would not help)."""
+    lines, turns = [], turns or {}
     for body in model.scene.bodies:
-        strain = strains.get(body.name)
-        if body.model in ("fem", "auto") and body.frame == "floating" and strain is not None \
-                and strain > FLOATING_STRAIN and body.name not in spinning:
-            lines.append(f"note: '{body.name}' reached a strain of {strain:.2g} in the floating "
-                         f"frame, whose linear elasticity holds for small strains and small "
-                         f"rotations of its parts; frame = \"corotated\" follows large rotations "
-                         f"(docs/fem.md)")
+        if body.model not in ("fem", "auto") or body.frame != "floating" or body.name in spinning:
+            continue
+        strain, turn = strains.get(body.name), turns.get(body.name, 0.0)
+        said = []
+        if strain is not None and strain > FLOATING_STRAIN:
+            said.append(f"reached a strain of {strain:.2g}")
+        if turn > FLOATING_TURN:
+            stretch = math.sqrt(1 + turn * turn)
+            said.append(f"turned parts of itself by up to {math.degrees(math.atan(turn)):.0f} degrees "
+                        f"against {'its anchors' if body.anchors else 'its best-fit frame'} (taken "
+                        f"for no strain, and stretched "
+                        + (f"by {stretch - 1:.0%})" if stretch < 2 else f"{stretch:.0f}-fold)"))
+        if said:
+            lines.append(f"note: '{body.name}' " + " and ".join(said) + " in the floating frame, "
+                         f"whose linear elasticity holds for small strains and small rotations of "
+                         f"its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
     return lines
 
 
@@ -344,7 +365,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
                                     "yield_stress, since the start; 0 when no body has one",
         "conservation": recorder.conservation(model),
         "events": [e.as_dict() for e in events],
-        "models": stepping(model, {} if peaks is None else peaks.strains, *(fem_time or ({}, 0.0))),
+        "models": stepping(model, peaks, *(fem_time or ({}, 0.0))),
         "peaks": {} if peaks is None else peaks.as_dict(),
         "peaks_note": "per FEM or auto body (fragments counted with the body they broke from): "
                       "the largest element von Mises stress (Pa), largest principal stress (Pa) "
