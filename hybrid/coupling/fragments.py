@@ -23,7 +23,7 @@ from fem.plastic_flow import rest_frame_plastic_force
 from fem.split import Fragment
 from rigid.build import RigidBodyDesc, build_rigid
 from rigid.model import RigidState
-from rigid.trimesh import compact, tet_boundary
+from rigid.trimesh import compact, signed_volume, tet_boundary
 
 
 class RigidPiece(NamedTuple):
@@ -166,14 +166,19 @@ def _carry_state_fields(parent_model, parent_state, model, state, tet_index, nod
 def rigid_fragments(pieces, gravity, last_dt):
     """One RigidModel/RigidState for the pieces turned rigid, carrying their momentum.
 
-    pieces: list of ``(name, scene body, RigidPiece)``; the scene body gives density, friction
-    and restitution. gravity: ``(3,)`` m/s^2. last_dt: s, the rigid state's last step.
+    pieces: list of ``(name, scene body, RigidPiece)``; the scene body gives friction and
+    restitution, and each piece keeps its nodes' mass (its density that mass over the volume of
+    its deformed shape). gravity: ``(3,)`` m/s^2. last_dt: s, the rigid state's last step.
     """
     descs = []
     for name, body, piece in pieces:
         vertices, triangles, _ = compact(piece.x, tet_boundary(piece.fragment.tets[:, :4]))
+        # the density that gives the deformed shape the piece's own mass (its nodes'): the scene
+        # density over a stretched or squashed shape made mass (a soft tile's pieces weighed
+        # up to 4 times their tets)
+        density = float(piece.node_mass.sum()) / signed_volume(vertices, triangles)
         descs.append(RigidBodyDesc(name=name, vertices=vertices, triangles=triangles,
-                                   density=body.density, friction=body.friction,
+                                   density=density, friction=body.friction,
                                    restitution=body.restitution))
     model, state = build_rigid(descs, [])
     for i, (_, _, piece) in enumerate(pieces):
