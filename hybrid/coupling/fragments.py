@@ -22,8 +22,7 @@ from fem.model import build_fem_model, rest_state
 from fem.plastic_flow import rest_frame_plastic_force
 from fem.split import Fragment
 from rigid.build import RigidBodyDesc, build_rigid
-from rigid.model import RigidState
-from rigid.trimesh import compact, signed_volume, tet_boundary
+from rigid.trimesh import compact, tet_boundary
 
 
 class RigidPiece(NamedTuple):
@@ -167,19 +166,17 @@ def rigid_fragments(pieces, gravity, last_dt):
     """One RigidModel/RigidState for the pieces turned rigid, carrying their momentum.
 
     pieces: list of ``(name, scene body, RigidPiece)``; the scene body gives friction and
-    restitution, and each piece keeps its nodes' mass (its density that mass over the volume of
-    its deformed shape). gravity: ``(3,)`` m/s^2. last_dt: s, the rigid state's last step.
+    restitution, and each piece keeps its nodes' masses (its mass, centre of mass and inertia). gravity: ``(3,)`` m/s^2. last_dt: s, the rigid state's last step.
     """
     descs = []
     for name, body, piece in pieces:
         vertices, triangles, _ = compact(piece.x, tet_boundary(piece.fragment.tets[:, :4]))
-        # the density that gives the deformed shape the piece's own mass (its nodes'): the scene
-        # density over a stretched or squashed shape made mass (a soft tile's pieces weighed
-        # up to 4 times their tets)
-        density = float(piece.node_mass.sum()) / signed_volume(vertices, triangles)
+        # mass, centre and inertia of its nodes' masses, as an auto body turned rigid takes them
+        # (the scene density over a stretched or squashed shape made mass: a soft tile's pieces
+        # weighed up to 4 times their tets)
         descs.append(RigidBodyDesc(name=name, vertices=vertices, triangles=triangles,
-                                   density=density, friction=body.friction,
-                                   restitution=body.restitution))
+                                   density=body.density, friction=body.friction,
+                                   restitution=body.restitution, point_masses=(piece.x, piece.node_mass)))
     model, state = build_rigid(descs, [])
     for i, (_, _, piece) in enumerate(pieces):
         momentum = piece.node_mass @ piece.v
