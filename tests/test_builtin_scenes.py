@@ -226,6 +226,23 @@ def test_shatter_tile_breaks_into_several_pieces_small_ones_rigid():
 
 # ----------------------------------------------------------------------------- fragments
 
+def test_shatter_pieces_struck_again_and_again_do_not_switch_every_step():
+    """Small auto pieces turned rigid at once at every check after a blow made them deformable:
+    a piece under the ball switched every step for 8 ms (and a glass pane's crumbs, with
+    fragment_model = "auto", 5,239 times in 20 steps, five times as slow). Rigid at once when
+    they break off; struck, they wait their window as any auto body."""
+    sim = Simulation.from_toml("shatter")
+    summary = sim.run(until=0.12, progress=False, log=lambda line: None)
+    switched = {}
+    for event in summary["events"]:
+        if event["event"] in ("rigidify", "elastify"):
+            switched.setdefault(event["body"], []).append(round(event["time"] / sim.dt))
+    assert len(switched) >= 4, switched                  # pieces were made and struck
+    for body, steps in switched.items():
+        assert len(steps) <= 3, (body, steps)
+        assert all(b - a > 3 for a, b in zip(steps[1:], steps[2:])), (body, steps)
+
+
 def test_fragments_slab_breaks_on_the_ridge_and_its_pieces_become_rigid():
     run = Run("fragments")
     mass = fem_mass(run.sim)

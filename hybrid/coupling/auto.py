@@ -251,8 +251,11 @@ def _approaching(model, state, j, rigidify):
 def rigid_due(model, state):
     """``(calm, due)``: every FEM auto body's count of calm steps in a row (scene index ->
     steps) and the FEM bodies (indices into model.fem) to turn rigid now: those calm for their
-    ``window`` (stretched by ``state.backoff``), and fracture pieces smaller than ``rigid_fragment_tets`` at once (the size hint
-    of ``fragment_model = "auto"``: a few elements flying off are not worth an FEM body)."""
+    ``window`` (stretched by ``state.backoff``), and fracture pieces smaller than
+    ``rigid_fragment_tets`` at once when they were never rigid (the size hint of ``fragment_model
+    = "auto"``: a few elements flying off are not worth an FEM body; one a blow turned deformable
+    waits for its window like any auto body: struck again and again, a piece switched every
+    step)."""
     calm, due = {}, []
     for j, k in enumerate(model.fem_ids):
         auto = settings(model, k)
@@ -260,7 +263,8 @@ def rigid_due(model, state):
             continue
         calm[k] = _calm_count(model, state, j, auto.window)
         small = model.fragment_of is not None and model.fragment_of[k] != k \
-            and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets
+            and model.fem[j].tet_count < model.scene.bodies[k].rigid_fragment_tets \
+            and k not in state.rigid_since
         if calm[k] >= auto.window * state.backoff.get(k, 1) or (small and _may_turn(model, state, j)):
             due.append(j)
     return calm, due

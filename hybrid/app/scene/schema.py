@@ -289,8 +289,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "rigid for good are auto.",
           choices=("fem", "rigid", "auto"), fem=True),
     Field("rigid_fragment_tets", "integer", 8, "", "Size (elements) below which an `auto` fragment "
-          "turns rigid at once, and again at the first check after a blow made it deformable "
-          "(not after a `window`).", low=1, fem=True),
+          "turns rigid as it breaks off (not after a `window`); once a blow has made it deformable it "
+          "waits for its window like any auto body.", low=1, fem=True),
     Field("max_cracks_per_step", "integer", 16, "", "Most elements that crack in one step (the most "
           "overstressed first).", low=1, fem=True),
     Field("unbreakable", "tables", (), "", "Regions that never crack, see `[[bodies.unbreakable]]`.",
