@@ -321,24 +321,32 @@ def frame_hints(model, strains, spinning=(), turns=None):
     passed FLOATING_TURN: linear elasticity in one best-fit frame (the world's for an anchored
     body) does not follow the large rotation of a part of the body; not for bodies named in
     ``spinning`` (warned that their step turns them too far: the corotated frame would not help)."""
-    lines, turns = [], turns or {}
+    turns, found = turns or {}, {}
+    origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
     for body in model.scene.bodies:
         if body.model not in ("fem", "auto") or body.frame != "floating" or body.name in spinning:
             continue
-        strain, turn = strains.get(body.name), turns.get(body.name, 0.0)
+        strain, turn = strains.get(body.name) or 0.0, turns.get(body.name, 0.0)
+        if strain > FLOATING_STRAIN or turn > FLOATING_TURN:
+            # a body and its fracture pieces in one line (a shattered tile's hundred pieces)
+            own = model.names[origin[model.names.index(body.name)]]
+            largest = found.setdefault(own, [0.0, 0.0, 0, bool(body.anchors)])
+            largest[:3] = max(largest[0], strain), max(largest[1], turn), largest[2] + 1
+    lines = []
+    for name, (strain, turn, count, anchored) in found.items():
         said = []
-        if strain is not None and strain > FLOATING_STRAIN:
+        if strain > FLOATING_STRAIN:
             said.append(f"reached a strain of {strain:.2g}")
         if turn > FLOATING_TURN:
             stretch = math.sqrt(1 + turn * turn)
             said.append(f"turned parts of itself by up to {math.degrees(math.atan(turn)):.0f} degrees "
-                        f"against {'its anchors' if body.anchors else 'its best-fit frame'} (taken "
+                        f"against {'its anchors' if anchored else 'its best-fit frame'} (taken "
                         f"for no strain, and stretched "
                         + (f"by {stretch - 1:.0%})" if stretch < 2 else f"{stretch:.0f}-fold)"))
-        if said:
-            lines.append(f"note: '{body.name}' " + " and ".join(said) + " in the floating frame, "
-                         f"whose linear elasticity holds for small strains and small rotations of "
-                         f"its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
+        pieces = f" ({count} bodies: it and its fracture pieces, the largest figures)" if count > 1 else ""
+        lines.append(f"note: '{name}'{pieces} " + " and ".join(said) + " in the floating frame, "
+                     f"whose linear elasticity holds for small strains and small rotations of "
+                     f"its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
     return lines
 
 
