@@ -311,11 +311,13 @@ class Simulation:
                                        self.peaks.turns)):
                 log(line)
             recorder.close(result)
-        if failure is not None:
-            raise failure
+        if isinstance(failure, OutputFailure):
+            raise failure               # (its checkpoint kept: resumed once there is room)
         if saver.stopped is not None:
             raise saver.stopped
-        saver.finished()
+        saver.finished()                # (resuming an unstable run would run into it again)
+        if failure is not None:
+            raise failure
         return result
 
     def _checked_out(self, out):

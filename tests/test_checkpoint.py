@@ -291,7 +291,7 @@ def test_a_fresh_run_into_a_stopped_runs_folder_is_refused_and_keeps_its_checkpo
     before = (out / "checkpoint.npz").read_bytes()
     code = main(["run", str(scene), "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
-    assert code == 2 and "holds a stopped run" in err and "--resume" in err, err
+    assert code == 2 and "holds a run that did not finish" in err and "--resume" in err, err
     assert (out / "checkpoint.npz").read_bytes() == before
     assert json.loads((out / "summary.json").read_text())["status"] == "stopped"
     code, err = resume_code(capsys, scene, out)

@@ -112,7 +112,7 @@ shape = { type = "box", size = [0.1, 0.1, 0.1], resolution = 0.05 }
 position = [0.0, 0.0, 0.2]
 """)
     out = tmp_path / "out"
-    assert main(["run", str(scene), "--out", str(out), "--quiet"]) == 3
+    assert main(["run", str(scene), "--out", str(out), "--quiet", "--checkpoint-every", "0.01"]) == 3
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert "a step failed at t = 0.029 s in hybrid.coupling.step.coupled_step" in err
@@ -120,6 +120,11 @@ position = [0.0, 0.0, 0.2]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "unstable" and summary["steps"] == 29
     assert len(list((out / "frames").glob("*.vtu"))) == summary["frames"] == 3
+    # its checkpoints (at 0.01 and 0.02 s) would only lead into the failure again: removed, so
+    # the scene, once mended, runs again in the same folder (it was refused as a stopped run)
+    assert not (out / "checkpoint.npz").exists()
+    monkeypatch.setattr(coupled, "solve", solve)
+    assert main(["run", str(scene), "--out", str(out), "--quiet"]) == 0
 
 
 def test_validate_takes_a_built_in_scene_name_as_run_does(capsys):

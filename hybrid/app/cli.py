@@ -89,7 +89,7 @@ def _run(args):
     from .output_resume import CHECKPOINT
     if not args.resume and (out / CHECKPOINT).exists():
         # a run started afresh there would remove it: an hour's run lost to a missing flag
-        print(f"{path}: --out {out} holds a stopped run ({CHECKPOINT}): add --resume to continue "
+        print(f"{path}: --out {out} holds a run that did not finish ({CHECKPOINT}): add --resume to continue "
               f"it, or delete {out / CHECKPOINT} to start again there", file=sys.stderr)
         return 2
     try:
