@@ -18,7 +18,7 @@ import numpy as np
 
 from .app import checkpoint, geometry, observe
 from .app.build import build
-from .app.deformable import mesh_notes
+from .app.deformable import material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, overlapping_bodies,
@@ -146,7 +146,7 @@ class Simulation:
                              "in its first step, its nodes hard enough to throw it")
                           for name, depth in below_planes(self.model, self.state)]
         self.spinning = _fast_spin(scene)
-        self.warnings += _ignored_motion(scene) + list(self.spinning.values())
+        self.warnings += _ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
         self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)

@@ -591,3 +591,46 @@ def test_a_surface_with_a_cavity_has_the_mass_of_its_shell_however_the_cavity_fa
         # a centred box's moment about an axis through its centre: m a^2 / 6 (a its side)
         moment = 250.0 * (0.4 ** 5 - 0.2 ** 5 + (0.05 ** 5 if count == 3 else 0.0)) / 6
         assert np.allclose(np.diag(inertia), moment, rtol=1e-10) and np.allclose(com, 0.0, atol=1e-14)
+
+
+def test_a_strength_the_model_cannot_reach_or_its_weight_exceeds_is_warned_of(tmp_path, capsys):
+    from hybrid import Simulation
+    """``yield_stress = 1e12`` with ``young = 1e9`` (a yield strain of 1,000) and a 0.5 m column
+    of 2,000 kg/m^3 with ``fracture_stress = 1 kPa`` (its weight makes 9.8 kPa at its base) were
+    taken without a word; ordinary strengths are not warned of."""
+    path = write_scene(tmp_path, """
+[simulation]
+duration = 0.01
+[[planes]]
+[[bodies]]
+name = "block"
+model = "fem"
+young = 1e9
+yield_stress = 1e12
+shape = { type = "box", size = [0.1, 0.1, 0.5] }
+position = [0.0, 0.0, 0.25]
+[[bodies]]
+name = "chalk"
+model = "fem"
+young = 1e9
+density = 2000
+fracture_stress = 1e3
+shape = { type = "box", size = [0.1, 0.1, 0.5] }
+position = [1.0, 0.0, 0.25]
+[[bodies]]
+name = "steel"
+model = "fem"
+young = 2e11
+density = 7800
+yield_stress = 2.5e8
+fracture_stress = 5e8
+shape = { type = "box", size = [0.1, 0.1, 0.5] }
+position = [2.0, 0.0, 0.25]
+""")
+    assert validate_command(path, check=lambda scene: Simulation(scene).warnings) == 0
+    err = capsys.readouterr().err
+    assert "body 'block': yield_stress 1e+12 Pa over young 1e+09 Pa is a yield strain of 1e+03" in err
+    weight = 2000 * 9.81 * 0.5
+    assert f"body 'chalk': fracture_stress 1e+03 Pa is below the stress its own weight makes across " \
+           f"its height (density g h = {weight:.3g} Pa)" in err
+    assert "steel" not in err and err.count("warning:") == 2

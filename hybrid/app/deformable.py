@@ -188,6 +188,41 @@ def mesh_notes(model):
     return lines
 
 
+# a yield or fracture strain (stress / young) above which the linear elasticity the body is
+# stepped with is out of its range before it yields or cracks (metals yield at 0.1-1%, glass
+# breaks at about 0.1%)
+LARGE_MATERIAL_STRAIN = 0.1
+
+
+def material_warnings(model):
+    """Warnings for FEM or auto bodies of a model just built whose strength cannot act as meant:
+    a yield or fracture strain past LARGE_MATERIAL_STRAIN (never reached in the strains linear
+    elasticity holds for), or a strength below the stress its own weight makes across its height
+    along gravity, ``density |g| h`` (it yields or cracks as it rests)."""
+    said, g = [], float(np.linalg.norm(model.gravity))
+    fem = dict(zip(model.fem_ids, model.fem)) | {k: p.fem for k, p in model.parked.items()}
+    for k, body in enumerate(model.scene.bodies):
+        m = fem.get(k)
+        if m is None:
+            continue
+        height = float(np.ptp(m.rest_points @ (model.gravity / g))) if g > 0 else 0.0
+        weight = body.density * g * height
+        for field, what, done in (("yield_stress", "yield", "yields"),
+                                  ("fracture_stress", "fracture", "cracks")):
+            stress = getattr(body, field, None)
+            if stress is None:
+                continue
+            if stress / body.young > LARGE_MATERIAL_STRAIN:
+                said.append(f"body '{body.name}': {field} {stress:.3g} Pa over young {body.young:.3g} Pa "
+                            f"is a {what} strain of {stress / body.young:.3g}: linear elasticity "
+                            f"holds for strains of a few percent, so the body never {done} as meant")
+            elif stress < weight:
+                said.append(f"body '{body.name}': {field} {stress:.3g} Pa is below the stress its "
+                            f"own weight makes across its height (density g h = {weight:.3g} Pa): "
+                            f"it {done} under its own weight wherever it rests or hangs")
+    return said
+
+
 def build_bodies(bodies, dt, *, linear_solver="cholmod", corotated_solver="cg", indices=None):
     """FemModel and initial FemState of each FEM body (in scene order).
 

@@ -271,14 +271,17 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           fem=True, default_text="none"),
     _positive("yield_stress", None, "Pa", "Von Mises yield stress: von Mises perfect plasticity "
               "(plastic strain per element, or per quadrature point for order 2). Absent: purely "
-              "elastic, no plasticity pass runs.", fem=True, default_text="none (elastic)"),
+              "elastic, no plasticity pass runs. Warned of when over a tenth of `young` (a yield strain "
+              "linear elasticity does not reach) or below `density` g h, the stress the body's weight "
+              "makes across its height h.", fem=True, default_text="none (elastic)"),
     _positive("plastic_update_strain", 0.02, "", "Equivalent plastic strain, accumulated in some "
               "element since the last update, at which the plastic deformation is baked into the rest "
               "shape (one refactorisation of this body); needs `yield_stress`.", fem=True),
     _positive("max_plastic_strain", None, "", "Cap on the equivalent plastic strain of an element "
               "(further flow is elastic); needs `yield_stress`.", fem=True, default_text="none (no cap)"),
     _positive("fracture_stress", None, "Pa", "Tensile strength: an element whose smoothed largest "
-              "principal stress exceeds it cracks. Absent: the body never breaks.", fem=True,
+              "principal stress exceeds it cracks. Absent: the body never breaks. Warned of as "
+              "`yield_stress` is.", fem=True,
               default_text="none (unbreakable)"),
     _positive("tearing_strain", None, "", "Equivalent plastic strain at which an element tears "
               "(ductile fracture); needs `yield_stress`.", fem=True, default_text="none"),
