@@ -87,6 +87,12 @@ def test_bar_pulled_slowly_rises_with_EA_and_plateaus_at_YA(sim):
     assert np.allclose(von_mises(sigma), Y_AL, rtol=0.02)
     assert np.allclose(np.trace(st.tet_plastic_strain, axis1=-2, axis2=-1), 0.0, atol=1e-12)
     assert st.tet_yielded[centre].all()
+    # the summary's first yield: at the yield stress, once the bar's strain reaches Y / E (the
+    # clamped ends' corners, where the clamp holds the bar's section from narrowing, a little
+    # before the uniform section: 7% on this mesh)
+    first = s.peaks.as_dict()["bar"]["first_yield"]
+    assert first["value"] == pytest.approx(Y_AL, rel=1e-6)
+    assert 0.85 * eps_y * BAR_L / BAR_SPEED < first["time"] <= eps_y * BAR_L / BAR_SPEED + 1e-3
 
 
 def test_bar_without_yield_stress_stays_elastic_and_runs_no_plastic_pass(sim, monkeypatch):

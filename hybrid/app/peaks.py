@@ -25,7 +25,10 @@ class Peaks:
     ``principal_stress`` (Pa, the largest principal stress; tension positive) and
     ``plastic_strain`` (accumulated equivalent plastic strain, 0 without a yield stress), the
     largest over every step seen and over the body's elements (element stresses, as the frames'
-    cell data; a fragment counts for the body it broke from). ``time`` s is when it was reached."""
+    cell data; a fragment counts for the body it broke from). ``time`` s is when it was reached.
+    A body with a yield stress also has ``first_yield``: the first step that ended with an element
+    flowing, its time and its largest von Mises stress (the yield stress, to the return mapping's
+    tolerance; (0, 0) while none has)."""
 
     def __init__(self):
         self.bodies = {}
@@ -53,6 +56,9 @@ class Peaks:
                 _raise(peak, "principal_stress", np.linalg.eigvalsh(stress)[:, -1], state.time)
             if s.tet_peeq is not None:
                 _raise(peak, "plastic_strain", s.tet_peeq, state.time)
+                # the first step that ends with an element flowing, and its largest von Mises
+                if peak.setdefault("first_yield", (0.0, 0.0))[1] == 0.0 and s.tet_yielded.any():
+                    peak["first_yield"] = (float(vm.max(initial=0.0)), float(state.time))
 
     def as_dict(self):
         """The summary's ``peaks`` section: ``{body: {quantity: {"value": v, "time": t}}}``."""
