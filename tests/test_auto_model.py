@@ -539,7 +539,7 @@ def test_a_deck_resting_across_supports_that_turn_rigid_stays_where_the_all_fem_
 
 LOW_BEAM = """
 [simulation]
-duration = 0.3
+duration = 0.5
 dt = 0.001
 [[bodies]]
 name = "beam"
@@ -562,7 +562,7 @@ def test_an_anchored_auto_body_turned_rigid_keeps_its_weight_load_and_elastic_en
     sides of the switch, to round-off of the FEM step's own change in a step."""
     from hybrid.app import energy_watch
     sim = Sim(LOW_BEAM)
-    while not _events(sim, "rigidify") and sim.time < 0.3:
+    while not _events(sim, "rigidify") and sim.time < 0.5:
         before = observe.totals(sim.model, sim.state)[0] + energy_watch.loads(sim.model, sim.state)
         moving = observe.kinetic(sim.model, sim.state)
         sim.step()
@@ -571,7 +571,7 @@ def test_an_anchored_auto_body_turned_rigid_keeps_its_weight_load_and_elastic_en
     lifted = float(sim.model.parked[0].fem.node_mass.sum() * 9.81 * 5.0)
     # held still, it keeps no kinetic energy (what little it had, 1e-6 of m g 5 m) and gains none
     assert -(moving + 1e-7 * lifted) <= after - before <= 1e-9 * lifted
-    sim.run(until=0.3, progress=False, log=lambda m: None)          # the energy watch passes
+    sim.run(until=0.5, progress=False, log=lambda m: None)          # the energy watch passes
 
 
 LOADED_BEAM = """
@@ -596,8 +596,9 @@ def test_an_anchored_beam_let_go_straight_turns_rigid_only_once_its_anchors_hold
     bend with strain rates below the rigidify strain (its whole sag is a strain of 1e-4): it
     turned rigid 56 ms in, on its way down, and held the anchor reaction of that moment (16.9 N
     for the 20.6 N of weight and load) and a tip deflection a fifth short. It now turns rigid
-    once the forces on it balance: the anchors' reaction is its weight and load (statics) within
-    5%, its tip where the all-FEM beam's settles within 5%."""
+    once the forces on it balance to 2%: the anchors' reaction is its weight and load (statics)
+    within 2%, its tip where the all-FEM beam's settles within 2.5% (measured 1.2%; 2.4% with
+    the balance at 5%)."""
     runs = {}
     for model in ("auto", "fem"):
         sim = Sim(LOADED_BEAM.format(model=model))
@@ -609,7 +610,7 @@ def test_an_anchored_beam_let_go_straight_turns_rigid_only_once_its_anchors_hold
     tip = np.abs(m.rest_points[:, 0] - 0.5) < 1e-9
     held = float(m.node_mass.sum()) * 9.81 + 10.0
     reaction = auto.model.parked[0].state.node_reaction.sum(axis=0)
-    assert abs(reaction[2] - held) < 0.05 * held
+    assert abs(reaction[2] - held) < 0.02 * held
     sag = {name: float(np.mean(s.body("beam").points[tip, 2] - m.rest_points[tip, 2]))
            for name, s in runs.items()}
-    assert abs(sag["auto"] - sag["fem"]) < 0.05 * abs(sag["fem"])
+    assert abs(sag["auto"] - sag["fem"]) < 0.025 * abs(sag["fem"])
