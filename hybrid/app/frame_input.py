@@ -116,48 +116,77 @@ class KeptArrays:
         self.count = 0
 
     def dumps(self, job: tuple) -> bytes:
-        """``job`` pickled (the stepping side); a frame's pieces (``job[3]``) with their kept
-        arrays by number, pickled apart from the rest (the rows, thousands of small objects, go
-        through the plain pickler: a Python hook called for each costs more than it saves)."""
-        if job[0] != "frame":
-            return pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+        """``job`` pickled (the stepping side), a frame's kept arrays by number: the pickler's
+        hook sees the objects that are not plain Python data (arrays, their wrappers), not each
+        of the rows' thousands of numbers."""
         buffer = io.BytesIO()
-        pickler = pickle.Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL)
-        used, sending = {}, set()
-
-        def persistent_id(obj):
-            if type(obj) is not np.ndarray or obj.flags.writeable or obj.base is not None \
-                    or obj.nbytes < KEEP_BYTES or id(obj) in sending:
-                return None
-            known = used.get(id(obj)) or self.kept.get(id(obj))
-            if known is not None and known[0]() is obj:
-                used[id(obj)] = known
-                return ("kept", known[1])
-            sending.add(id(obj))        # pickled itself inside ("new", ...)
-            self.count += 1
-            used[id(obj)] = (weakref.ref(obj), self.count)
-            return ("new", self.count, obj)
-
-        pickler.persistent_id = persistent_id
-        pickler.dump(job[3])
-        payload = pickle.dumps(job[:3] + (buffer.getvalue(),) + job[4:], protocol=pickle.HIGHEST_PROTOCOL)
-        self.kept = used
-        return payload
+        pickler = _KeepingPickler(buffer, self)
+        pickler.dump(job)
+        if job[0] == "frame":
+            self.kept = pickler.used
+        return buffer.getvalue()
 
     def loads(self, payload: bytes) -> tuple:
         """A job from :meth:`dumps` (the writer side)."""
-        job = pickle.loads(payload)
-        if job[0] != "frame":
-            return job
-        unpickler = pickle.Unpickler(io.BytesIO(job[3]))
-        used = {}
+        reader = _KeptReader(io.BytesIO(payload), self.kept)
+        job = reader.load()
+        if job[0] == "frame":
+            self.kept = reader.used
+        return job
 
-        def persistent_load(pid):
-            array = used.get(pid[1], self.kept.get(pid[1])) if pid[0] == "kept" else pid[2]
-            used[pid[1]] = array
-            return array
 
-        unpickler.persistent_load = persistent_load
-        pieces = unpickler.load()
-        self.kept = used
-        return job[:3] + (pieces,) + job[4:]
+class _KeepingPickler(pickle.Pickler):
+    """The stepping side's pickler: a large read-only array the writer keeps goes as its number
+    (``keeping``: the :class:`KeptArrays`), a new one with its number; ``used`` holds the arrays
+    this job named (id -> (weak reference, number))."""
+
+    def __init__(self, file, keeping):
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.keeping, self.used, self.sending = keeping, {}, set()
+
+    def reducer_override(self, obj):
+        if type(obj) is not np.ndarray or obj.flags.writeable or obj.base is not None \
+                or obj.nbytes < KEEP_BYTES or id(obj) in self.sending:
+            return NotImplemented
+        known = self.used.get(id(obj)) or self.keeping.kept.get(id(obj))
+        if known is not None and known[0]() is obj:
+            self.used[id(obj)] = known
+            return _kept_array, (known[1],)
+        self.sending.add(id(obj))        # pickled itself as _new_kept_array's argument
+        self.keeping.count += 1
+        self.used[id(obj)] = (weakref.ref(obj), self.keeping.count)
+        return _new_kept_array, (self.keeping.count, obj)
+
+
+def _kept_array(number):
+    """Stands in a pickle for array ``number`` the writer keeps (:class:`_KeptReader` reads it)."""
+    raise RuntimeError("a kept array is read by KeptArrays.loads")
+
+
+def _new_kept_array(number, array):
+    """Stands in a pickle for ``array``, to be kept as ``number`` (:class:`_KeptReader`)."""
+    raise RuntimeError("a kept array is read by KeptArrays.loads")
+
+
+class _KeptReader(pickle.Unpickler):
+    """The writer side's unpickler: the kept arrays a frame names are looked up in ``kept``,
+    new ones kept; ``used`` holds those the frame used (the writer keeps those only)."""
+
+    def __init__(self, file, kept):
+        super().__init__(file)
+        self.kept, self.used = kept, {}
+
+    def find_class(self, module, name):
+        if module == __name__ and name == "_kept_array":
+            return self._kept
+        if module == __name__ and name == "_new_kept_array":
+            return self._new
+        return super().find_class(module, name)
+
+    def _kept(self, number):
+        array = self.used[number] = self.used.get(number, self.kept.get(number))
+        return array
+
+    def _new(self, number, array):
+        self.used[number] = array
+        return array
