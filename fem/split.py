@@ -311,6 +311,24 @@ def lumped_mass_from_elements(tets: np.ndarray, tet_node_mass: np.ndarray,
                        minlength=node_count)
 
 
+# the share of a P2 tet's (tetra10's) mass each of its nodes carries: HRZ lumping's 1/36 at a
+# corner and 4/27 at a mid-edge node (the consistent diagonal, m/70 and 8m/105, scaled to sum to
+# m: fem.model._mass_matrices, element by element for straight-sided tets), and in the momentum of
+# a consistent mass the rows' sums, -1/20 and 1/5 (fem.momentum.mass_weights)
+P2_LUMPED = (1.0 / 36.0,) * 4 + (4.0 / 27.0,) * 6
+P2_ROW_SUMS = (-1.0 / 20.0,) * 4 + (1.0 / 5.0,) * 6
+
+
+def element_mass_shares(tets: np.ndarray, tet_volume: np.ndarray, density, node_count: int,
+                        shares) -> np.ndarray:
+    """(n,) kg: each tet's mass ``density |V|`` shared among its first ``len(shares)`` nodes in
+    the fractions ``shares`` (P2_LUMPED, P2_ROW_SUMS, or a quarter each for P1), summed per node."""
+    shares = np.asarray(shares, dtype=float)
+    tet_mass = np.abs(np.asarray(tet_volume, dtype=float)) * np.asarray(density, dtype=float)
+    return lumped_mass_from_elements(np.asarray(tets)[:, :len(shares)], tet_mass[:, None] * shares,
+                                     node_count)
+
+
 def lumped_mass_p1(tets: np.ndarray, tet_volume: np.ndarray, density,
                    node_count: int) -> np.ndarray:
     """(n,) P1 lumped node masses, kg: each tet gives density*|V|/4 to each of its vertices.

@@ -36,8 +36,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fem.fracture import FractureModel, find_crack, fracture_model
-from fem.split import (face_tet_slots, fragment_tet_slots, lumped_mass_p1, split_bodies,
-                       split_mesh, tet_slot_faces, transfer_node_state)
+from fem.split import (P2_LUMPED, P2_ROW_SUMS, element_mass_shares, face_tet_slots,
+                       fragment_tet_slots, lumped_mass_p1, split_bodies, split_mesh, tet_slot_faces,
+                       transfer_node_state)
 from fem.stress import element_stress
 from rigid import quaternion as quat
 from rigid.compose import append_bodies
@@ -238,10 +239,17 @@ def split_body(fem_model, fem_state, data, cut, dt):
     pieces = []
     for k, frag in enumerate(fragments):
         if k > 0 and _turns_rigid(fem_model, data, frag, origin):
-            node_mass = lumped_mass_p1(frag.tets, volume[frag.tet_index], fem_model.density,
-                                       len(frag.points))
+            # its nodes' masses as the body's own lumping shares them (P2: HRZ; mid-edge nodes
+            # carry most), and the weights its momentum was carried with (a consistent mass's rows)
+            quadratic = fem_model.order == 2
+            lumped = P2_LUMPED if quadratic else (0.25,) * 4
+            carried = P2_ROW_SUMS if quadratic and fem_model.mass_kind == "consistent" else lumped
+            node_mass, weights = (element_mass_shares(frag.tets, volume[frag.tet_index],
+                                                      fem_model.density, len(frag.points), shares)
+                                  for shares in (lumped, carried))
             x, v = (a[frag.node_index] for a in node_state[:2])
-            pieces.append(_Piece(None, None, None, None, rigid=RigidPiece(frag, x, v, node_mass)))
+            pieces.append(_Piece(None, None, None, None,
+                                 rigid=RigidPiece(frag, x, v, node_mass, weights)))
             continue
         model, state = fem_fragment(fem_model, fem_state, frag, origin, node_state, vertex_mass,
                                     dt)

@@ -29,12 +29,15 @@ class RigidPiece(NamedTuple):
     """A piece of a split FEM body that becomes a rigid body.
 
     fragment: its :class:`fem.split.Fragment`. x, v: ``(n, 3)`` its node positions (m) and
-    velocities (m/s). node_mass: ``(n,)`` kg, P1-lumped from its own tets.
+    velocities (m/s). node_mass: ``(n,)`` kg, lumped from its own tets as the body's mass is
+    (all positive). weights: ``(n,)`` kg, the mass each node's velocity carried into the body's
+    momentum (node_mass, or a consistent mass's row sums, negative at P2 corners).
     """
     fragment: Fragment
     x: np.ndarray
     v: np.ndarray
     node_mass: np.ndarray
+    weights: np.ndarray
 
 
 # --- FEM pieces ------------------------------------------------------------------------------
@@ -179,9 +182,9 @@ def rigid_fragments(pieces, gravity, last_dt):
                                    restitution=body.restitution, point_masses=(piece.x, piece.node_mass)))
     model, state = build_rigid(descs, [])
     for i, (_, _, piece) in enumerate(pieces):
-        momentum = piece.node_mass @ piece.v
+        momentum = piece.weights @ piece.v
         # leapfrog stores the mid-step velocity; reported_velocity adds back half a gravity step
         state.velocity[i] = momentum / model.body_mass[i] - 0.5 * np.asarray(gravity) * last_dt
         r = piece.x - state.position[i]
-        state.angular_momentum[i] = np.cross(r, piece.node_mass[:, None] * piece.v).sum(axis=0)
+        state.angular_momentum[i] = np.cross(r, piece.weights[:, None] * piece.v).sum(axis=0)
     return model, state
