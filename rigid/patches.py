@@ -16,9 +16,11 @@ and friction on it pushed a spinning puck 1 cm sideways).
 import numba as nb
 import numpy as np
 
-# a patch: at least this many contacts of one pair of bodies, their normals within this of each other
+# a patch: at least this many contacts of one pair of bodies, their normals within this of each
+# other (a body's points against the other's face and the other's against its own face, tilted
+# by round-off: 1e-9 let a puck on a fixed box lose its patch for steps at a time)
 MIN_POINTS = 3
-SAME_NORMAL = 1e-9
+SAME_NORMAL = 1e-6
 # relative speed (m/s) of the patch's farthest point from turning about the normal below which it
 # is taken to be at rest (the sweeps' own answer is kept)
 SPIN_SPEED = 1e-3
@@ -36,13 +38,22 @@ def spinning_patches(body_a, body_b, point, normal, rigid_pair, angular):
     rows = np.nonzero(rigid_pair)[0]
     if len(rows) < MIN_POINTS:
         return None
-    low = int(min(0, body_b[rows].min()))
-    pair = body_a[rows].astype(np.int64) * (len(angular) - low + 1) + (body_b[rows] - low)
-    rows = rows[np.argsort(pair, kind="stable")]
+    rows = rows[np.argsort(_pair_keys(body_a[rows], body_b[rows], len(angular)), kind="stable")]
     keep, starts = _spinning(rows, body_a, body_b, point, normal, angular)
     if len(starts) == 1:
         return None
     return rows[keep], starts
+
+
+def _pair_keys(a, b, n):
+    """A key per contact for its pair of bodies ``a``, ``b`` (b < 0: a plane) whichever side
+    each is on: a body's points against the other's surface and the other's against its own
+    are one patch (the pair's weight may rest on either: a puck on a fixed box carried it all on
+    the box's one point against the puck, and its 165 points against the box, sharing nothing,
+    left it spinning)."""
+    low = np.minimum(a, b).astype(np.int64)
+    high = np.maximum(a, b).astype(np.int64)
+    return (low + 1) * (n + 2) + high + 1
 
 
 @nb.njit(cache=True)
@@ -57,14 +68,16 @@ def _spinning(rows, body_a, body_b, point, normal, angular):
     while s < c:
         a, b = body_a[rows[s]], body_b[rows[s]]
         e = s + 1
-        while e < c and body_a[rows[e]] == a and body_b[rows[e]] == b:
+        while e < c and (body_a[rows[e]] == a and body_b[rows[e]] == b
+                         or body_a[rows[e]] == b and body_b[rows[e]] == a):
             e += 1
         n = normal[rows[s]]
         deviation, centre = 0.0, np.zeros(3)
         for i in range(s, e):
             r = rows[i]
+            side = 1.0 if body_a[r] == a else -1.0      # the other side's contacts face back
             for d in range(3):
-                deviation = max(deviation, abs(normal[r, d] - n[d]))
+                deviation = max(deviation, abs(side * normal[r, d] - n[d]))
                 centre[d] += point[r, d]
         centre /= e - s
         arm = 0.0
@@ -88,15 +101,16 @@ def spinning_patches_numpy(body_a, body_b, point, normal, rigid_pair, angular):
     rows = np.nonzero(rigid_pair)[0]
     if len(rows) < MIN_POINTS:
         return None
-    low = int(min(0, body_b[rows].min()))
-    pair = body_a[rows].astype(np.int64) * (len(angular) - low + 1) + (body_b[rows] - low)
+    pair = _pair_keys(body_a[rows], body_b[rows], len(angular))
     order = np.argsort(pair, kind="stable")
     rows = rows[order]
     starts = np.flatnonzero(np.r_[True, np.diff(pair[order]) != 0])
     size = np.diff(np.r_[starts, len(rows)])
     first = rows[starts]
     n = normal[first]
-    deviation = np.maximum.reduceat(np.abs(normal[rows] - np.repeat(n, size, axis=0)).max(axis=1), starts)
+    side = np.where(body_a[rows] == np.repeat(body_a[first], size), 1.0, -1.0)[:, None]
+    deviation = np.maximum.reduceat(np.abs(side * normal[rows] - np.repeat(n, size, axis=0)).max(axis=1),
+                                    starts)
     a, b = body_a[first], body_b[first]
     spin = np.einsum("pd,pd->p", angular[a] - np.where((b >= 0)[:, None], angular[np.maximum(b, 0)], 0.0), n)
     centre = np.add.reduceat(point[rows], starts) / size[:, None]
@@ -110,11 +124,14 @@ def spinning_patches_numpy(body_a, body_b, point, normal, rigid_pair, angular):
 
 @nb.njit(cache=True)
 def share_loads(point, normal, rows, starts, load):
-    """For each patch (``rows[starts[p]:starts[p + 1]]``, normal that of its first contact) the
+    """For each patch (``rows[starts[p]:starts[p + 1]]``, normal that of its first contact, up to
+    sign: a contact of the other side's facing back pushes the pair apart as one of this side's
+    at its point does) the
     normal impulses ``load`` (c,) of its contacts replaced by the least-squares split with the
     same total and moment, linear over the patch, with none below zero (points it would have
-    pulling take none, the rest share it again); in place. A patch whose points lie on a line
-    (not every moment can be met) keeps its loads."""
+    pulling take none, the rest share it again), shared over the side with more points (the
+    other side's take none); in place. A patch whose points lie on a line (not every moment can
+    be met) keeps its loads."""
     for p in range(len(starts) - 1):
         group = rows[starts[p]:starts[p + 1]]
         k = len(group)
@@ -132,7 +149,14 @@ def share_loads(point, normal, rows, starts, load):
             basis[i, 1], basis[i, 2] = d @ t1, d @ t2
         wanted = basis.T @ load[group]
         scale = max(abs(wanted[0]), 1e-300)
-        keep = np.ones(k, dtype=np.bool_)
+        # shared over the side with more points (a body's face's sample points), the other
+        # side's few points facing back giving theirs up (a table's point under a box's centre
+        # would count that centre twice)
+        keep = np.empty(k, dtype=np.bool_)
+        for i in range(k):
+            keep[i] = normal[group[i]] @ n > 0.0
+        if 2 * keep.sum() < k:
+            keep = ~keep
         for _ in range(ROUNDS):
             B = basis[keep]
             G = B.T @ B

@@ -274,7 +274,8 @@ def test_shared_loads_keep_the_patch_total_and_moment_and_push_only():
 def test_spinning_patches_kernel_matches_numpy_on_random_contacts(seed):
     """The compiled patch finder (rigid.patches.spinning_patches) gives the patches of its numpy
     reference: random contacts between a few bodies and a plane, some pairs on flat patches
-    (shared normal) spinning or still about it, some with scattered normals, some too few."""
+    (shared normal) spinning or still about it, some with scattered normals, some too few, some
+    with the other body's points against the first facing back (one patch with them)."""
     from rigid.patches import spinning_patches, spinning_patches_numpy
     rng = np.random.default_rng(seed)
     bodies = 6
@@ -289,11 +290,12 @@ def test_spinning_patches_kernel_matches_numpy_on_random_contacts(seed):
         n = rng.normal(size=3)
         n /= np.linalg.norm(n)
         flat = rng.random() < 0.7
-        for _ in range(k):
-            rows_a.append(a), rows_b.append(b)
+        back = int(rng.integers(0, 3)) if b >= 0 else 0    # the other side's points, facing back
+        for j in range(k + back):
+            rows_a.append(a if j < k else b), rows_b.append(b if j < k else a)
             points.append(rng.normal(size=3) * 0.1)
             m = n if flat else n + 1e-3 * rng.normal(size=3)
-            normals.append(m / np.linalg.norm(m))
+            normals.append((m if j < k else -m) / np.linalg.norm(m))
     order = rng.permutation(len(rows_a))
     body_a = np.array(rows_a, dtype=np.int64)[order]
     body_b = np.array(rows_b, dtype=np.int64)[order]

@@ -19,7 +19,7 @@ DT_240 = 1.0 / 240.0
 
 def _box(name, size, position=(0.0, 0.0, 0.0), **extra):
     """A ``[[bodies]]`` table of a box; ``extra`` values are written with repr (TOML-compatible)."""
-    lines = [f'[[bodies]]', f'name = "{name}"',
+    lines = ['[[bodies]]', f'name = "{name}"',
              f'shape = {{ type = "box", size = [{", ".join(repr(float(s)) for s in size)}] }}',
              f'position = [{", ".join(repr(float(p)) for p in position)}]']
     for key, value in extra.items():
@@ -419,6 +419,27 @@ def test_a_puck_spun_on_its_end_stops_at_the_rate_of_its_shared_weight_without_d
     assert 0.7 < rate / (4 * 0.5 * G / (3 * r)) < 0.9
     assert abs(spin) < 1e-3
     assert moved < 1e-4
+
+
+@pytest.mark.parametrize("shape", ['{ type = "cylinder", radius = 0.1, height = 0.05 }',
+                                   '{ type = "box", size = [0.2, 0.2, 0.05] }'])
+def test_a_body_spun_on_a_fixed_table_slows_as_on_the_ground(sim, shape):
+    """A puck or box spun flat on a fixed box turned at 20 rad/s for good, while on the ground
+    it stopped: its weight rested on the table's one point against it, which no flat patch took
+    in (the patch was its own points against the table, carrying nothing). The table's points
+    against it belong to the same patch now: it slows at the rate it does on the ground, to 2%."""
+    rates = []
+    for table in (False, True):
+        text = _simulation(1e-3) + (_plane(friction=0.5) if not table else (
+            '[[bodies]]\nname = "table"\nshape = { type = "box", size = [1.0, 1.0, 0.1] }\n'
+            'position = [0.0, 0.0, -0.05]\nfixed = true\nfriction = 0.5\n'))
+        text += (f'[[bodies]]\nname = "b"\nshape = {shape}\nposition = [0.0, 0.0, 0.025]\n'
+                 f'angular_velocity = [0.0, 0.0, 20.0]\nfriction = 0.5\n')
+        s = sim(text)
+        s.advance(0.1)
+        k = s.rigid_index("b")
+        rates.append((20.0 - angular_velocity(s.model.rigid, s.state.rigid)[k, 2]) / 0.1)
+    assert rates[0] > 30.0 and rates[1] == pytest.approx(rates[0], rel=0.02), rates
 
 
 def test_a_pyramid_of_four_spheres_holds_still(sim):
