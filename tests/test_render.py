@@ -295,3 +295,13 @@ def test_a_body_in_a_walled_bin_is_seen_through_the_walls_nearest_the_camera(tmp
         writer.close({"scene": {"name": "bin", "planes": walls, "simulation": {"output_fps": 20}}})
     image = iio.imread(render_run(run_dir, size=(WIDTH, HEIGHT))["pngs"][0])[..., :3]
     assert pixels_of_body(image, 0).sum() > 200
+
+
+def test_a_render_of_a_folder_that_is_not_there_says_so(tmp_path, capfd):
+    """A mistyped run folder was told "no .pvd index ... (is it a run directory?)"."""
+    from hybrid.app.cli import main
+    assert main(["render", str(tmp_path / "no-such-run")]) == 2
+    assert "there is no such folder" in capfd.readouterr().err
+    (tmp_path / "a-file").write_text("x")
+    assert main(["render", str(tmp_path / "a-file")]) == 2
+    assert "it is a file" in capfd.readouterr().err

@@ -380,6 +380,8 @@ class RunWriter:
 def find_pvd(run_dir: Path | str, summary: Mapping[str, Any] | None = None) -> Path:
     """The run's ``.pvd`` index (the scene's own if several are present, else the newest)."""
     run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError("it is a file" if run_dir.exists() else "there is no such folder")
     candidates = sorted(run_dir.glob("*.pvd"))
     if not candidates:
         raise FileNotFoundError(f"no .pvd index in {run_dir} (is it a run directory?)")
