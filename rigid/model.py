@@ -137,15 +137,23 @@ def angular_velocity(model, state):
                      state.angular_momentum)
 
 
+# a step's contact velocity change of at most this many steps of gravity acted as a force over
+# the step (resting, sliding, rolling); a larger one is a collision's
+FORCE_LIKE = 2.0
+
+
 def report_offset(model, state, gravity):
     """What :func:`reported_velocity` adds to the stored mid-step velocities, ``(b, 3)`` m/s.
 
-    Half the last step of gravity, less the part of the last step's contact velocity change that
-    held the body against gravity (along the upward direction, at most a step of gravity's worth):
-    a body at rest on the ground reports zero, a falling one the exact ballistic velocity, and a
-    collision's velocity change counts whole, at the frame's time, as it does for FEM bodies
-    (whose end-of-step velocities hold the whole impulse), so momentum summed over the bodies of
-    a frame is the momentum the solver conserves.
+    Half the last step of gravity and half the last step's contact velocity change where that
+    was a force's (at most FORCE_LIKE steps of gravity: resting, sliding, rolling; it acted over
+    the step, of which the stored velocity holds half): a body at rest reports zero, a falling
+    one the exact ballistic velocity, a sliding one its velocity with the whole step's friction
+    (half of it was left out: 0.5 dt mu g too fast on the ground, a velocity into an incline).
+    A larger change is a collision's: it counts whole at the frame's time, as it does for FEM
+    bodies (whose end-of-step velocities hold the whole impulse), but for the support it gave
+    against gravity (along the upward direction, at most a step of gravity's worth). So
+    momentum summed over the bodies of a frame is the momentum the solver conserves.
     """
     out = np.zeros_like(state.velocity)
     g = np.asarray(gravity, float)
@@ -153,9 +161,11 @@ def report_offset(model, state, gravity):
     if state.last_dt == 0.0 or step == 0.0:
         return out
     up = -g / np.linalg.norm(g)
-    support = np.clip(state.contact_dv @ up, 0.0, step)
+    dv = state.contact_dv
+    support = np.clip(dv @ up, 0.0, step)[:, None] * up
+    force = (np.linalg.norm(dv, axis=1) <= FORCE_LIKE * step)[:, None]
     free = ~model.body_fixed
-    out[free] = 0.5 * (g * state.last_dt + support[free, None] * up)
+    out[free] = 0.5 * (g * state.last_dt + np.where(force, dv, support)[free])
     return out
 
 

@@ -196,11 +196,12 @@ def body_speeds(velocity, angular, radius):
 
 @nb.njit(cache=True)
 def body_report(position, q, velocity, L, contact_dv, fixed, mass, body_inv_inertia,
-                shape_rotation, gravity, last_dt):
+                shape_rotation, gravity, last_dt, force_like):
     """Each body's row of a frame's report, (b, 14): centre of mass (3), orientation of its own
     (shape) frame (4, w >= 0: rigid.quaternion.from_matrix of R S^T), velocity at the state's
-    time (3: rigid.model.reported_velocity), angular velocity I^-1 L (3) and kinetic energy (J,
-    0 for a fixed body: rigid.model.kinetic_energy), in one pass."""
+    time (3: rigid.model.reported_velocity, ``force_like`` its FORCE_LIKE), angular velocity
+    I^-1 L (3) and kinetic energy (J, 0 for a fixed body: rigid.model.kinetic_energy), in one
+    pass."""
     n = len(q)
     out = np.empty((n, 14))
     R = np.empty((n, 3, 3))
@@ -216,11 +217,13 @@ def body_report(position, q, velocity, L, contact_dv, fixed, mass, body_inv_iner
     for b in range(n):
         v0, v1, v2 = velocity[b, 0], velocity[b, 1], velocity[b, 2]
         if report and not fixed[b]:
-            support = min(max(contact_dv[b, 0] * up0 + contact_dv[b, 1] * up1
-                              + contact_dv[b, 2] * up2, 0.0), step)
-            v0 += 0.5 * (g0 * last_dt + support * up0)
-            v1 += 0.5 * (g1 * last_dt + support * up1)
-            v2 += 0.5 * (g2 * last_dt + support * up2)
+            c0, c1, c2 = contact_dv[b, 0], contact_dv[b, 1], contact_dv[b, 2]
+            if math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) > force_like * step:
+                support = min(max(c0 * up0 + c1 * up1 + c2 * up2, 0.0), step)
+                c0, c1, c2 = support * up0, support * up1, support * up2
+            v0 += 0.5 * (g0 * last_dt + c0)
+            v1 += 0.5 * (g1 * last_dt + c1)
+            v2 += 0.5 * (g2 * last_dt + c2)
         _rotation(q, b, R)
         _sandwich(R, b, body_inv_inertia, inv_inertia)
         w0, w1, w2 = _times(inv_inertia, b, L[b, 0], L[b, 1], L[b, 2])

@@ -334,7 +334,8 @@ def test_body_report_matches_the_numpy_rows(last_dt):
     kinetic energies and shape-frame orientations that rigid.model and quaternion.from_matrix give
     (fixed bodies with no kinetic energy; supported bodies report no half step of gravity)."""
     from types import SimpleNamespace
-    from rigid.model import angular_velocity, body_pose_in_shape_frame, kinetic_energy, reported_velocity
+    from rigid.model import (FORCE_LIKE, angular_velocity, body_pose_in_shape_frame, kinetic_energy,
+                             reported_velocity)
     from rigid.step_kernels import body_report
     rng = np.random.default_rng(3)
     n = 300
@@ -346,10 +347,12 @@ def test_body_report_matches_the_numpy_rows(last_dt):
                             shape_offset=rng.normal(size=(n, 3)))
     state = SimpleNamespace(position=rng.normal(size=(n, 3)), orientation=q,
                             velocity=rng.normal(size=(n, 3)), angular_momentum=L,
-                            contact_dv=rng.normal(scale=0.01, size=(n, 3)), last_dt=last_dt)
+                            contact_dv=rng.normal(size=(n, 3)) * rng.choice([0.005, 0.1], size=(n, 1)),
+                            last_dt=last_dt)
     g = np.array([0.3, -0.2, -9.81])
     table = body_report(state.position, q, state.velocity, L, state.contact_dv, fixed,
-                        model.body_mass, model.body_inv_inertia, model.shape_rotation, g, last_dt)
+                        model.body_mass, model.body_inv_inertia, model.shape_rotation, g, last_dt,
+                        FORCE_LIKE)
     v = reported_velocity(model, state, g)
     w = angular_velocity(model, state)
     R_shape, _ = body_pose_in_shape_frame(model, state)

@@ -578,3 +578,24 @@ def test_a_cube_tumbling_onto_the_ground_with_e_1_keeps_its_energy(sim, dt):
     s.advance(2.0, each=lambda s: energy.append(s.body("box").kinetic_energy
                                                 + mass * G * s.body("box").position[2]))
     assert max(energy) <= energy[0] * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_a_sliding_box_reports_its_velocity_with_the_whole_steps_friction(sim, angle):
+    """The reported velocity (bodies.csv, Simulation.body) left out half a step of the contact's
+    friction: a box sliding on the ground read 0.5 dt mu g too fast, and one sliding down a slope
+    moved into it. A contact velocity change of a force's size counts as acting over the step:
+    sent up the slope, its speed is v0 - g (mu cos a + sin a) t to round-off, and nothing
+    crosses the plane."""
+    a = math.radians(angle)
+    n = (-math.sin(a), 0.0, math.cos(a))
+    up = np.array([math.cos(a), 0.0, math.sin(a)])             # up the slope
+    s = sim(_simulation(DT_240) + _plane(normal=n, friction=0.4) + _box(
+        "b", (0.3, 0.2, 0.1), position=tuple(0.05 * np.array(n)), friction=0.4,
+        orientation=(math.cos(a / 2), 0.0, -math.sin(a / 2), 0.0), velocity=tuple(3.0 * up)))
+    for _ in range(4):
+        s.advance(0.05)
+        v = s.body("b").velocity
+        expected = 3.0 - G * (0.4 * math.cos(a) + math.sin(a)) * s.time
+        assert v @ up == pytest.approx(expected, abs=1e-9)
+        assert abs(v @ np.array(n)) < 1e-9

@@ -5,7 +5,7 @@ from fem import dynamics as fem_dyn
 from fem.plasticity import elastic_stress
 from fem.stress import principal_stress_max
 from rigid import quaternion as quat
-from rigid.model import posed_by_orientation
+from rigid.model import FORCE_LIKE, posed_by_orientation
 from rigid.step_kernels import body_report
 
 from hybrid.coupling.switch import fem_state
@@ -116,7 +116,8 @@ def rigid_table(model, state):
     rm, rs = model.rigid, state.rigid
     return body_report(rs.position, rs.orientation, rs.velocity, rs.angular_momentum,
                        rs.contact_dv, rm.body_fixed, rm.body_mass, rm.body_inv_inertia,
-                       rm.shape_rotation, np.asarray(model.gravity, float), float(rs.last_dt))
+                       rm.shape_rotation, np.asarray(model.gravity, float), float(rs.last_dt),
+                       FORCE_LIKE)
 
 
 def body_rows(model, state):
