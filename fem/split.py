@@ -83,7 +83,6 @@ def tet_faces(tets: np.ndarray) -> TetFaces:
         return_counts=True)
     if counts.size and counts.max() > 2:
         raise ValueError("non-manifold mesh: a face is shared by more than two tets")
-    face_count = keys.size
     # Sort the local faces by face index; each face's one or two holders are then
     # consecutive, the first one being the lower (tet, local) pair.
     order = np.argsort(inverse, kind="stable")

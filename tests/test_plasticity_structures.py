@@ -11,7 +11,7 @@ from fem import dynamics
 from fem.mesh import box_tet_mesh, select_nodes_in_box
 from fem.model import build_fem_model, rest_state
 from fem.plastic_static import static_plastic_solve, static_solver
-from fem.plasticity import deviatoric, von_mises
+from fem.plasticity import von_mises
 from fem.reference import reference_update_due, update_reference
 from hybrid.coupling.events import ReferenceUpdate
 from fem.stress import quadrature_stress

@@ -150,7 +150,7 @@ def test_relative_mesh_paths_resolve_against_the_scene_folder(tmp_path, monkeypa
     sub.mkdir()
     meshio.write(sub / "box.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles())]))
     meshio.write(sub / "quads.vtu", meshio.Mesh(CUBE_POINTS, [("quad", CUBE_QUADS)]))
-    path = write_scene(sub, '[[bodies]]\nname = "a"\nmesh = "box.obj"\n'
+    write_scene(sub, '[[bodies]]\nname = "a"\nmesh = "box.obj"\n'
                             '[[bodies]]\nname = "b"\nmesh = "quads.vtu"\n')
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()

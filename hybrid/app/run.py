@@ -341,12 +341,12 @@ def frame_hints(model, strains, spinning=(), turns=None):
             stretch = math.sqrt(1 + turn * turn)
             said.append(f"turned parts of itself by up to {math.degrees(math.atan(turn)):.0f} degrees "
                         f"against {'its anchors' if anchored else 'its best-fit frame'} (taken "
-                        f"for no strain, and stretched "
+                        "for no strain, and stretched "
                         + (f"by {stretch - 1:.0%})" if stretch < 2 else f"{stretch:.0f}-fold)"))
         pieces = f" ({count} bodies: it and its fracture pieces, the largest figures)" if count > 1 else ""
         lines.append(f"note: '{name}'{pieces} " + " and ".join(said) + " in the floating frame, "
-                     f"whose linear elasticity holds for small strains and small rotations of "
-                     f"its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
+                     "whose linear elasticity holds for small strains and small rotations of "
+                     "its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
     return lines
 
 
