@@ -323,3 +323,28 @@ young = 1e6
     lines.clear()
     Simulation.from_toml(scene).run(progress=False, log=lines.append, until=0.01)
     assert any("model = \"rigid\"" in line for line in lines), lines      # a run that ends is told
+
+
+def test_a_stop_signal_swallowed_in_a_callback_prints_no_traceback(monkeypatch):
+    """Ctrl-C landing in a ctypes callback of numba's compiler printed llvmlite's "Exception
+    ignored ... KeyboardInterrupt" traceback: the entry point's handler has recorded it, and the
+    run stops on it, so the report is left out; other swallowed errors are still told."""
+    from hybrid.app import cli, entry
+
+    class Callback:
+        def __init__(self, error):
+            self.error = error
+
+        def __del__(self):
+            raise self.error
+
+    def command(argv):
+        Callback(KeyboardInterrupt()), Callback(entry.Terminated())    # dropped at once
+        Callback(ValueError("still told"))
+        return 0
+
+    told = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda unraisable: told.append(type(unraisable.exc_value)))
+    monkeypatch.setattr(cli, "main", command)
+    assert entry.main([]) == 0
+    assert told == [ValueError]

@@ -32,11 +32,22 @@ class _OnSignal:
         raise self.error()
 
 
+def _unraisable(hook):
+    """``sys.unraisablehook`` that keeps quiet about a stop signal's exception swallowed where it
+    landed (a ctypes callback of numba's compiler printed its traceback): the handler recorded
+    it, and the run stops on it (:class:`_OnSignal`); anything else goes to ``hook``."""
+    def quiet(unraisable):
+        if not isinstance(unraisable.exc_value, (KeyboardInterrupt, Terminated)):
+            hook(unraisable)
+    return quiet
+
+
 def main(argv=None):
     """Run the command line (:func:`hybrid.app.cli.main`) with SIGINT and SIGTERM ending it
     cleanly; returns its exit code."""
     previous = {signal.SIGINT: signal.signal(signal.SIGINT, _OnSignal(KeyboardInterrupt)),
                 signal.SIGTERM: signal.signal(signal.SIGTERM, _OnSignal(Terminated))}
+    hook, sys.unraisablehook = sys.unraisablehook, _unraisable(sys.unraisablehook)
     try:
         from .cli import main as command
         return command(argv)
@@ -47,5 +58,6 @@ def main(argv=None):
         print("hybrid: stopped (SIGTERM)", file=sys.stderr)
         return 143
     finally:
+        sys.unraisablehook = hook
         for s, handler in previous.items():
             signal.signal(s, handler)
