@@ -159,12 +159,16 @@ def _tet_mesh(body):
     return points, tets, 1
 
 
+def _fem_models(model):
+    """The FemModel of every FEM or auto body of a model, by scene index (an auto body stepped as
+    rigid: the one it parked)."""
+    return dict(zip(model.fem_ids, model.fem)) | {k: p.fem for k, p in model.parked.items()}
+
+
 def mesh_notes(model):
     """One run-log line per FEM or auto body of a model just built from its scene: its element
     count, nodes, resolution and order, and why (given, or the default's reason)."""
-    lines = []
-    fem = dict(zip(model.fem_ids, model.fem))
-    fem |= {k: p.fem for k, p in model.parked.items()}
+    lines, fem = [], _fem_models(model)
     for k, body in enumerate(model.scene.bodies):
         m = fem.get(k)
         if m is None:
@@ -199,8 +203,7 @@ def material_warnings(model):
     a yield or fracture strain past LARGE_MATERIAL_STRAIN (never reached in the strains linear
     elasticity holds for), or a strength below the stress its own weight makes across its height
     along gravity, ``density |g| h`` (it yields or cracks as it rests)."""
-    said, g = [], float(np.linalg.norm(model.gravity))
-    fem = dict(zip(model.fem_ids, model.fem)) | {k: p.fem for k, p in model.parked.items()}
+    said, g, fem = [], float(np.linalg.norm(model.gravity)), _fem_models(model)
     for k, body in enumerate(model.scene.bodies):
         m = fem.get(k)
         if m is None:
