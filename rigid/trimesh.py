@@ -67,16 +67,22 @@ def orient_outward(vertices, triangles):
 
 def shells(triangles):
     """``(count, label)``: the connected pieces of a surface (triangles joined through shared
-    vertices) and each triangle's piece (m,)."""
+    edges: two closed shells touching at a vertex are two pieces) and each triangle's piece (m,)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     t = np.asarray(triangles, dtype=np.int64)
-    n = int(t.max()) + 1 if len(t) else 0
-    rows, cols = t[:, [0, 1]].ravel(), t[:, [1, 2]].ravel()
-    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    m = len(t)
+    if m == 0:
+        return 0, np.zeros(0, np.int64)
+    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    _, edge = np.unique(edges, axis=0, return_inverse=True)
+    edge = edge.ravel()
+    order = np.argsort(edge, kind="stable")
+    owner = np.tile(np.arange(m), 3)[order]
+    same = edge[order][1:] == edge[order][:-1]      # the triangles along one edge, in a chain
+    graph = coo_matrix((np.ones(int(same.sum())), (owner[:-1][same], owner[1:][same])), shape=(m, m))
     count, label = connected_components(graph, directed=False)
-    used, piece = np.unique(label[t[:, 0]], return_inverse=True)
-    return len(used), piece.ravel()
+    return int(count), label.astype(np.int64)
 
 
 def winding_number(point, vertices, triangles):

@@ -593,6 +593,29 @@ def test_a_surface_with_a_cavity_has_the_mass_of_its_shell_however_the_cavity_fa
         assert np.allclose(np.diag(inertia), moment, rtol=1e-10) and np.allclose(com, 0.0, atol=1e-14)
 
 
+def test_two_boxes_touching_at_a_corner_weigh_both_however_each_faces(tmp_path):
+    """Two 0.2 m boxes meeting at one corner, written with the corner as one vertex and the
+    second box facing inward, were one piece of surface to the orientation (pieces were joined
+    through shared vertices), whose two signed volumes summed to zero: the file was refused as
+    enclosing no volume. Pieces are joined through shared edges, so each box is oriented
+    by itself: 2 * 250 * 0.008 = 4 kg, centred on the shared corner."""
+    from rigid.mass import mass_properties
+    first, quads = _box_quads(0.1)
+    second = first + 0.2          # its corner (-0.1, -0.1, -0.1) + 0.2 is the first's (0.1, 0.1, 0.1)
+    shared = np.argmin(second.sum(axis=1))
+    corner = np.argmax(first.sum(axis=1))
+    index = np.arange(8) + 8 - (np.arange(8) > shared)
+    index[shared] = corner
+    points = np.concatenate([first, np.delete(second, shared, axis=0)])
+    faces = np.concatenate([quads, index[quads][:, ::-1]])
+    meshio.write(tmp_path / "pair.obj", meshio.Mesh(points, [("quad", faces)]))
+    vertices, triangles = geometry.load_surface(tmp_path / "pair.obj")
+    assert len(vertices) == 15
+    props = mass_properties(vertices, triangles, 250.0)
+    assert math.isclose(props.mass, 4.0, rel_tol=1e-12)
+    assert np.allclose(props.com, 0.1, atol=1e-14)
+
+
 def test_a_strength_the_model_cannot_reach_or_its_weight_exceeds_is_warned_of(tmp_path, capsys):
     from hybrid import Simulation
     """``yield_stress = 1e12`` with ``young = 1e9`` (a yield strain of 1,000) and a 0.5 m column

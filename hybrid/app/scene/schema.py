@@ -313,8 +313,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
           "rejected, listed by index; inverted tets (negative volume) are reoriented, with a warning "
           "listing them by index; tets in pieces that share no node are warned of (with the nodes "
           "that lie on others, doubled at an interface). A surface's corners are joined where they "
-          "coincide (triangles written each with its own corners), and each of its pieces is turned "
-          "to face away from the solid (a cavity's wall into the cavity), however it was written. "
+          "coincide (triangles written each with its own corners), and each of its pieces (triangles "
+          "joined through shared edges; pieces touching at a vertex are two) is turned to face away from the solid (a cavity's wall into the cavity), however it was written. "
           "Every cell must name nodes the "
           "file has, and the points may span at most 1e12 m (a mesh spanning over 100 m is warned "
           "of: meshes are read in metres).",
