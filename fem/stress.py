@@ -59,27 +59,34 @@ def element_stress(model, state, tet_plastic_strain=None):
 
 
 def inverse_deformation_gradients(model, x):
-    """``F^-1`` ``(t, 3, 3)`` of each element's corner simplex at positions ``x`` ``(n, 3)`` m (the
-    adjugate over the determinant: several times faster than a batched LAPACK inverse)."""
-    tets = model.tets
-    ds = np.swapaxes(x[tets[:, 1:4]] - x[tets[:, :1]], 1, 2)          # (t, 3, 3) edge columns
-    F = ds @ model.elements.tet_rest_inverse
-    a, b, c = F[:, :, 0], F[:, :, 1], F[:, :, 2]
-    rows = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=1)   # adj(F) = rows
-    det = np.einsum("ti,ti->t", a, rows[:, 0])
-    return rows / det[:, None, None]
+    """``F^-1`` of each element at positions ``x`` ``(n, 3)`` m: ``(t, 3, 3)``, its corner
+    simplex's, for linear elements; ``(t, q, 3, 3)``, at each quadrature point, for quadratic ones,
+    whose deformation gradient varies within the element (the adjugate over the determinant:
+    several times faster than a batched LAPACK inverse)."""
+    data = model.elements
+    if data.tet_nodes.shape[1] == 4:
+        ds = np.swapaxes(x[model.tets[:, 1:4]] - x[model.tets[:, :1]], 1, 2)     # (t, 3, 3) edge columns
+        F = ds @ data.tet_rest_inverse
+    else:
+        F = np.swapaxes(x[data.tet_nodes], 1, 2)[:, None] @ data.tet_gradients   # (t, q, 3, 3)
+    a, b, c = F[..., 0], F[..., 1], F[..., 2]
+    rows = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=-2)   # adj(F) = rows
+    det = np.einsum("...i,...i->...", a, rows[..., 0, :])
+    return rows / det[..., None, None]
 
 
 def element_strain_rate(model, x, v, inverse_F=None):
     """Largest strain rate of each element ``(t,)`` (1/s): the Frobenius norm of the symmetric
     part of the velocity gradient ``grad_x v``, taken in the deformed shape ``x`` ``(n, 3)`` m (so a
     rigid motion of any shape gives zero) for node velocities ``v`` ``(n, 3)`` m/s; the largest
-    over the element's quadrature points. The deformed shape is each element's corner simplex
-    (``inverse_F``: its :func:`inverse_deformation_gradients`, when known)."""
+    over the element's quadrature points (``inverse_F``: :func:`inverse_deformation_gradients` at
+    ``x``, when known)."""
     data = model.elements
     if inverse_F is None:
         inverse_F = inverse_deformation_gradients(model, x)
-    grad_v = np.swapaxes(v[data.tet_nodes], 1, 2)[:, None] @ data.tet_gradients @ inverse_F[:, None]
+    if inverse_F.ndim == 3:
+        inverse_F = inverse_F[:, None]
+    grad_v = np.swapaxes(v[data.tet_nodes], 1, 2)[:, None] @ data.tet_gradients @ inverse_F
     rate = 0.5 * (grad_v + np.swapaxes(grad_v, 2, 3))
     return np.sqrt(np.einsum("tqij,tqij->tq", rate, rate)).max(axis=1)
 
