@@ -117,6 +117,42 @@ def test_a_spinning_quadratic_body_turns_rigid_as_a_linear_one_does(frame):
     assert _events(auto, "rigidify") and auto.body("block").kind == "rigid"
 
 
+def test_a_box_sliding_down_a_slope_with_friction_turns_rigid_and_slides_as_theory_says():
+    """A box sliding down a 30 degree plane with mu = 0.3 stayed FEM all the way: its unloaded
+    rear corners' contacts with the plane read as a contact it was about to land on. Contacts
+    with a partner it already rests on are not waited for: it turns rigid at once and slides
+    with a = g (sin - mu cos), never turning back."""
+    angle = np.radians(30.0)
+    normal = [-float(np.sin(angle)), 0.0, float(np.cos(angle))]
+    centre = [0.05 * n for n in normal]
+    centre[2] += 1e-4
+    sim = Sim(f"""
+[simulation]
+duration = 0.5
+dt = 0.001
+[[planes]]
+normal = {normal}
+friction = 0.3
+[[bodies]]
+name = "box"
+model = "auto"
+shape = {{ type = "box", size = [0.1, 0.1, 0.1] }}
+position = {centre}
+orientation = [{np.cos(angle / 2)}, 0.0, {-np.sin(angle / 2)}, 0.0]
+density = 1000.0
+young = 1e7
+friction = 0.3
+""")
+    speeds = []
+    for _ in range(400):
+        sim.step()
+        speeds.append(np.linalg.norm(sim.body("box").velocity))
+    assert [e.event for e in sim.events if hasattr(e, "event")] == ["rigidify"]
+    assert sim.events[0].time < 0.1
+    slope = (speeds[-1] - speeds[199]) / (200 * sim.dt)
+    assert slope == pytest.approx(9.81 * (np.sin(angle) - 0.3 * np.cos(angle)), rel=1e-3)
+
+
 def test_a_rigid_auto_body_struck_turns_deformable_before_the_impact_step():
     auto, touched = _run_hit("auto", 60)
     fem, fem_touched = _run_hit("fem", 60)
@@ -148,7 +184,8 @@ def test_a_switch_that_re_shares_a_resting_load_reads_as_no_blow_and_a_blow_from
 
     def touches(rows):
         body, partner, point, impulse = zip(*rows)
-        return Touches(np.array(body), np.array(partner), np.array(point, float), np.array(impulse, float))
+        return Touches(np.array(body), np.array(partner), np.array(point, float), np.array(impulse, float),
+                       np.zeros((len(body), 3)))
 
     ground0, side, ground1 = [0.0, 0.0, 0.2], [0.1, 0.0, 0.3], [0.2, 0.0, 0.0]
     on_side = 0.4 * W * up + push                                # on box 0 from box 1's side

@@ -237,17 +237,26 @@ def _unbalanced(model, state, j):
 
 
 def _approaching(model, state, j, rigidify):
-    """Whether FEM body ``j`` is moving while a contact it took no impulse from waits within
+    """Whether FEM body ``j`` is moving towards a contact it took no impulse from, waiting within
     reach (it is about to touch something: turned rigid now, it would turn back on landing). A
-    body counts as moving at a centre speed above ``rigidify`` strain over its response time."""
+    body counts as moving at a centre speed above ``rigidify`` strain over its response time; a
+    body resting on the ground (planes, static ground), at that speed along the normal of a
+    waiting contact with the ground: a box sliding on the ground keeps unloaded contacts at its
+    rear corners with the ground that carries it, and is not landing on them. (On other bodies,
+    which may sway under it, any motion counts.)"""
     if state.touches is None:
         return False
-    impulse = state.touches.of_body(model.fem_ids[j])[2]
-    if not len(impulse) or np.all(np.any(impulse != 0.0, axis=1)):
+    t = state.touches
+    rows = np.nonzero(t.body == model.fem_ids[j])[0]
+    loaded = np.any(t.impulse[rows] != 0.0, axis=1)
+    if not len(rows) or loaded.all():
         return False
     m, s = model.fem[j], state.fem[j]
-    speed = float(np.linalg.norm(fem_dyn.mass_weights(m) @ s.v)) / float(m.node_mass.sum())
-    return speed > rigidify * extent(m) / response_time(m, model.dt)
+    velocity = fem_dyn.mass_weights(m) @ s.v / float(m.node_mass.sum())
+    partner = t.partner[rows]
+    resting = (partner < 0) & np.any(partner[loaded] < 0)         # on the ground
+    across = np.where(resting, np.abs(t.normal[rows] @ velocity), np.linalg.norm(velocity))
+    return bool(np.any(across[~loaded] > rigidify * extent(m) / response_time(m, model.dt)))
 
 
 def rigid_due(model, state):

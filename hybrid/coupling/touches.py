@@ -12,17 +12,19 @@ from scipy.sparse.csgraph import connected_components
 class Touches:
     """The contact impulses rigid auto bodies took over one step, one row per contact side:
     body (c,) the auto body's scene index, partner (c,) the other side's (-1: a plane or static
-    ground), point (c, 3) m world, impulse (c, 3) N s on the auto body (world)."""
+    ground), point (c, 3) m world, impulse (c, 3) N s on the auto body (world), normal (c, 3)
+    unit, from the partner towards the auto body."""
     body: np.ndarray
     partner: np.ndarray
     point: np.ndarray
     impulse: np.ndarray
+    normal: np.ndarray
 
     @classmethod
-    def between(cls, auto, a, b, point, impulse):
+    def between(cls, auto, a, b, point, impulse, normal):
         """The rows of contacts between scene bodies ``a`` and ``b`` (c,) (-1: a plane or static
-        ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a, that touch a body of
-        ``auto`` (scene indices), from that body's side."""
+        ground) at ``point`` (c, 3) with ``impulse`` (c, 3) on side a and ``normal`` (c, 3) from b
+        towards a, that touch a body of ``auto`` (scene indices), from that body's side."""
         if not len(a):
             return EMPTY
         is_auto = np.zeros(max(int(auto.max(initial=-1)), int(a.max(initial=-1)),
@@ -31,7 +33,8 @@ class Touches:
         on_a, on_b = is_auto[a], is_auto[b]
         return cls(np.concatenate([a[on_a], b[on_b]]), np.concatenate([b[on_a], a[on_b]]),
                    np.concatenate([point[on_a], point[on_b]]),
-                   np.concatenate([impulse[on_a], -impulse[on_b]]))
+                   np.concatenate([impulse[on_a], -impulse[on_b]]),
+                   np.concatenate([normal[on_a], -normal[on_b]]))
 
     @classmethod
     def of(cls, auto, contacts, impulse, scene_of):
@@ -39,7 +42,7 @@ class Touches:
         their scene indices (-1 stays -1)."""
         a = np.where(contacts.body_a >= 0, scene_of[np.maximum(contacts.body_a, 0)], -1)
         b = np.where(contacts.body_b >= 0, scene_of[np.maximum(contacts.body_b, 0)], -1)
-        return cls.between(auto, a, b, contacts.point, impulse)
+        return cls.between(auto, a, b, contacts.point, impulse, contacts.normal)
 
     def plus(self, other):
         """These rows followed by ``other``'s."""
@@ -48,7 +51,7 @@ class Touches:
         if not len(self.body):
             return other
         return Touches(*(np.concatenate([getattr(self, f), getattr(other, f)])
-                         for f in ("body", "partner", "point", "impulse")))
+                         for f in ("body", "partner", "point", "impulse", "normal")))
 
     def of_body(self, k):
         """``(partner, point, impulse)`` rows of body ``k``."""
@@ -56,7 +59,8 @@ class Touches:
         return self.partner[rows], self.point[rows], self.impulse[rows]
 
 
-EMPTY = Touches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+EMPTY = Touches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
+                np.zeros((0, 3)))
 
 
 def impulse_change(before, after, k, group=None):
@@ -128,4 +132,4 @@ def held_touches(model, auto, nodes, contacts, impulse):
     a = fem_ids[nodes.body[contacts.body_a]]
     rigid = np.asarray(model.rigid_ids, dtype=np.int64)
     b = np.where(contacts.body_b >= 0, rigid[np.maximum(contacts.body_b, 0)] if len(rigid) else -1, -1)
-    return Touches.between(auto, a, b, contacts.point, impulse)
+    return Touches.between(auto, a, b, contacts.point, impulse, contacts.normal)
