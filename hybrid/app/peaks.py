@@ -27,8 +27,9 @@ class Peaks:
     largest over every step seen and over the body's elements (element stresses, as the frames'
     cell data; a fragment counts for the body it broke from). ``time`` s is when it was reached.
     A body with a yield stress also has ``first_yield``: the first step that ended with an element
-    flowing, its time and its largest von Mises stress (the yield stress, to the return mapping's
-    tolerance; (0, 0) while none has)."""
+    flowing, its time and its largest element von Mises stress (the yield stress, to the return
+    mapping's tolerance, for linear elements; at or below it for quadratic ones, whose element
+    stress is the mean of quadrature points that yield one by one; (0, 0) while none has)."""
 
     def __init__(self):
         self.bodies = {}
