@@ -657,3 +657,22 @@ position = [2.0, 0.0, 0.25]
     assert f"body 'chalk': fracture_stress 1e+03 Pa is below the stress its own weight makes across " \
            f"its height (density g h = {weight:.3g} Pa)" in err
     assert "steel" not in err and err.count("warning:") == 2
+
+
+def test_a_deformable_capsule_is_listed_among_the_files_other_problems(tmp_path):
+    """A deformable body shaped as a capsule (no tet mesher for it) was told only once the file
+    had no other problem (the shape is meshed as the scene is built): ``validate`` said the
+    file's other problems and not it. It is now a problem of the file itself, told with them."""
+    path = write_scene(tmp_path, """
+[[bodies]]
+name = "pill"
+model = "auto"
+young = 1e6
+shape = { type = "capsule", radius = 0.05, height = 0.2 }
+[[bodies]]
+name = "box"
+shape = { type = "box", size = [0.1, 0.1, -0.1] }
+""")
+    found = problems_of(path)
+    assert any("\"pill\"" in p and "'shape' cannot be meshed" in p and "not 'capsule'" in p for p in found), found
+    assert any("\"box\"" in p and "shape.size" in p for p in found), found

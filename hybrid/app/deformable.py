@@ -154,9 +154,17 @@ def _tet_mesh(body):
     elif s.type == "cylinder":
         points, tets = cylinder_tet_mesh(s.radius, s.height, 2 * s.radius / h)
     else:
-        raise ValueError(f"FEM bodies support box, sphere and cylinder shapes or a tet mesh, "
-                         f"not '{s.type}'")
+        raise ValueError(fem_shape_message(s.type))
     return points, tets, 1
+
+
+# the shapes a deformable body is meshed from (others need a tet mesh)
+FEM_SHAPES = ("box", "sphere", "cylinder")
+
+
+def fem_shape_message(shape_type):
+    """What a deformable body of shape ``shape_type`` (not one of FEM_SHAPES) is told."""
+    return f"FEM bodies support box, sphere and cylinder shapes or a tet mesh, not '{shape_type}'"
 
 
 def _fem_models(model):

@@ -138,7 +138,11 @@ def _parse_body(table, source, index, base_dir, problems):
                                       + ("both" if has_shape else "neither")))
     if has_shape and values["shape"] is not None:
         values["shape"] = _parse_shape(values["shape"], where, problems)
-        if valid(model) and isinstance(values["shape"], Shape):
+        if valid(model) and fem_model and isinstance(values["shape"], Shape) \
+                and values["shape"].type not in deformable.FEM_SHAPES:
+            problems.append(where.problem(
+                "shape", f"cannot be meshed: {deformable.fem_shape_message(values['shape'].type)}"))
+        elif valid(model) and isinstance(values["shape"], Shape):
             _check_element_count(values["shape"], fem_model, where, problems,
                                  values["order"] if valid(values["order"]) else None)
     if has_mesh and valid(values["mesh"]) and valid(model):
