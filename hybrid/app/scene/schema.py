@@ -136,7 +136,8 @@ PLANE = Section("planes", "[[planes]]", "Static half-spaces: the solid side is o
     Field("point", "vector", (0.0, 0.0, 0.0), "m", "A point on the plane."),
     Field("normal", "vector", (0.0, 0.0, 1.0), "", "Outward normal; normalised by the loader.", nonzero=True),
     _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
-    _unit_interval("restitution", 0.0, "Coefficient of restitution."),
+    _unit_interval("restitution", 0.0, "Coefficient of restitution of rigid bodies striking the "
+                   "plane (deformable bodies bounce through their own elasticity)."),
 ))
 
 SHAPE = Section("bodies.shape", "shape = { ... }", "Analytic shape of a body, centred on its position. "
@@ -247,7 +248,11 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Initial velocity (world frame)."),
     Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world frame)."),
     _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
-    _unit_interval("restitution", 0.0, "Coefficient of restitution."),
+    _unit_interval("restitution", 0.0, "Coefficient of restitution of the body's collisions "
+                   "while it is rigid (the larger of the two bodies' counts). A deformable body (`fem`, "
+                   "or `auto` while deformable) bounces through its own elasticity and its contacts "
+                   "take none: a rigid ball on a stiff, coarsely meshed one rebounds far less than "
+                   "this ([limits.md](limits.md))."),
     Field("fixed", "boolean", False, "", "Immovable (infinite mass). Rigid bodies only: a deformable body is held by `[[bodies.anchors]]`."),
     _positive("young", None, "Pa", "Young's modulus.", fem=True, default_text="required for FEM"),
     Field("poisson", "number", 0.3, "", "Poisson's ratio.", low=-1.0, high=0.5, low_open=True,
