@@ -290,6 +290,37 @@ def test_bodies_passing_10_cm_apart_never_touch(sim, ball):
     assert s.body("cube").angular_velocity == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
 
 
+SMALL = """
+[simulation]
+duration = 0.1
+dt = 0.001
+gravity = [0, 0, 0]
+[[bodies]]
+name = "ball"
+{model}
+shape = {{ type = "sphere", radius = 0.0005 }}
+[[bodies]]
+name = "cube"
+model = "fem"
+young = 1e6
+shape = {{ type = "box", size = [0.001, 0.001, 0.001] }}
+position = [0.004, 0, 0]
+"""
+
+
+@pytest.mark.parametrize("model", ['model = "rigid"', 'model = "fem"\nyoung = 1e6'])
+def test_millimetre_bodies_3_mm_apart_within_the_contact_margin_stay_at_rest(sim, model):
+    """A ball 1 mm across and a 1 mm cube at rest 3 mm apart, within the default 5 mm contact
+    margin: the cube's nodes beside its edges were turned to their own normals as if at an edge
+    of the ball, which read their 3 mm gaps as 0.6 mm inside it, and the penetration recovery
+    pulled the two together (the cube strained 18%). An edge turns only nodes within their body's
+    element size: nothing moves."""
+    s = sim(SMALL.format(model=model)).advance(0.05)
+    for name, at in (("ball", 0.0), ("cube", 0.004)):
+        assert s.body(name).position == pytest.approx([at, 0.0, 0.0], abs=1e-12)
+        assert np.linalg.norm(s.body(name).velocity) < 1e-12
+
+
 SLED = """
 [simulation]
 dt = 0.002

@@ -109,7 +109,7 @@ def edge_normals_reference(normal, gap, body_b, own, edge_cos, near):
     front = np.ones(len(gap), dtype=bool)
     at = np.nonzero(body_b >= 0)[0]
     along = np.einsum("ij,ij->i", normal[at], -own)
-    turned = (along < edge_cos) & (gap[at] <= near)
+    turned = (along < edge_cos) & (gap[at] <= near[at])
     out_n, out_g = normal.copy(), gap.copy()
     out_n[at[turned]] = -own[turned]
     out_g[at[turned]] *= along[turned]
@@ -129,7 +129,7 @@ def test_edge_turns_match_the_numpy_edge_normals(seed):
     own = rng.standard_normal(((body_b >= 0).sum(), 3))
     own /= np.linalg.norm(own, axis=1, keepdims=True)
     own[::7] = 0.0                      # nodes without a face normal of their own
-    near = 1e-3                         # some gaps beyond it: those keep the rigid normal
+    near = rng.uniform(5e-4, 2e-3, c)   # some gaps beyond it: those keep the rigid normal
     reference = edge_normals_reference(normal, gap, body_b, own, float(np.cos(np.radians(70.0))), near)
     out = kernels.edge_turns(normal, gap, body_b, own, float(np.cos(np.radians(70.0))), near)
     np.testing.assert_allclose(out[0], reference[0], rtol=1e-14, atol=1e-15)

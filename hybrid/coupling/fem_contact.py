@@ -92,47 +92,47 @@ def edge_normals(contacts, own, near):
     down on): the body reaches it only through the nodes in front, and is not met from the front.
     Taken as a contact along the node's face normal, its distance read as a 3 cm penetration and
     the recovery threw the plate up at 11 m/s.
-    A node where the rigid surface turns away from its own face by between 70 and 110 degrees,
-    i.e. at or beside a rigid edge or corner, takes its own face's normal, and its
-    gap is measured along it. There the rigid normal and distance turn by 90 degrees as the node
-    moves by a micrometre: a box whose bottom edges sit on a slab's nodes was pushed sideways by
-    them, or (nodes bulging out a few micrometres past the edge) was let sink by their distance to
-    the edge onto the node under its middle, balanced there and tipped over, and a 5-box stack on
-    the slab toppled. Nodes a little ahead of a sliding box, level with its bottom face, were met on
-    its front face like a wall (a box sliding at 2 m/s lost 0.41 m/s in one step and stopped 36%
-    short) while only those within a tenth of the contact margin of the edge were turned.
-    Only a node within ``near`` (m, the contact margin) of the rigid surface is turned: the gap
-    along its own normal is the node's height over the plane through the rigid body's nearest
-    point, which at an edge is where the node meets it; a contact found farther out, ahead of a
-    fast body within its reach, is not at an edge, and there that plane cuts through empty space
-    (a soft cube flying beside a rigid ball, 10 cm apart at 40 m/s, read it as a 4 cm
-    penetration and was pushed off its course): it keeps the rigid normal and gap.
+    A node where the rigid surface turns away from its own face by between 70 and 110 degrees, i.e.
+    at or beside a rigid edge or corner, takes its own face's normal, and its gap is measured along
+    it. There the rigid normal and distance turn by 90 degrees as the node moves by a micrometre: a
+    box whose bottom edges sit on a slab's nodes was pushed sideways by them, or (nodes bulging out
+    a few micrometres past the edge) was let sink by their distance to the edge onto the node under
+    its middle, balanced there and tipped over, and a 5-box stack on the slab toppled. Nodes a
+    little ahead of a sliding box, level with its bottom face, were met on its front face like a
+    wall (a box sliding at 2 m/s lost 0.41 m/s in one step and stopped 36% short) while only those
+    within a tenth of the contact margin of the edge were turned. Only a node within ``near`` (c,) m
+    of the rigid surface (detect.edge_reach) is turned: the gap along its own normal is its height
+    over the plane through the rigid body's nearest point, which at an edge is where the node meets
+    it; a contact found farther out, ahead of a fast body within its reach, is not at an edge, and
+    there that plane cuts through empty space (a soft cube flying beside a rigid ball, 10 cm apart
+    at 40 m/s, read it as a 4 cm penetration and was pushed off its course) keeps the rigid
+    normal and gap.
     A node without a face normal of its own (``own`` not a unit vector: its surface triangles
     cancel, an edge node or a vertex on the front of a crack that has not crossed the body) keeps
     the rigid body's normal and gap (its own, zero, made the contact's normal zero, and the
     contact solver divided by the length of the tangent built from it).
     ``own``: :func:`contact_node_normals` of ``contacts``. One pass (kernels.edge_turns)."""
     return kernels.edge_turns(contacts.normal, contacts.gap, contacts.body_b, own, float(EDGE_COS),
-                      float(near))
+                              np.asarray(near, float))
+
 
 
 def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
-    """Normals ``(c, 3)`` and gaps ``(c,)`` of the node-against-face ``pairs`` (stacked node a,
-    a place on another deformable body's face b) with a node on a smooth part of its own
-    surface, beside an edge or corner of b, meeting b along its own face's normal, as a node
-    meets a rigid edge (:func:`edge_normals`, whose ``near`` and angles apply). The corner's
-    normals are any within its cone; the smooth surface's is the one: a soft slab's nodes ahead
-    of a soft block sliding on it, in the dent it makes, met its front face as a wall, and the
-    block lost a third of its speed without friction and tumbled. A node on an edge or a corner
-    of its own body (a spinning block's, grazing a ball) keeps the face's normal. Also returns
-    which pairs are met from the front ``(c,)`` bool: as with a rigid body, a node whose own face
-    turns more than 110 degrees away from b has b behind it and is not its contact (turned, its
-    gap read as a penetration: a shattered pane's top nodes, within the margin of a piece of the
-    lower half beside them, read as 4 mm inside it, and the recovery put 420 J of strain into
-    the pane in one step)."""
+    """Normals ``(c, 3)`` and gaps ``(c,)`` of the node-against-face ``pairs`` (stacked node a, a
+    place on another deformable body's face b) with a node on a smooth part of its own surface,
+    beside an edge or corner of b, meeting b along its own face's normal, as a node meets a rigid
+    edge (:func:`edge_normals`, whose ``near`` and angles apply). The corner's normals are any
+    within its cone; the smooth surface's is the one: a soft slab's nodes ahead of a soft block
+    sliding on it, in the dent it makes, met its front face as a wall, and the block lost a third of
+    its speed without friction and tumbled. A node on an edge or a corner of its own body (a
+    spinning block's, grazing a ball) keeps the face's normal. Also returns which pairs are met from
+    the front ``(c,)`` bool: as with a rigid body, a node whose own face turns more than 110 degrees
+    away from b has b behind it and is not its contact (turned, its gap read as a penetration: a
+    shattered pane's top nodes, within the margin of a piece of the lower half beside them, read as
+    4 mm inside it, and the recovery put 420 J of strain into the pane in one step)."""
     own = _stacked_normals(models, states, node_offset, node_body, pairs.a)
     return kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
-                              own, float(EDGE_COS), float(near))
+                              own, float(EDGE_COS), np.asarray(near, float))
 
 
 def _stacked_normals(models, states, node_offset, node_body, stacked, flat=True):

@@ -177,7 +177,7 @@ def edge_turns(normal, gap, body_b, own, edge_cos, near):
     surface nodes' contacts (stacked node a, rigid body ``body_b`` >= 0 or a plane) whose nodes
     have their own outward normals ``own`` (r, 3), one per contact with a rigid body in order
     (hybrid.coupling.fem_contact.edge_normals; a node whose own normal is not a unit vector, or
-    whose gap exceeds ``near`` m, keeps the contact's normal and gap)."""
+    whose gap exceeds its contact's ``near`` (c,) m, keeps the contact's normal and gap)."""
     c = len(gap)
     out_n = normal.copy()
     out_gap = gap.copy()
@@ -191,7 +191,7 @@ def edge_turns(normal, gap, body_b, own, edge_cos, near):
         along = normal[k, 0] * m0 + normal[k, 1] * m1 + normal[k, 2] * m2
         if along < -edge_cos:
             front[k] = False
-        if along < edge_cos and gap[k] <= near and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
+        if along < edge_cos and gap[k] <= near[k] and abs(m0 * m0 + m1 * m1 + m2 * m2 - 1.0) < 1e-6:
             out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
             out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
     return out_n, out_gap, front
