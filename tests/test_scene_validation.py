@@ -1,5 +1,6 @@
 """Scene files: the example parses as written, and every kind of mistake is reported with the file,
 table and field named, all problems at once, without tracebacks."""
+import json
 import math
 import shutil
 from pathlib import Path
@@ -676,3 +677,17 @@ shape = { type = "box", size = [0.1, 0.1, -0.1] }
     found = problems_of(path)
     assert any("\"pill\"" in p and "'shape' cannot be meshed" in p and "not 'capsule'" in p for p in found), found
     assert any("\"box\"" in p and "shape.size" in p for p in found), found
+
+
+@pytest.mark.parametrize("name", ["/tmp/elsewhere", "../../escaped", "a/b", "a\\b", ".hidden", "two\nlines"])
+def test_a_scene_name_that_is_not_a_plain_name_is_refused(tmp_path, name):
+    """A scene's output goes to outputs/<name>/: a name of "/tmp/x" or "../../x" wrote (and
+    cleared the frames of) a folder outside outputs/. It must be a plain name."""
+    text = "[simulation]\nname = " + json.dumps(name) + "\n" + BODY
+    problem = only_problem(write_scene(tmp_path, text))
+    assert "[simulation]: field 'name' must be a plain name" in problem
+
+
+def test_a_body_name_with_a_line_break_is_refused(tmp_path):
+    problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a\\nb"\nshape = { type = "sphere", radius = 0.1 }\n'))
+    assert "field 'name' must have no control characters" in problem

@@ -439,3 +439,17 @@ def test_a_value_given_twice_is_refused_before_anything_runs(tmp_path, capsys):
                  str(tmp_path / "out"), "--quiet"])
     assert code == 2 and "more than once" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_setting_names_a_body_whose_name_has_dots():
+    """``bodies.ball.v2.density`` was read as body 'ball', field 'v2': "no body 'ball'". The key
+    takes the longest body name it begins with."""
+    from hybrid.app.variants import SettingError, apply_setting
+    data = {"bodies": [{"name": "ball"}, {"name": "ball.v2", "shape": {"type": "sphere"}}]}
+    apply_setting(data, "bodies.ball.v2.density", 500.0)
+    apply_setting(data, "bodies.ball.v2.shape.radius", 0.1)
+    apply_setting(data, "bodies.ball.density", 300.0)
+    assert data["bodies"][1]["density"] == 500.0 and data["bodies"][1]["shape"]["radius"] == 0.1
+    assert data["bodies"][0] == {"name": "ball", "density": 300.0}
+    with pytest.raises(SettingError, match="no body 'bal'"):
+        apply_setting(data, "bodies.bal.v2.density", 1.0)

@@ -150,6 +150,19 @@ def _child(node, part, key, walked):
     return node[part]
 
 
+def _body_name_joined(data, parts):
+    """``parts`` of a key with a body's name that has dots in it (``bodies.ball.v2.density``) as
+    one part: the longest name of a body of ``data`` the parts after ``bodies`` begin with."""
+    bodies = data.get("bodies") if parts[0] == "bodies" else None
+    if not isinstance(bodies, list):
+        return parts
+    names = {b.get("name") for b in bodies if isinstance(b, dict)}
+    for end in range(len(parts) - 1, 2, -1):
+        if ".".join(parts[1:end]) in names:
+            return [parts[0], ".".join(parts[1:end]), *parts[end:]]
+    return parts
+
+
 def apply_setting(data, key, value):
     """Set the field ``key`` (a dotted path, see the module docs) of scene data ``data`` to
     ``value`` in place; SettingError naming the key when the path leads nowhere."""
@@ -157,6 +170,7 @@ def apply_setting(data, key, value):
     if len(parts) < 2 or parts[0] not in ("simulation", "bodies", "planes"):
         raise SettingError(f"--set {key}: a key starts with simulation., bodies.<name>. or "
                            f"planes.<index>. and ends with a field name")
+    parts = _body_name_joined(data, parts)
     node, walked = data, ""
     for part in parts[:-1]:
         node = _child(node, part, key, walked)

@@ -62,6 +62,9 @@ def parse_scene(data, source, base_dir):
                 problems.append(_body_where(source, i, body.name).problem(
                     "name", f"must be unique, got {toml_text(body.name)} again "
                             f"(first used by bodies[{first_index[body.name]}])"))
+            if any(ord(c) < 32 or ord(c) == 127 for c in body.name):
+                problems.append(_body_where(source, i, body.name).problem(
+                    "name", "must have no control characters (a line break, a tab)"))
             first_index.setdefault(body.name, i)
         bodies.append(body)
     if not bodies and isinstance(top["bodies"], (list, tuple)):       # none given (a bad value is reported)
@@ -76,6 +79,10 @@ def _parse_simulation(table, source, problems):
     values = read_table(table if isinstance(table, dict) else {}, SIMULATION, where, problems)
     if values["name"] is None:
         values["name"] = Path(source).stem
+    elif valid(values["name"]) and not _plain_name(values["name"]):
+        problems.append(where.problem("name", f"must be a plain name (output goes to outputs/<name>/ "
+                                              f"and <name>.pvd: no '/' or '\\', no leading '.', "
+                                              f"no control characters), got {toml_text(values['name'])}"))
     solver_table = values.pop("solver")
     solver_where = Where(source, "[simulation.solver]")
     solver_table = solver_table if isinstance(solver_table, dict) else {}
@@ -96,6 +103,13 @@ def _parse_plane(table, source, index, problems):
         length = math.hypot(*values["normal"])      # no squares: they underflow (1e-300) or overflow
         values["normal"] = tuple(c / length for c in values["normal"])
     return Plane(**values)
+
+
+def _plain_name(name):
+    """Whether ``name`` names a file in a folder: no separators, no leading dot, no control
+    characters (a scene named "../x" or "/tmp/x" wrote, and cleared, a folder outside outputs/)."""
+    return not (set(name) & {"/", "\\"} or name.startswith(".")
+                or any(ord(c) < 32 or ord(c) == 127 for c in name))
 
 
 def _body_where(source, index, name):

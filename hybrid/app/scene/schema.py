@@ -115,7 +115,8 @@ SOLVER = Section("simulation.solver", "[simulation.solver]", "Solver settings: t
 
 SIMULATION = Section("simulation", "[simulation]",
                      "Time stepping and global settings. The table is optional.", (
-    Field("name", "string", None, "", "Scene name; output goes to `outputs/<name>/`.",
+    Field("name", "string", None, "", "Scene name; output goes to `outputs/<name>/`: a plain "
+          "name (no `/` or `\\`, no leading `.`, no control characters).",
           default_text="file name without extension"),
     _positive("duration", 2.0, "s", "Simulated time; a run takes the nearest whole number of "
               "steps of `dt` (the run log warns when that is not `duration` itself)."),
@@ -232,7 +233,8 @@ UNBREAKABLE = Section("bodies.unbreakable", "[[bodies.unbreakable]]", "Region of
 ))
 
 BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
-    Field("name", "string", REQUIRED, "", "Unique name."),
+    Field("name", "string", REQUIRED, "", "Unique name, without control characters (a study's "
+          "`--set bodies.<name>.<field>` takes names with dots)."),
     Field("model", "choice", "rigid", "", "`rigid`, `fem` (deformable) or `auto` (stepped as rigid "
           "while its deformation does not change, as FEM while a load would deform it; "
           "docs/auto.md).", choices=("rigid", "fem", "auto")),
