@@ -182,6 +182,14 @@ def _principal_frames(bodies, geo):
             inertia[i], axes[i] = np.linalg.eigh(I)
             if np.linalg.det(axes[i]) < 0:
                 axes[i][:, 2] *= -1
+        if d.point_masses is None and not (mass[i] > 0 and np.isfinite(inertia[i]).all()
+                                           and np.all(inertia[i] > 1e-12 * inertia[i].max())):
+            # a box 1e8 m long and 1 m thick: its moment about the long axis, a difference of
+            # terms 1e16 times larger, came out 0, and the first step divided by it
+            raise ValueError(f"its mass ({mass[i]:.3g} kg) and principal moments of inertia "
+                             f"({', '.join(f'{x:.3g}' for x in inertia[i])} kg m^2) are not all positive "
+                             f"in double precision: a shape this thin for its length, or this large, "
+                             f"cannot be stepped")
     return mass, inertia, axes, com
 
 

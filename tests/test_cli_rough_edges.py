@@ -162,3 +162,18 @@ velocity = [1.0, 0.0, 0.0]
     assert "warning: bodies 'a' and 'b' overlap at the start" in err
     assert "warning: body 'a' starts 0.05 m inside a plane" in err
     assert "warning: body 'post' is fixed: its velocity has no effect" in err
+
+
+def test_a_box_too_thin_for_its_length_in_double_precision_is_a_problem_of_its_shape(tmp_path, capsys):
+    """A rigid box 1e8 m long and 1 m thick validated, and its first step failed with "cannot
+    convert float NaN to integer": its moment of inertia about the long axis, a difference of
+    terms 1e16 times larger, came out 0. Building the scene now names the body and its shape."""
+    scene = tmp_path / "beam.toml"
+    scene.write_text('[simulation]\ngravity = [0, 0, 0]\n[[bodies]]\nname = "beam"\n'
+                     'shape = { type = "box", size = [1e8, 1, 1] }\nangular_velocity = [1, 0, 0]\n')
+    for command in ("validate", "run"):
+        assert main([command, str(scene), *(["--out", str(tmp_path / "out")] if command == "run" else [])]) == 2
+        err = capsys.readouterr().err
+        assert "\"beam\"" in err and "field 'shape' gives an unusable body" in err, err
+        assert "principal moments of inertia" in err and "Warning" not in err, err
+    assert not (tmp_path / "out").exists()

@@ -691,3 +691,4 @@ def test_a_scene_name_that_is_not_a_plain_name_is_refused(tmp_path, name):
 def test_a_body_name_with_a_line_break_is_refused(tmp_path):
     problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a\\nb"\nshape = { type = "sphere", radius = 0.1 }\n'))
     assert "field 'name' must have no control characters" in problem
+
