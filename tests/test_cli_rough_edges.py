@@ -177,3 +177,15 @@ def test_a_box_too_thin_for_its_length_in_double_precision_is_a_problem_of_its_s
         assert "\"beam\"" in err and "field 'shape' gives an unusable body" in err, err
         assert "principal moments of inertia" in err and "Warning" not in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_named_as_a_built_in_scene_does_not_hide_it(tmp_path, capsys, monkeypatch):
+    """``hybrid run default --out default`` makes a folder 'default' in the current folder, and
+    the next ``hybrid run default`` there read it as the scene file: "cannot read scene file (Is
+    a directory)". A folder is no scene file: the name is the built-in scene's."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "dent").mkdir()
+    assert main(["validate", "dent"]) == 0
+    assert "dent.toml: 4 bodies" in capsys.readouterr().out
+    (tmp_path / "other").mkdir()
+    assert main(["validate", "other"]) == 2

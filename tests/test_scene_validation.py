@@ -692,3 +692,13 @@ def test_a_body_name_with_a_line_break_is_refused(tmp_path):
     problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a\\nb"\nshape = { type = "sphere", radius = 0.1 }\n'))
     assert "field 'name' must have no control characters" in problem
 
+
+
+def test_a_scene_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path):
+    """A UTF-8 file with a byte-order mark (as Notepad saves it) read as "invalid TOML: Invalid
+    statement (at line 1, column 1)"."""
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + BODY.encode())
+    assert load_scene(path).bodies[0].name == "box"
+    (tmp_path / "folder").mkdir()
+    assert only_problem(tmp_path / "folder").endswith("is a folder, not a scene file")

@@ -31,14 +31,20 @@ def builtin_path(name):
 
 
 def scene_path(path_or_name):
-    """The scene file a user named: an existing path or anything that looks like one (a .toml
+    """The scene file a user named: an existing file or anything that looks like one (a .toml
     file, a path with folders: the loader reports it if missing), else the built-in scene of that
-    name; KeyError naming the built-in scenes for a bare name that is neither."""
+    name (also when a folder has its name: ``hybrid run default --out default`` made one);
+    KeyError naming the built-in scenes for a bare name that is neither."""
     if isinstance(path_or_name, str) and "\n" in path_or_name:
         return builtin_path(path_or_name)                   # TOML text: refused, saying so
     path = Path(path_or_name)
-    if path.suffix == ".toml" or len(path.parts) > 1 or _exists(path):
+    if path.suffix == ".toml" or len(path.parts) > 1 or _is_file(path):
         return path
+    if _exists(path):           # a folder of that name (a run's output, say) is no scene file
+        try:
+            return builtin_path(str(path_or_name))
+        except KeyError:
+            return path
     return builtin_path(str(path_or_name))
 
 

@@ -31,10 +31,13 @@ def load_scene(path):
     """
     path = Path(path)
     try:
-        with open(path, "rb") as stream:
-            data = tomllib.load(stream)
+        raw = path.read_bytes()
+        # (a byte-order mark, as Notepad saves UTF-8, read as "Invalid statement" at line 1)
+        data = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
         raise SceneError([f"{path}: scene file not found"]) from None
+    except IsADirectoryError:
+        raise SceneError([f"{path}: is a folder, not a scene file"]) from None
     except tomllib.TOMLDecodeError as error:
         raise SceneError([f"{path}: invalid TOML: {error}"]) from None
     except UnicodeDecodeError as error:
