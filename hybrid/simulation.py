@@ -282,17 +282,18 @@ class Simulation:
         wall0 = clock.perf_counter() - position.wall
         if not hasattr(self, "peaks"):          # made by resume, without __init__
             self._watch()
-        with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder:
+        # a state running away (absurd scene values) overflows on its way to the finiteness
+        # check, which names the body: numpy's warnings about it (in the steps, the frames' totals
+        # and the summary's drifts) would only be noise around it
+        with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder, \
+                np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             recorder.watch(self.peaks, self.impacts)
             if snapshot is None:
                 recorder.record(self.model, self.state)
             else:
                 checkpoint.resume_recorder(recorder, snapshot, out)
             saver = checkpoint.Checkpoints(self, out, checkpoint_every, position, wall0, stop, log)
-            # a state running away (absurd scene values) overflows on its way to the finiteness
-            # check, which names the body: numpy's warnings about it would only be noise before it
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                failure = self._steps(position, recorder, bar, log, saver)
+            failure = self._steps(position, recorder, bar, log, saver)
             bar.update(self.time, self.steps, force=True)
             bar.done()
             wall = clock.perf_counter() - wall0

@@ -189,3 +189,18 @@ def test_a_folder_named_as_a_built_in_scene_does_not_hide_it(tmp_path, capsys, m
     assert "dent.toml: 4 bodies" in capsys.readouterr().out
     (tmp_path / "other").mkdir()
     assert main(["validate", "other"]) == 2
+
+
+def test_a_runaway_start_says_so_without_numpys_warnings(tmp_path, capsys):
+    """A box started at 1e300 m/s stopped as unstable, naming it, after three numpy
+    RuntimeWarnings with source lines (the first frame's totals and the summary's drifts
+    overflowing): they are noise around the message."""
+    scene = tmp_path / "fast.toml"
+    scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "box"\n'
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nvelocity = [1e300, 0, 0]\n')
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "unstable: body 'box'" in err and "Warning" not in err, err
