@@ -204,3 +204,18 @@ def test_a_runaway_start_says_so_without_numpys_warnings(tmp_path, capsys):
         assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 3
     err = capsys.readouterr().err
     assert "unstable: body 'box'" in err and "Warning" not in err, err
+
+
+def test_an_unbreakable_box_holding_no_element_is_a_problem_as_an_empty_anchor_box_is(tmp_path, capsys):
+    """An ``[[bodies.unbreakable]]`` box that holds no element (given in world coordinates, say)
+    keeps nothing whole and was taken without a word, where an anchor or load box that holds no
+    node is refused."""
+    scene = tmp_path / "grip.toml"
+    scene.write_text('[[bodies]]\nname = "bar"\nmodel = "fem"\nyoung = 1e7\nfracture_stress = 1e5\n'
+                     'shape = { type = "box", size = [0.2, 0.02, 0.02], resolution = 0.01 }\n'
+                     '[[bodies.unbreakable]]\nbox = [[0.09, -0.02, -0.02], [0.11, 0.02, 0.02]]\n'
+                     '[[bodies.unbreakable]]\nbox = [[1.0, 1.0, 1.0], [2.0, 2.0, 2.0]]\n')
+    assert main(["validate", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert "[[bodies.unbreakable]] 1 box" in err and "contains no element's centre" in err, err
+    assert "unbreakable]] 0" not in err

@@ -276,6 +276,7 @@ def _build_model(body, label, dt, linear_solver, corotated_solver):
         points, tets = quadratic_tets(points, tets)
     anchors = _regions(body, label, "anchors", points)
     loads = _regions(body, label, "loads", points)
+    _check_unbreakable(body, label, points, tets)
     # the rest shape is the placed one: rotate by `orientation`, move by `position`
     R = quat.to_matrix(np.asarray(body.orientation, float))
     placed = points @ R.T + np.asarray(body.position, float)
@@ -324,6 +325,19 @@ def _disjoint_anchors(found, label):
         owner[nodes[~held]] = k
         out.append((nodes[~held], velocity))
     return out
+
+
+def _check_unbreakable(body, label, points, tets):
+    """ValueError for an unbreakable box holding no element's centroid (it would keep nothing
+    whole, as an anchor box holding no node would hold nothing)."""
+    centroid = points[tets[:, :4]].mean(axis=1)
+    for k, region in enumerate(body.unbreakable):
+        low, high = np.asarray(region.box[0]), np.asarray(region.box[1])
+        if not np.all((centroid >= low - 1e-9) & (centroid <= high + 1e-9), axis=1).any():
+            span = [np.round(e, 6).tolist() for e in (points.min(axis=0), points.max(axis=0))]
+            raise ValueError(f"{label}: field 'unbreakable': [[bodies.unbreakable]] {k} box "
+                             f"{list(map(list, region.box))} contains no element's centre (boxes are "
+                             f"in the body's own coordinates, where its mesh spans {span[0]} to {span[1]})")
 
 
 def _regions(body, label, what, points):
