@@ -228,7 +228,8 @@ LOAD = Section("bodies.loads", "[[bodies.loads]]", "Constant force on the nodes 
 ))
 
 UNBREAKABLE = Section("bodies.unbreakable", "[[bodies.unbreakable]]", "Region of an FEM body that never "
-                      "cracks: the elements whose centroid is inside `box` (body coordinates, rest shape).", (
+                      "cracks: the elements whose centroid is inside `box` (body coordinates, rest shape; "
+                      "a box holding none is an error, as an anchor or load box holding no node is).", (
     Field("box", "box", REQUIRED, "m", REGION_DOC),
 ))
 
