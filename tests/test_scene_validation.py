@@ -702,3 +702,11 @@ def test_a_scene_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path):
     assert load_scene(path).bodies[0].name == "box"
     (tmp_path / "folder").mkdir()
     assert only_problem(tmp_path / "folder").endswith("is a folder, not a scene file")
+
+
+def test_refine_on_a_rigid_box_is_refused_not_ignored(tmp_path):
+    """``shape.refine`` splits a deformable box's tet cells; on a rigid box it was taken and did
+    nothing."""
+    problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a"\n'
+                                                 'shape = { type = "box", size = [0.1, 0.1, 0.1], refine = 2 }\n'))
+    assert "field 'shape.refine' needs model = \"fem\" or \"auto\"" in problem

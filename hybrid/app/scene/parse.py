@@ -155,6 +155,10 @@ def _parse_body(table, source, index, base_dir, problems):
                                       + ("both" if has_shape else "neither")))
     if has_shape and values["shape"] is not None:
         values["shape"] = _parse_shape(values["shape"], where, problems)
+        if valid(model) and not fem_model and isinstance(table.get("shape"), dict) and "refine" in table["shape"]:
+            problems.append(where.nested("shape").problem(
+                "refine", f"needs model = \"fem\" or \"auto\" (it refines a deformable box's tet "
+                          f"mesh; this body has model = \"{model}\")"))
         if valid(model) and fem_model and isinstance(values["shape"], Shape) \
                 and values["shape"].type not in deformable.FEM_SHAPES:
             problems.append(where.problem(
