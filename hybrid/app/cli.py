@@ -92,6 +92,10 @@ def _run(args):
         print(f"{path}: --out {out} holds a run that did not finish ({CHECKPOINT}): add --resume to continue "
               f"it, or delete {out / CHECKPOINT} to start again there", file=sys.stderr)
         return 2
+    deformable = sum(b.model != "rigid" for b in scene.bodies)
+    if deformable and not args.resume:      # (a large mesh's factorisation can take a minute)
+        print(f"building '{scene.name}': meshing and factorising {deformable} deformable "
+              f"bod{'y' if deformable == 1 else 'ies'}", file=sys.stderr, flush=True)
     try:
         sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
     except SceneError as err:           # problems only the built bodies show
