@@ -219,3 +219,10 @@ def test_an_unbreakable_box_holding_no_element_is_a_problem_as_an_empty_anchor_b
     err = capsys.readouterr().err
     assert "[[bodies.unbreakable]] 1 box" in err and "contains no element's centre" in err, err
     assert "unbreakable]] 0" not in err
+
+
+def test_an_empty_out_is_refused_as_the_python_api_refuses_it(capsys):
+    """``hybrid run X --out ""`` wrote to the default folder without a word, where
+    ``sim.run(out="")`` raises ValueError."""
+    assert main(["run", "dent", "--out", ""]) == 2
+    assert "--out is empty" in capsys.readouterr().err

@@ -79,6 +79,9 @@ def _run(args):
     from .geometry import MeshError
     from hybrid.coupling.stability import OutputFailure
     from hybrid.coupling.step import InstabilityError
+    if args.out is not None and not args.out.strip():
+        print(f"{path}: --out is empty; give a folder (default outputs/{scene.name})", file=sys.stderr)
+        return 2
     out = Path(args.out) if args.out else Path("outputs") / scene.name
     blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
