@@ -258,6 +258,13 @@ def test_unreadable_mesh_file_is_a_problem_not_a_traceback(tmp_path):
     assert "field 'mesh' = \"junk.vtu\"" in message and "cannot read mesh" in message
 
 
+def test_an_empty_mesh_file_is_said_to_be_empty(tmp_path):
+    """An empty file read as "cannot read mesh (need at least one array to concatenate)"."""
+    (tmp_path / "empty.stl").write_bytes(b"")
+    message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "empty.stl"\n'))
+    assert "field 'mesh' = \"empty.stl\"" in message and message.endswith("the file is empty")
+
+
 def test_open_mesh_reports_its_boundary_edges(tmp_path):
     meshio.write(tmp_path / "open.obj", meshio.Mesh(CUBE_POINTS, [("triangle", cube_triangles()[:-1])]))
     message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "open.obj"\n'))

@@ -64,6 +64,8 @@ def read_mesh(path):
         raise MeshError(path, "file not found")
     if not path.is_file():
         raise MeshError(path, "not a regular file")
+    if path.stat().st_size == 0:        # (meshio: "need at least one array to concatenate")
+        raise MeshError(path, "the file is empty")
     printed = io.StringIO()
     try:
         # meshio prints reader errors to stdout, then calls sys.exit(1) when every reader failed
