@@ -118,7 +118,7 @@ velocity = [0.0, 0.0, -10.0]
     assert [(w.body, w.kind, w.partner) for w in warnings] == [("plate", "space", "ball"),
                                                               ("plate", "time", "ball")]
     assert warnings[0].speed == pytest.approx(10.0, rel=0.02)
-    assert "(none touching: it strikes inside a face;" in warnings[0].message
+    assert "; none touching: it strikes inside a face)" in warnings[0].message
     # Hertz's patch of the 2.1 g ball (the plate's 0.52 kg hardly counts), fully plastic: 3 Y
     # pi R d^2 = m v^2 / 2 and a = sqrt(2 R d), about 1.5 mm, far under the 40 mm spacing
     m = 7800.0 * 4 / 3 * np.pi * 0.004 ** 3

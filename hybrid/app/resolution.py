@@ -341,9 +341,9 @@ def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
         need = impact.a / PATCH_SUGGESTED
         out.append(ImpactWarning(
             about[0], "space", *about[1:], spacing, need,
-            f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm) is "
-            f"carried by fewer than a few nodes ({touching}; nodes {spacing * 1e3:.3g} "
-            f"mm apart), so the stress under it is smeared over the elements and a dent or crack "
+            f"warning: {where}: the contact patch (radius about {impact.a * 1e3:.3g} mm, under "
+            f"{PATCH_ELEMENTS:g} node spacings: nodes {spacing * 1e3:.3g} mm apart; {touching}) is "
+            f"carried by few nodes, so the stress under it is smeared over the elements and a dent or crack "
             f"there is underestimated; a resolution of about {need:.2g} m would resolve it: {see}"))
     elif impact.a is None and nodes_on < FLAT_NODES:
         need = spacing / 2.0
