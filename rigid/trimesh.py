@@ -122,6 +122,31 @@ def orient_shells(vertices, triangles):
     return out
 
 
+def crossing_pieces(vertices, triangles, samples=64):
+    """Pairs ``(i, j)`` of the surface's pieces (:func:`shells` labels) that cross each other:
+    some of piece i's vertices (up to ``samples`` of them, spread over it) lie inside piece j
+    and some outside (by the winding number about j). Nested pieces (a cavity, an island) lie
+    wholly inside or outside; crossing ones overlap, and their overlap counts twice."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    count, label = shells(triangles)
+    if count <= 1:
+        return []
+    v = np.asarray(vertices, dtype=float)
+    members = [triangles[label == k] for k in range(count)]
+    corners = [np.unique(m) for m in members]
+    low = np.array([v[c].min(axis=0) for c in corners])
+    high = np.array([v[c].max(axis=0) for c in corners])
+    meet = np.all(low[:, None] <= high[None], axis=2) & np.all(high[:, None] >= low[None], axis=2)
+    np.fill_diagonal(meet, False)
+    out = []
+    for i, j in zip(*np.nonzero(meet)):
+        pick = corners[i][np.linspace(0, len(corners[i]) - 1, min(samples, len(corners[i]))).astype(int)]
+        inside = [abs(winding_number(v[p], v, members[j])) > 0.5 for p in pick]
+        if any(inside) and not all(inside):
+            out.append((int(i), int(j)))
+    return out
+
+
 def compact(vertices, triangles):
     """Drop vertices no triangle uses; returns (vertices, triangles, kept_vertex_indices)."""
     used = np.unique(triangles)

@@ -717,3 +717,23 @@ def test_refine_on_a_rigid_box_is_refused_not_ignored(tmp_path):
     problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a"\n'
                                                  'shape = { type = "box", size = [0.1, 0.1, 0.1], refine = 2 }\n'))
     assert "field 'shape.refine' needs model = \"fem\" or \"auto\"" in problem
+
+
+def test_surface_pieces_that_cross_each_other_are_warned_of_and_nested_ones_are_not(tmp_path):
+    """Two closed boxes overlapping by half, written as one surface, weigh both whole (their
+    overlap counted twice) without a word. Pieces with vertices both inside and outside another
+    cross it: warned of. A cavity with an island (nested, not crossing) is not."""
+    import warnings
+    first, quads = _box_quads(0.1)
+    second, _ = _box_quads(0.1, offset=0.1)
+    meshio.write(tmp_path / "pair.obj", meshio.Mesh(np.concatenate([first, second]), [("quad", np.concatenate([quads, quads + 8]))]))
+    with pytest.warns(geometry.MeshWarning, match="2 pieces of the surface cross each other"):
+        geometry.load_surface(tmp_path / "pair.obj")
+    outer, _ = _box_quads(0.2)
+    inner, _ = _box_quads(0.1)
+    island, _ = _box_quads(0.025)
+    faces = np.concatenate([quads, quads[:, ::-1] + 8, quads + 16])
+    meshio.write(tmp_path / "nested.obj", meshio.Mesh(np.concatenate([outer, inner, island]), [("quad", faces)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", geometry.MeshWarning)
+        geometry.load_surface(tmp_path / "nested.obj")

@@ -52,7 +52,8 @@ def caught_mesh_warnings():
         # passing one on appended it to the list being read, forever (a hang on any STL file)
         for w in caught:
             if issubclass(w.category, MeshWarning):
-                messages.append(str(w.message))
+                if str(w.message) not in messages:     # (a surface read by several builders)
+                    messages.append(str(w.message))
             else:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
@@ -149,6 +150,11 @@ def surface_from_mesh(mesh, path):
     vertices, triangles, _ = trimesh.compact(points, triangles)
     _check_closed(triangles, path)
     triangles = trimesh.orient_shells(vertices, triangles)      # a cavity's wall facing into it
+    crossing = trimesh.crossing_pieces(vertices, triangles)
+    if crossing:
+        warnings.warn(f"{path}: {len({min(p) for p in crossing} | {max(p) for p in crossing})} pieces of the "
+                      f"surface cross each other: the volume where they overlap counts twice in the "
+                      f"body's mass and inertia (join them into one closed surface)", MeshWarning, stacklevel=3)
     scale = np.ptp(vertices, axis=0).max()
     if trimesh.signed_volume(vertices, triangles) <= 1e-12 * scale ** 3:
         raise MeshError(path, "surface encloses zero volume")

@@ -2,6 +2,7 @@
 SceneError listing every problem."""
 import math
 import tomllib
+import warnings
 from pathlib import Path
 
 from hybrid.app import deformable, geometry
@@ -283,11 +284,14 @@ def _mesh_resolution(shape, fem_model):
 
 
 def _check_mesh(written, resolved, model, where, problems):
-    """Record a problem if the mesh file is missing, unreadable or unusable for ``model``."""
+    """Record a problem if the mesh file is missing, unreadable or unusable for ``model`` (what
+    it warns of is told as the body is built)."""
     try:
-        mesh = geometry.read_mesh(resolved)
-        if model in FEM_MODELS:
-            geometry.tets_from_mesh(mesh, resolved)
-        geometry.surface_from_mesh(mesh, resolved)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", geometry.MeshWarning)
+            mesh = geometry.read_mesh(resolved)
+            if model in FEM_MODELS:
+                geometry.tets_from_mesh(mesh, resolved)
+            geometry.surface_from_mesh(mesh, resolved)
     except geometry.MeshError as error:
         problems.append(where.problem("mesh", f"= \"{written}\" (resolved to {resolved}): {error.reason}"))
