@@ -98,7 +98,7 @@ def _run(args):
     deformable = sum(b.model != "rigid" for b in scene.bodies)
     if deformable and not args.resume:      # (a large mesh's factorisation can take a minute)
         print(f"building '{scene.name}': meshing and factorising {deformable} deformable "
-              f"bod{'y' if deformable == 1 else 'ies'}", file=sys.stderr, flush=True)
+              f"bod{'y' if deformable == 1 else 'ies'}", flush=True)
     try:
         sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
     except SceneError as err:           # problems only the built bodies show

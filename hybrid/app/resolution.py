@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .impact_contacts import (approach, just_parked, near, partner_of, same_body, strike_speeds,
-                              within_reach)
+from .impact_contacts import (across, approach, just_parked, near, partner_of, same_body,
+                              strike_speeds, within_reach)
 
 # an impact is examined when rho c v reaches this share of the body's yield or fracture stress
 STRENGTH_SHARE = 0.25
@@ -254,7 +254,11 @@ class ImpactWatch:
             speed = float(speeds[on].max())
             if not _relevant(m, body, speed):
                 continue
-            normal = c.normal[int(np.argmax(np.where(on, speeds, -np.inf)))]
+            # the nodes that meet at once: within TOUCH of the leading one (a face landing flat is
+            # met by all of its nodes in the step the contact begins, none of them touching yet);
+            # a partner's point on a face between nodes is carried by none
+            lead = on & (c.gap <= c.gap[on].min() + TOUCH * spacing) & (c.node >= 0)
+            normal = across(model, state, j, c, int(np.argmax(np.where(on, speeds, -np.inf))), lead)
             extent = float(np.ptp(s1.x @ normal))
             partner_body, partner_mass = partner_of(model, int(partner))
             curvature = 1.0 / shape_radius(body) + 1.0 / shape_radius(partner_body)
@@ -263,10 +267,6 @@ class ImpactWatch:
             reduced = mass * partner_mass / (mass + partner_mass) if np.isfinite(partner_mass) else mass
             impact = impact_estimate(m.young, m.poisson, m.density, m.yield_stress, extent, radius,
                                      reduced, speed)
-            # the nodes that meet at once: within TOUCH of the leading one (a face landing flat is
-            # met by all of its nodes in the step the contact begins, none of them touching yet);
-            # a partner's point on a face between nodes is carried by none
-            lead = on & (c.gap <= c.gap[on].min() + TOUCH * spacing) & (c.node >= 0)
             nodes_on = int(np.unique(c.node[lead]).size)
             where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
