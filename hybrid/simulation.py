@@ -18,7 +18,7 @@ import numpy as np
 
 from .app import checkpoint, geometry, observe
 from .app.build import build
-from .app.deformable import material_warnings, mesh_notes
+from .app.deformable import deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, overlapping_bodies,
@@ -140,11 +140,11 @@ class Simulation:
         self.warnings = list(repaired) + [f"bodies '{a}' and '{b}' overlap at the start"
                                           for a, b in overlapping_bodies(self.model, self.state)]
         self.warnings += _uneven_duration(scene.simulation.duration, scene.simulation.dt)
-        kinds = {b.name: b.model for b in self.scene.bodies}
+        below = below_planes(self.model, self.state)
+        if deep_starts(scene, self.model, below):
+            raise SceneError(deep_starts(scene, self.model, below))
         self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
-                          + ("in its first steps" if kinds[name] == "rigid" else
-                             "in its first step, its nodes hard enough to throw it")
-                          for name, depth in below_planes(self.model, self.state)]
+                          f"in its first step{'s' if name in self.model.rigid.names else ''}" for name, depth in below]
         self.spinning = _fast_spin(scene)
         self.warnings += _ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
         self.notes = mesh_notes(self.model)

@@ -226,3 +226,21 @@ def test_an_empty_out_is_refused_as_the_python_api_refuses_it(capsys):
     ``sim.run(out="")`` raises ValueError."""
     assert main(["run", "dent", "--out", ""]) == 2
     assert "--out is empty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("z, refused", [(0.0, True), (0.0495, False)])
+def test_a_deformable_body_started_deep_in_the_ground_is_refused(tmp_path, capsys, z, refused):
+    """A soft cube 0.1 m across started half in the ground had its buried nodes pushed out in
+    one step: strained by 0.6, it gained 33 J in 0.017 s and the run stopped as unstable, after
+    a warning that it would be thrown. Deeper than 1% of its size, it is a problem of its
+    position; half a millimetre in, it is warned of and pushed out."""
+    scene = tmp_path / "buried.toml"
+    scene.write_text(f'[simulation]\nduration = 0.01\n[[planes]]\n[[bodies]]\nname = "box"\nmodel = "fem"\n'
+                     f'young = 1e6\nshape = {{ type = "box", size = [0.1, 0.1, 0.1] }}\nposition = [0, 0, {z}]\n')
+    code = main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    if refused:
+        assert code == 2 and "field 'position' starts it 0.05 m inside a plane" in err, err
+        assert not (tmp_path / "out").exists()
+    else:
+        assert code == 0 and "starts 0.0005 m inside a plane: it is pushed out in its first step" in err, err

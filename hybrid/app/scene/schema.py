@@ -246,7 +246,9 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     Field("mesh", "path", None, "", "Mesh file (any format meshio reads), relative to the scene file's folder.",
           default_text="none"),
     _positive("density", 1000.0, "kg/m^3", "Mass density."),
-    Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame)."),
+    Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame). "
+          "A body starting inside a plane is warned of and pushed out; a deformable one may start "
+          "at most 1% of its size inside (its nodes are pushed out in one step)."),
     Field("orientation", "quaternion", (1.0, 0.0, 0.0, 0.0), "", "Unit quaternion `[w, x, y, z]`; "
           "renormalised if its norm is within 1e-3 of 1 (`[0.7071, 0.7071, 0, 0]` is a quarter "
           "turn about x)."),
