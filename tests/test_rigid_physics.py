@@ -281,14 +281,20 @@ position = [0, 0, {z}]
 @pytest.mark.parametrize("model", ["rigid", "fem", "auto"])
 def test_a_body_starting_inside_the_ground_is_warned_of_with_its_depth(sim, model):
     """A box whose centre is 5 cm above the ground starts 5 cm inside it (a deformable one was
-    thrown up at 6.7 m/s without a word); one resting on it (centre 10 cm up) is not warned of."""
+    thrown up at 6.7 m/s without a word; it is now refused, naming its position, as deeper than
+    1% of its size); one resting on it (centre 10 cm up) is not warned of."""
+    from hybrid import SceneError
     young = "" if model == "rigid" else "young = 1e6"
-    buried = sim(BURIED.format(name="crate", model=model, z=0.05).replace("young = 1e6", young))
     resting = sim(BURIED.format(name="crate", model=model, z=0.1).replace("young = 1e6", young))
+    assert below_planes(resting.model, resting.state) == [] and not resting.warnings
+    if model != "rigid":
+        with pytest.raises(SceneError, match="field 'position' starts it 0.05 m inside a plane"):
+            sim(BURIED.format(name="crate", model=model, z=0.05).replace("young = 1e6", young))
+        return
+    buried = sim(BURIED.format(name="crate", model=model, z=0.05).replace("young = 1e6", young))
     assert [name for name, _ in below_planes(buried.model, buried.state)] == ["crate"]
     assert below_planes(buried.model, buried.state)[0][1] == pytest.approx(0.05, rel=1e-6)
     assert any("'crate' starts 0.05 m inside a plane" in w for w in buried.warnings)
-    assert below_planes(resting.model, resting.state) == [] and not resting.warnings
 
 
 def _cylinder_scene(orientation, position, plane_normal=(0.0, 0.0, 1.0)):
