@@ -175,6 +175,9 @@ def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):
     listed = capsys.readouterr().out
     assert all(f"  {name} " in listed for name in builtin_names())
     assert {"dent", "pull", "shatter", "tear", "fragments", "pile"} <= set(builtin_names())
+    # a copy of the cantilever reads its mesh relative to its own folder: the listing says where it is
+    meshes = listed.split("meshes the scenes read")[1].split(": ", 1)[1].strip().split(", ")
+    assert meshes and all(Path(m).is_absolute() and Path(m).is_file() for m in meshes)
     assert main(["run", "no_such_scene", "--quiet"]) == 2
     assert "built-in scenes: " in capsys.readouterr().err
 

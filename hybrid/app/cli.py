@@ -45,6 +45,10 @@ def _scenes(args):
     print("built-in scenes (hybrid run NAME; copy one from the path below to start your own):")
     print(_scenes_text())
     print(f"files: {builtin_path('default').parent}")
+    meshes = sorted({str((builtin_path(n).parent / b.mesh).resolve()) for n in builtin_names()
+                     for b in load_scene(builtin_path(n)).bodies if b.mesh is not None})
+    if meshes:      # (a copied scene reads them relative to its own folder: point its `mesh` at them)
+        print("meshes the scenes read (a copy's `mesh` path is relative to its own folder): " + ", ".join(meshes))
     return 0
 
 
