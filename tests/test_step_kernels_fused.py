@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from fem import step_kernels
 from fem.system import _blocks
-from hybrid.coupling import fem_contact, kernels, nodes, resting, rest_grid, solve
+from hybrid.coupling import kernels, nodes, resting, rest_grid, solve
 from rigid.sdf import DEFAULT_PADDING_CELLS
 from rigid.sdf_kernels import BEYOND_STEPS, PADDING_REACH, SETTLED
 
@@ -275,7 +275,7 @@ def test_sample_points_match_the_numpy_gather(seed):
     plain = point_kind[at] != 1
     owner, at = owner[plain], at[plain]
     x = position[owner] + np.einsum("pij,pj->pi", rotation[owner], point_local[at])
-    out = fem_contact.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
+    out = kernels.sample_points(near, point_start, point_local, point_kind, 1, position, rotation)
     assert np.array_equal(out[0], owner) and np.array_equal(out[1], at)
     np.testing.assert_allclose(out[2], x, rtol=1e-13, atol=1e-15)
 

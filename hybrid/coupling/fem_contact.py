@@ -1,31 +1,29 @@
 """Contacts between deformable bodies: surface nodes of one against the surface of another.
 
 Each FEM body gets a signed-distance grid of its rest surface (rigid.sdf, built the first time
-another body comes near it). A node of body A is tested against body B's grid in B's current
-frame (floating frame: best-fit rotation and centre; anchored: the world), which follows B's rigid
-motion exactly and gives the normal and the closest point of B's rest surface; the node's place
-is first moved back by the displacement of B's surface node now nearest it, so a body bent by
-more than half its thickness (a soft bridge under a box) is still met on the face the node
-touches, not the opposite face its rest shape puts nearer (or, bent further, off the grid: the
-box fell through the bridge, gaining 8 J). That point lies in
-one of B's rest surface triangles; B's side of the contact is a place of that triangle now, the
-sum of its three nodes with barycentric weights: those of the point's projection onto the
-triangle as it is now where that falls inside it (with the rest surface's, the place slid off
-the point's normal line as B deformed, and a ball striking a soft block lost 14% of the angular
-momentum), else the rest surface's. The normal turns with that
-triangle, so a bent face is met along its bent normal. The gap is measured along it: a dent
-in B moves its surface away from A (against the rest shape it would look like a penetration,
-whose recovery, pushing single nodes, doubled the energy of two soft bodies meeting head-on), and
-it changes continuously as A slides over B (measured to B's nearest node instead, it jumped by
-millimetres when that node changed, and the recovery fed energy in). In the contact solver the
-place moves with the weighted sum of its three nodes and its impulse goes to them in the same
-proportions (rigid.solver.pgs, places), so the two sides' impulses act along one line: linear momentum is
-kept exactly, and what angular momentum still changes is first order in the time step (1.6% at
-1 ms, 0.66% at 0.5 ms for a soft block grazing a soft ball; tests/test_coupling.py).
+another body comes near it). A node of body A is tested against body B's grid in B's current frame
+(floating frame: best-fit rotation and centre; anchored: the world), which follows B's rigid motion
+exactly and gives the normal and the closest point of B's rest surface; the node's place is first
+moved back by the displacement of B's surface node now nearest it, so a body bent by more than half
+its thickness (a soft bridge under a box) is still met on the face the node touches, not the
+opposite face its rest shape puts nearer (or, bent further, off the grid: the box fell through the
+bridge, gaining 8 J). That point lies in one of B's rest surface triangles; B's side of the contact
+is a place of that triangle now, the sum of its three nodes with barycentric weights: those of the
+point's projection onto the triangle as it is now where that falls inside it (with the rest
+surface's, the place slid off the point's normal line as B deformed, and a ball striking a soft
+block lost 14% of the angular momentum), else the rest surface's. The normal turns with that
+triangle, so a bent face is met along its bent normal. The gap is measured along it: a dent in B
+moves its surface away from A (against the rest shape it would look like a penetration, whose
+recovery, pushing single nodes, doubled the energy of two soft bodies meeting head-on), and it
+changes continuously as A slides over B (measured to B's nearest node instead, it jumped by
+millimetres when that node changed, and the recovery fed energy in). In the contact solver the place
+moves with the weighted sum of its three nodes and its impulse goes to them in the same proportions
+(rigid.solver.pgs, places), so the two sides' impulses act along one line: linear momentum is kept
+exactly, and what angular momentum still changes is first order in the time step (1.6% at 1 ms,
+0.66% at 0.5 ms for a soft block grazing a soft ball; tests/test_coupling.py).
 """
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -118,21 +116,25 @@ def edge_normals(contacts, own, near):
 
 
 def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
-    """Normals ``(c, 3)`` and gaps ``(c,)`` of the node-against-face ``pairs`` (stacked node a, a
-    place on another deformable body's face b) with a node on a smooth part of its own surface,
-    beside an edge or corner of b, meeting b along its own face's normal, as a node meets a rigid
-    edge (:func:`edge_normals`, whose ``near`` and angles apply). The corner's normals are any
-    within its cone; the smooth surface's is the one: a soft slab's nodes ahead of a soft block
-    sliding on it, in the dent it makes, met its front face as a wall, and the block lost a third of
-    its speed without friction and tumbled. A node on an edge or a corner of its own body (a
-    spinning block's, grazing a ball) keeps the face's normal. Also returns which pairs are met from
-    the front ``(c,)`` bool: as with a rigid body, a node whose own face turns more than 110 degrees
-    away from b has b behind it and is not its contact (turned, its gap read as a penetration: a
-    shattered pane's top nodes, within the margin of a piece of the lower half beside them, read as
-    4 mm inside it, and the recovery put 420 J of strain into the pane in one step)."""
+    """Normals ``(c, 3)``, gaps ``(c,)`` and which are met from the front ``(c,)`` bool, of the
+    node-against-face ``pairs`` (stacked node a, a place on another deformable body's face b), as
+    :func:`edge_normals` gives them for rigid bodies (its ``near`` and angles apply): a node on a
+    smooth part of its surface beside an edge or corner of b meets b along its own normal (a soft
+    slab's nodes in the dent ahead of a soft block sliding on it met its front face as a wall: the
+    block lost a third of its speed and tumbled); a node on an edge or corner of its own body (a
+    spinning block's, grazing a ball) keeps the face's normal. A node whose own face, or for one on
+    an edge or corner its triangles' mean normal, turns more than 110 degrees from b has b behind
+    it (a shattered pane's top nodes read 4 mm inside a piece beside them and took 420 J of strain
+    in one step; at a crack's corner a fresh piece's node met the plug beside it from behind, and
+    dragged it along as it flew off)."""
     own = _stacked_normals(models, states, node_offset, node_body, pairs.a)
-    return kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
-                              own, float(EDGE_COS), np.asarray(near, float))
+    normal, gap, front = kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
+                                            own, float(EDGE_COS), np.asarray(near, float))
+    edge = np.nonzero(np.einsum("ij,ij->i", own, own) < 0.5)[0]
+    if len(edge):
+        mean = _stacked_normals(models, states, node_offset, node_body, pairs.a[edge], flat=False)
+        front[edge] &= np.einsum("ij,ij->i", pairs.normal[edge], mean) <= EDGE_COS
+    return normal, gap, front
 
 
 def _stacked_normals(models, states, node_offset, node_body, stacked, flat=True):
@@ -161,8 +163,8 @@ def _node_normals(m, s, local, flat=False):
 def _motion(m, s):
     """The body's surface this step (:func:`hybrid.coupling.kernels.surface_motion`): centre (3,)
     and radius (m) of a sphere holding its surface nodes; how far its deformation moved them from
-    their rest places ``(s, 3)`` m, in its rest frame (X = R^T (x - c) + X_c; anchored bodies:
-    R = I, c = X_c), and the longest of those moves (m)."""
+    their rest places ``(s, 3)`` m, in its rest frame (X = R^T (x - c) + X_c; anchored bodies: R =
+    I, c = X_c), and the longest of those moves (m)."""
     centre, radius, moved, largest = kernels.surface_motion(
         s.x, m.surface_nodes, np.asarray(s.c, float), np.asarray(s.R, float), m.rest_center, m.rest_points)
     return centre, float(radius), moved, float(largest)
@@ -191,13 +193,13 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     those closer than ``reach`` (p,) m, ``motion`` being b's :func:`_motion`: ``(rows, corners,
     weights, nearest, point, normal, gap)``. b's side is a place in its surface triangle ``corners``
     (indices into ``mb.surface_nodes``) with barycentric ``weights``; ``nearest`` is b's surface
-    node nearest it (the contact's identity across steps); ``normal`` points from b towards x.
-    With ``off_nodes`` (m), points within that distance of their nearest node across the normal
-    are left out (that node's own contact covers them), unless they lie more than
-    ``OFF_NODE_DEPTH * off_nodes`` behind it (under it: a box's edge sunk under a soft pad's rim
-    node that slid out past it, which meets the box at its own height). ``facing`` (p, 3): the points' own
-    outward unit normals (world; nodes of another deformable body), which choose the face they
-    meet at b's sharp edges (places.places); None: none."""
+    node nearest it (the contact's identity across steps); ``normal`` points from b towards x. With
+    ``off_nodes`` (m), points within that distance of their nearest node across the normal are left
+    out (that node's own contact covers them), unless they lie more than ``OFF_NODE_DEPTH *
+    off_nodes`` behind it (under it: a box's edge sunk under a soft pad's rim node that slid out
+    past it, which meets the box at its own height). ``facing`` (p, 3): the points' own outward unit
+    normals (world; nodes of another deformable body), which choose the face they meet at b's sharp
+    edges (places.places); None: none."""
     radius = np.zeros(len(x)) if radius is None else radius
     moved, largest = motion[2], motion[3]
     # into b's rest frame, less the deformation there: the displacement of b's surface node now
@@ -373,7 +375,7 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         if not len(near):
             continue
         # a cylinder meets deformable faces with its side's vertices, not the rings they lie on
-        owner, at, x = sample_points(near, rigid.point_start, rigid.point_local, rigid.point_kind,
+        owner, at, x = kernels.sample_points(near, rigid.point_start, rigid.point_local, rigid.point_kind,
                                              POINT_RING, position, np.asarray(rotation, float))
         # a point right over a node (within a tenth of the margin across the normal) is that
         # node's own contact with the rigid body; a second one there only slows the solver
@@ -391,30 +393,3 @@ def _append(parts, a, corners, weights, nearest, point, normal, gap, friction, r
     if len(a):
         parts.append((a, corners, weights, nearest, point, normal, gap,
                       np.broadcast_to(friction, len(a)), np.broadcast_to(restitution, len(a)), sample))
-
-
-@nb.njit(cache=True)
-def sample_points(near, point_start, point_local, point_kind, skip_kind, position, rotation):
-    """The sample points of rigid bodies ``near`` (b,) other than those of kind ``skip_kind``:
-    their bodies ``owner`` (p,), indices ``at`` (p,) into ``point_local`` and world positions
-    (p, 3), ``position[owner] + rotation[owner] point_local[at]``, body by body in order
-    (hybrid.coupling.fem_contact.detect_rigid_points, in one pass)."""
-    total = 0
-    for j in range(len(near)):
-        total += point_start[near[j] + 1] - point_start[near[j]]
-    owner = np.empty(total, dtype=np.int64)
-    at = np.empty(total, dtype=np.int64)
-    x = np.empty((total, 3))
-    p = 0
-    for j in range(len(near)):
-        b = near[j]
-        for i in range(point_start[b], point_start[b + 1]):
-            if point_kind[i] == skip_kind:
-                continue
-            owner[p], at[p] = b, i
-            l0, l1, l2 = point_local[i, 0], point_local[i, 1], point_local[i, 2]
-            for a in range(3):
-                x[p, a] = position[b, a] + (rotation[b, a, 0] * l0 + rotation[b, a, 1] * l1
-                                            + rotation[b, a, 2] * l2)
-            p += 1
-    return owner[:p], at[:p], x[:p]

@@ -195,3 +195,30 @@ def edge_turns(normal, gap, body_b, own, edge_cos, near):
             out_n[k, 0], out_n[k, 1], out_n[k, 2] = m0, m1, m2
             out_gap[k] = gap[k] * along     # the offset to the rigid surface, along the new normal
     return out_n, out_gap, front
+
+
+@nb.njit(cache=True)
+def sample_points(near, point_start, point_local, point_kind, skip_kind, position, rotation):
+    """The sample points of rigid bodies ``near`` (b,) other than those of kind ``skip_kind``:
+    their bodies ``owner`` (p,), indices ``at`` (p,) into ``point_local`` and world positions
+    (p, 3), ``position[owner] + rotation[owner] point_local[at]``, body by body in order
+    (hybrid.coupling.fem_contact.detect_rigid_points, in one pass)."""
+    total = 0
+    for j in range(len(near)):
+        total += point_start[near[j] + 1] - point_start[near[j]]
+    owner = np.empty(total, dtype=np.int64)
+    at = np.empty(total, dtype=np.int64)
+    x = np.empty((total, 3))
+    p = 0
+    for j in range(len(near)):
+        b = near[j]
+        for i in range(point_start[b], point_start[b + 1]):
+            if point_kind[i] == skip_kind:
+                continue
+            owner[p], at[p] = b, i
+            l0, l1, l2 = point_local[i, 0], point_local[i, 1], point_local[i, 2]
+            for a in range(3):
+                x[p, a] = position[b, a] + (rotation[b, a, 0] * l0 + rotation[b, a, 1] * l1
+                                            + rotation[b, a, 2] * l2)
+            p += 1
+    return owner[:p], at[:p], x[:p]
