@@ -80,7 +80,12 @@ def _limit_hint(model):
     load (a bar's area times its yield stress) has no equilibrium, and the body stretches until
     the run stops (a bar under 1.05 times it reached a strain of 13 in 0.1 s)."""
     names = [b.name for b in model.scene.bodies if b.loads and b.yield_stress is not None]
-    if not names:
-        return ""
-    return (f"; {', '.join(repr(n) for n in names)} carries loads and yields: loads above its "
-            f"plastic limit load (a bar's area times yield_stress) have no equilibrium")
+    broken = [b.name for b in model.scene.bodies if b.loads and (b.fracture_stress is not None
+                                                                 or b.tearing_strain is not None)]
+    hint = (f"; {', '.join(repr(n) for n in names)} carries loads and yields: loads above its "
+            f"plastic limit load (a bar's area times yield_stress) have no equilibrium") if names else ""
+    if broken and model.fragment_of is not None:
+        # (a 22 kN load on a 15 g piece broken off a brittle bar took it to 2.8 km/s)
+        hint += (f"; {', '.join(repr(n) for n in broken)} carries loads and broke: a load the body "
+                 f"could not hold, left on a piece that broke off, accelerates it without end")
+    return hint

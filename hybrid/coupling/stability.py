@@ -70,7 +70,12 @@ def check_finite(model, state):
         for quantity, worst, limit in (("node speed (m/s)", speed, MAX_SPEED),
                                        ("node distance from origin (m)", distance, MAX_DISTANCE)):
             if not math.isfinite(worst) or worst > limit:
-                raise InstabilityError(model.names[model.fem_ids[j]], state.time, quantity,
+                k = int(model.fem_ids[j])
+                if model.fragment_of is not None and model.fragment_of[k] != k and model.fem[j].node_load.any():
+                    # (a 22 kN load on a piece broken off a brittle bar took it to 10 km/s)
+                    quantity += (", a piece that broke off carrying a load: a load the body could not hold "
+                                 "accelerates the piece without end")
+                raise InstabilityError(model.names[k], state.time, quantity,
                                        worst if math.isfinite(worst) else float("nan"))
 
 
