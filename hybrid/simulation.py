@@ -87,7 +87,7 @@ def _fast_spin(scene):
     turning more than SPIN_PER_STEP rad in a step."""
     dt, said = scene.simulation.dt, {}
     for b in scene.bodies:
-        w = float(np.linalg.norm(b.angular_velocity))
+        w = math.hypot(*b.angular_velocity)          # (no overflow for absurd spins)
         if b.model != "rigid" and not b.anchors and not b.fixed and b.integrator == "backward_euler" \
                 and w * dt > SPIN_PER_STEP:
             said[b.name] = (f"body '{b.name}' spins at {w:.4g} rad/s, {w * dt:.2g} rad per step of "

@@ -244,3 +244,17 @@ def test_a_deformable_body_started_deep_in_the_ground_is_refused(tmp_path, capsy
         assert not (tmp_path / "out").exists()
     else:
         assert code == 0 and "starts 0.0005 m inside a plane: it is pushed out in its first step" in err, err
+
+
+def test_a_rigid_body_spinning_without_bound_stops_the_run_naming_its_rim_speed(tmp_path, capsys):
+    """A rigid box started at 1e160 rad/s ran to the end with status ok, its kinetic energy inf
+    and the energy drift nan: only its speed and position were checked. Its rim speed is."""
+    scene = tmp_path / "spin.toml"
+    scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "b"\n'
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nangular_velocity = [1e160, 0, 0]\n')
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "unstable: body 'b' at t = 0.001 s: rim speed (m/s)" in err and "Warning" not in err, err

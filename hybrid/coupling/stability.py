@@ -4,6 +4,8 @@ import math
 import numba as nb
 import numpy as np
 
+from rigid.model import angular_velocity
+
 # above these the run is declared unstable (no scene of everyday objects gets near them)
 MAX_SPEED = 1.0e4       # m/s
 MAX_DISTANCE = 1.0e6    # m
@@ -65,6 +67,17 @@ def check_finite(model, state):
             if bad.any():
                 i = int(np.argmax(bad))
                 raise InstabilityError(model.names[model.rigid_ids[i]], state.time, quantity, float(size[i]))
+        # the rim's speed, |w| times the body's radius, looked at exactly only where a bound on it
+        # (|L| / the least moment) passes the limit (a box spun at 1e160 rad/s ran to "ok")
+        rm = model.rigid
+        bound = _row_norms(rs.angular_momentum) * rm.body_inv_inertia.max(axis=1) * rm.body_radius
+        if not np.all(bound <= MAX_SPEED):
+            rim = _row_norms(angular_velocity(rm, rs)) * rm.body_radius
+            bad = ~np.isfinite(rim) | (rim > MAX_SPEED)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InstabilityError(model.names[model.rigid_ids[i]], state.time, "rim speed (m/s)",
+                                       float(rim[i]))
     for j, s in enumerate(state.fem):
         speed, distance = largest_norms(s.v, s.x)
         for quantity, worst, limit in (("node speed (m/s)", speed, MAX_SPEED),
