@@ -397,3 +397,25 @@ def test_a_position_at_the_end_is_judged_against_how_far_the_body_moved():
     assert scale == pytest.approx(0.01, rel=1e-2)             # the travel, not 100 m
     assert errors[0, 0] / scale == pytest.approx(1e-2 * 0.04 / 0.01, rel=1e-2)
     assert out["box.com"][3] == pytest.approx(scale, rel=1e-2)
+
+
+def test_a_quantity_of_a_body_whose_name_has_dots_is_read_from_that_body(tmp_path):
+    """Bodies "ball" and "ball.v2": ``ball.v2.z`` was read as body "ball", column "v2.z", and the
+    study ended "no such scene file or built-in scene (ball.v2.z)". The longest name counts."""
+    from hybrid import Simulation
+    from hybrid.app.quantities import RunQuantities
+    scene = tmp_path / "two.toml"
+    scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "ball"\n'
+                     'shape = { type = "sphere", radius = 0.05 }\n[[bodies]]\nname = "ball.v2"\n'
+                     'shape = { type = "sphere", radius = 0.05 }\nposition = [1, 0, 2]\n')
+    sim = Simulation.from_toml(scene)
+    sim.run(out=tmp_path / "run", progress=False, log=lambda m: None)
+    z = RunQuantities(tmp_path / "run", sim.scene).get("ball.v2.z").values
+    assert z[0, 0] == pytest.approx(2.0) and z[-1, 0] < 2.0
+
+
+@pytest.mark.parametrize("command", ["sweep", "converge"])
+def test_an_empty_out_is_refused_by_the_studies_as_by_run(command, capsys):
+    args = ["--set", "simulation.dt=1e-4,5e-5"] if command == "sweep" else []
+    assert main([command, "dent", *args, "--out", ""]) == 2
+    assert "--out is empty" in capsys.readouterr().err

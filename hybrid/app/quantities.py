@@ -110,7 +110,8 @@ class RunQuantities:
             return Quantity(None, series.values[-1:])
         if name == "cracks":
             return Quantity(None, np.array([[float(read_summary(self.folder)["fracture"]["cracks"])]]))
-        body = next((b.name for b in self.scene.bodies if name.startswith(b.name + ".")), None)
+        # the longest body name the quantity begins with (bodies "ball" and "ball.v2")
+        body = max((b.name for b in self.scene.bodies if name.startswith(b.name + ".")), key=len, default=None)
         if body is None:
             raise KeyError(name)
         rest = name[len(body) + 1:]

@@ -59,6 +59,9 @@ def _common(p, default_out):
 
 def _out(args, kind):
     from ..simulation import scene_path
+    from .variants import SettingError
+    if args.out is not None and not args.out.strip():
+        raise SettingError(f"--out is empty; give a folder (default outputs/<scene>-{kind})")
     return Path(args.out) if args.out else Path("outputs") / f"{Path(str(scene_path(args.scene))).stem}-{kind}"
 
 
@@ -72,10 +75,11 @@ def run_command(args):
     if tol is not None and not 0.0 < tol < 1.0:
         return _bad(args.scene, f"--tol {tol:g}: give a relative error between 0 and 1 (for example 0.01)")
     try:
-        out = _out(args, args.command)
+        try:
+            out = _out(args, args.command)
+        except KeyError as err:             # a bare name that is no built-in scene
+            return _bad(args.scene, f"no such scene file or built-in scene ({err.args[0]})")
         return (_sweep if args.command == "sweep" else _converge)(args, out)
-    except KeyError as err:             # a bare name that is no built-in scene
-        return _bad(args.scene, f"no such scene file or built-in scene ({err.args[0]})")
     except SettingError as err:
         return _bad(args.scene, str(err))
     except SceneError as err:
