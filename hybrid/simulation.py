@@ -65,11 +65,17 @@ class Body:
     plastic_strain: np.ndarray = None
 
 
+def _nearest_whole(steps):
+    """The whole number of steps nearest ``steps``, halves up, also where the division left the
+    half a hair under (0.35 / 0.1 = 3.4999999999999996)."""
+    return math.floor(steps + 0.5 + 1e-9 * max(1.0, abs(steps)))
+
+
 def _uneven_duration(duration, dt):
     """A warning (in a list) when ``duration`` is no whole number of steps of ``dt``: the run
     takes the nearest number of steps, ending early or late."""
     steps = duration / dt
-    n = math.floor(steps + 0.5)
+    n = _nearest_whole(steps)
     if abs(steps - n) <= 1e-6 * max(1.0, steps):
         return []
     return [f"duration {duration:g} s is {steps:.4g} steps of dt = {dt:g} s: the run takes {n} "
@@ -351,7 +357,7 @@ class Simulation:
             raise ValueError(f"until must be a time (s) at or after the simulation's time "
                              f"{self.time:.6g} s, got {until!r}")
         until = float(until)
-        end_step = self.steps + math.floor((until - self.time) / sim.dt + 0.5)     # halves up
+        end_step = self.steps + _nearest_whole((until - self.time) / sim.dt)
         return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,
                                    len(self.events), self.steps), None
 

@@ -183,7 +183,7 @@ def test_cli_lists_built_in_scenes_and_refuses_an_unknown_name(capsys):
 
 
 @pytest.mark.parametrize("duration, dt, end", [(0.1, 0.003, 0.099), (0.1, 0.06, 0.12), (0.1, 0.001, None),
-                                            (0.105, 0.01, 0.11), (0.125, 0.05, 0.15)])   # halves up
+                                            (0.105, 0.01, 0.11), (0.125, 0.05, 0.15), (0.35, 0.1, 0.4)])
 def test_a_duration_that_is_no_whole_number_of_steps_is_warned_of_with_where_the_run_ends(
         duration, dt, end):
     text = (f"[simulation]\nduration = {duration}\ndt = {dt}\n[[bodies]]\nname = \"b\"\n"
