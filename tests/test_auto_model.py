@@ -153,6 +153,36 @@ friction = 0.3
     assert slope == pytest.approx(9.81 * (np.sin(angle) - 0.3 * np.cos(angle)), rel=1e-3)
 
 
+def test_a_box_sliding_on_a_fixed_rigid_floor_turns_rigid_and_slows_at_mu_g():
+    """As on a plane (above), on a fixed rigid body: it stayed FEM until it stopped, the fixed
+    floor not counted as the ground it rests on."""
+    sim = Sim("""
+[simulation]
+duration = 0.3
+dt = 0.001
+[[bodies]]
+name = "floor"
+fixed = true
+shape = { type = "box", size = [2.0, 1.0, 0.1] }
+position = [0.5, 0, -0.05]
+friction = 0.3
+[[bodies]]
+name = "box"
+model = "auto"
+shape = { type = "box", size = [0.1, 0.1, 0.1] }
+position = [0, 0, 0.0501]
+velocity = [1, 0, 0]
+young = 1e7
+friction = 0.3
+""")
+    speeds = []
+    for _ in range(250):
+        sim.step()
+        speeds.append(sim.body("box").velocity[0])
+    assert [e.event for e in sim.events if hasattr(e, "event")] == ["rigidify"] and sim.events[0].time < 0.05
+    assert (speeds[99] - speeds[199]) / (100 * sim.dt) == pytest.approx(0.3 * 9.81, rel=1e-3)
+
+
 def test_a_rigid_auto_body_struck_turns_deformable_before_the_impact_step():
     auto, touched = _run_hit("auto", 60)
     fem, fem_touched = _run_hit("fem", 60)

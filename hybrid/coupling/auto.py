@@ -240,7 +240,7 @@ def _approaching(model, state, j, rigidify):
     """Whether FEM body ``j`` is moving towards a contact it took no impulse from, waiting within
     reach (it is about to touch something: turned rigid now, it would turn back on landing). A
     body counts as moving at a centre speed above ``rigidify`` strain over its response time; a
-    body resting on the ground (planes, static ground), at that speed along the normal of a
+    body resting on the ground (planes, fixed rigid bodies), at that speed along the normal of a
     waiting contact with the ground: a box sliding on the ground keeps unloaded contacts at its
     rear corners with the ground that carries it, and is not landing on them. (On other bodies,
     which may sway under it, any motion counts.)"""
@@ -253,8 +253,11 @@ def _approaching(model, state, j, rigidify):
         return False
     m, s = model.fem[j], state.fem[j]
     velocity = fem_dyn.mass_weights(m) @ s.v / float(m.node_mass.sum())
-    partner = t.partner[rows]
-    resting = (partner < 0) & np.any(partner[loaded] < 0)         # on the ground
+    fixed = np.zeros(len(model.names) + 1, bool)     # (fracture pieces after the scene's; -1: planes)
+    fixed[:len(model.scene.bodies)] = [b.fixed for b in model.scene.bodies]
+    fixed[-1] = True
+    ground = fixed[t.partner[rows]]
+    resting = ground & np.any(ground[loaded])        # on the ground (planes, fixed bodies)
     across = np.where(resting, np.abs(t.normal[rows] @ velocity), np.linalg.norm(velocity))
     return bool(np.any(across[~loaded] > rigidify * extent(m) / response_time(m, model.dt)))
 
