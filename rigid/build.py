@@ -187,9 +187,9 @@ def _principal_frames(bodies, geo):
             # a box 1e8 m long and 1 m thick: its moment about the long axis, a difference of
             # terms 1e16 times larger, came out 0, and the first step divided by it
             raise ValueError(f"its mass ({mass[i]:.3g} kg) and principal moments of inertia "
-                             f"({', '.join(f'{x:.3g}' for x in inertia[i])} kg m^2) are not all positive "
-                             f"in double precision: a shape this thin for its length, or this large, "
-                             f"cannot be stepped")
+                             f"({', '.join(f'{x:.3g}' for x in inertia[i])} kg m^2) are beyond double "
+                             f"precision (the least not positive, or under 1e-12 of the largest): a "
+                             f"shape this thin for its length, or this large, cannot be stepped")
     return mass, inertia, axes, com
 
 

@@ -263,6 +263,9 @@ def test_an_empty_mesh_file_is_said_to_be_empty(tmp_path):
     (tmp_path / "empty.stl").write_bytes(b"")
     message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "empty.stl"\n'))
     assert "field 'mesh' = \"empty.stl\"" in message and message.endswith("the file is empty")
+    (tmp_path / "comments.obj").write_text("# nothing but a comment\n")
+    message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "comments.obj"\n'))
+    assert message.endswith("the file holds no points"), message
 
 
 def test_open_mesh_reports_its_boundary_edges(tmp_path):
@@ -686,7 +689,8 @@ shape = { type = "box", size = [0.1, 0.1, -0.1] }
     assert any("\"box\"" in p and "shape.size" in p for p in found), found
 
 
-@pytest.mark.parametrize("name", ["/tmp/elsewhere", "../../escaped", "a/b", "a\\b", ".hidden", "two\nlines"])
+@pytest.mark.parametrize("name", ["/tmp/elsewhere", "../../escaped", "a/b", "a\\b", ".hidden", "two\nlines",
+                                  "next\u0085line", "line\u2028separator"])
 def test_a_scene_name_that_is_not_a_plain_name_is_refused(tmp_path, name):
     """A scene's output goes to outputs/<name>/: a name of "/tmp/x" or "../../x" wrote (and
     cleared the frames of) a folder outside outputs/. It must be a plain name."""

@@ -82,6 +82,8 @@ def read_mesh(path):
         detail = lines[0].splitlines()[0] if lines else "unknown format or corrupt file"
         raise MeshError(path, f"cannot read mesh ({detail})") from None
     points = np.asarray(mesh.points, dtype=float)
+    if points.size == 0:
+        raise MeshError(path, "the file holds no points")
     if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise MeshError(path, f"points have shape {points.shape}, expected (n, 3)")
     if points.shape[1] == 2:

@@ -66,9 +66,9 @@ def parse_scene(data, source, base_dir):
                 problems.append(_body_where(source, i, body.name).problem(
                     "name", f"must be unique, got {toml_text(body.name)} again "
                             f"(first used by bodies[{first_index[body.name]}])"))
-            if any(ord(c) < 32 or ord(c) == 127 for c in body.name):
+            if not body.name.isprintable():
                 problems.append(_body_where(source, i, body.name).problem(
-                    "name", "must have no control characters (a line break, a tab)"))
+                    "name", "must have no control characters or line separators (a line break, a tab)"))
             first_index.setdefault(body.name, i)
         bodies.append(body)
     if not bodies and isinstance(top["bodies"], (list, tuple)):       # none given (a bad value is reported)
@@ -112,8 +112,7 @@ def _parse_plane(table, source, index, problems):
 def _plain_name(name):
     """Whether ``name`` names a file in a folder: no separators, no leading dot, no control
     characters (a scene named "../x" or "/tmp/x" wrote, and cleared, a folder outside outputs/)."""
-    return not (set(name) & {"/", "\\"} or name.startswith(".")
-                or any(ord(c) < 32 or ord(c) == 127 for c in name))
+    return not (set(name) & {"/", "\\"} or name.startswith(".") or not name.isprintable())
 
 
 def _body_where(source, index, name):
