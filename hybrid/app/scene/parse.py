@@ -111,7 +111,7 @@ def _parse_plane(table, source, index, problems):
 
 def _plain_name(name):
     """Whether ``name`` names a file in a folder: no separators, no leading dot, no control
-    characters (a scene named "../x" or "/tmp/x" wrote, and cleared, a folder outside outputs/)."""
+    characters (a scene named "../x" or an absolute path wrote, and cleared, a folder outside outputs/)."""
     return not (set(name) & {"/", "\\"} or name.startswith(".") or not name.isprintable())
 
 
