@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import meshio
 import multiprocessing
 import numpy as np
 import pytest
@@ -475,3 +476,53 @@ def test_a_run_whose_writer_process_is_killed_ends_as_an_output_failure(tmp_path
         run_with(tmp_path, monkeypatch, "process", "killed")
     from hybrid.app.output import read_summary
     assert read_summary(tmp_path / "killed")["status"] == "failed"
+
+
+def test_small_frames_written_at_once_and_large_ones_by_the_feeder_arrive_in_order(tmp_path):
+    """Frames small enough for the pipe are written on the caller's thread, larger ones by the
+    feeder thread; a small frame behind a large one still waiting for the feeder must not
+    overtake it: every frame is on disk, in order, as it was handed over."""
+    rng = np.random.default_rng(2)
+    tris = np.array([[0, 1, 2]])
+    frames = []
+    with RunWriter(tmp_path / "run", "order", background="process") as writer:
+        for k in range(12):
+            n = 150_000 if k % 4 == 1 else 3                 # 3.6 MB: more than the pipe holds
+            points = rng.random((n, 3))
+            writer.write_frame(0.01 * k, [FramePiece(1, points, [("triangle", tris)])],
+                               [(0.01 * k, 1, *points[0], 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                 float(n), "rigid")])
+            frames.append(points)
+        writer.close({})
+    times, paths, _ = read_run(tmp_path / "run")
+    assert times == [0.01 * k for k in range(12)]
+    for points, path in zip(frames, paths):
+        np.testing.assert_array_equal(meshio.read(path).points, points)
+    rows = (tmp_path / "run" / "bodies.csv").read_text().splitlines()[1:]
+    assert [float(r.split(",")[2]) for r in rows] == [p[0, 0] for p in frames]
+
+
+def test_a_job_written_at_once_never_overtakes_one_waiting_with_the_feeder(tmp_path, monkeypatch):
+    """A job goes to the feeder thread when the pipe may not take it at once; a later one that
+    would fit must still go after it (here the feeder is held back while both are handed over)."""
+    import threading
+    from hybrid.app import writer_process
+    held, original = threading.Event(), writer_process._feed
+
+    def feed(outbox, jobs, fed):
+        held.wait(10.0)
+        original(outbox, jobs, fed)
+
+    monkeypatch.setattr(writer_process, "_feed", feed)
+    writer = writer_process.WriterProcess(str(tmp_path), "order.pvd")
+    try:
+        writer._pipe_bytes = 0                  # the first job: to the feeder
+        writer.submit(("rows", "order.csv", ("k",), [(1,)]))
+        writer._pipe_bytes = 1 << 30            # the second would fit in the pipe
+        writer.submit(("rows", "order.csv", ("k",), [(2,)]))
+        held.set()
+        writer.wait()
+    finally:
+        held.set()
+        writer.stop()
+    assert (tmp_path / "order.csv").read_text().split() == ["k", "1", "2"]

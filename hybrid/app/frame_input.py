@@ -101,7 +101,7 @@ def _kept(value):
 
 
 # read-only arrays at least this large are sent once and kept by the writer process
-KEEP_BYTES = 16 << 10
+KEEP_BYTES = 4 << 10
 
 
 class KeptArrays:

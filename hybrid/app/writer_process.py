@@ -20,25 +20,21 @@ from __future__ import annotations
 
 import atexit
 import multiprocessing
-import multiprocessing.forkserver
-import multiprocessing.spawn
-import multiprocessing.util
-import os
 import pickle
 import queue
 import re
-import runpy
 import select
 import signal
 import sys
 import threading
 import time
 import traceback
-import types
 import weakref
 from collections import deque
 from pathlib import Path
 
+from . import fork_server as forking
+from .fork_server import start_fork_server
 from .frame_input import KeptArrays
 from .vtu import FrameFiles
 
@@ -82,19 +78,23 @@ def unavailable() -> str | None:
 _MAIN_GUARD = re.compile(r"""^if\s+__name__\s*==\s*['"]__main__['"]\s*:""", re.MULTILINE)
 
 
+fork_server = forking.fork_server      # the fork server, as the auto writers see it
+
+
 class WriterProcess:
     """Runs :class:`FrameFiles` jobs in a child process, in order (the process counterpart of
     :class:`hybrid.app.writer_thread.WriterThread`, with jobs as data).
 
     Jobs are pickled on the caller's thread (a copy: the caller may change its arrays as soon as
-    :meth:`submit` returns) and fed to the pipe by a thread, so the caller does not wait for a
-    child that is starting or busy; it waits when more than ``limit_bytes`` of jobs (and more
+    :meth:`submit` returns) and written to the pipe when it surely takes them at once, else by a
+    feeder thread, so the caller does not wait for a child that is starting or busy; it waits when more than ``limit_bytes`` of jobs (and more
     than ``limit`` jobs) are in flight. ``start_method``: ``forkserver`` (default; the fork
     server is started once per process and imports this module, so a writer process starts in a
     few ms) or ``spawn``."""
 
     limit = 8
     limit_bytes = 64 << 20
+    direct_bytes = 64 << 10
     start_method = "forkserver"
 
     def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, start_method: str | None = None):
@@ -108,18 +108,19 @@ class WriterProcess:
         self._process = context.Process(target=_serve, args=(receive, send, str(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
         if method == "forkserver":     # (its imports done once: a writer process starts in ms)
-            _start_fork_server()
+            start_fork_server()
         self._process.start()
         receive.close()
         send.close()
         # whether a reply waits: one poll(2) call (Connection.poll builds a selector each time)
         self._replied = select.poll()
         self._replied.register(self._replies.fileno(), select.POLLIN)
-        # the pipe is fed by a thread of its own, so the caller never waits for a full pipe (a
-        # child starting, or behind); a pipe of 1 MB takes a frame in one write
-        _widen(self._jobs)
+        # large jobs go by a feeder thread (_send); a pipe of 1 MB takes a frame in one write.
+        # _handed: payloads put in the outbox; _fed[0] (written by the feeder only): those sent
+        self._pipe_bytes = _widen(self._jobs)
         self._outbox: queue.SimpleQueue = queue.SimpleQueue()
-        self._feeder = threading.Thread(target=_feed, args=(self._outbox, self._jobs), name="RunWriter feeder",
+        self._handed, self._fed = 0, [0]
+        self._feeder = threading.Thread(target=_feed, args=(self._outbox, self._jobs, self._fed), name="RunWriter feeder",
                                         daemon=True)
         self._feeder.start()
         self.seconds = 0.0                  # the child's time in jobs (s)
@@ -156,9 +157,18 @@ class WriterProcess:
         self._in_flight.append(len(payload))
         self._in_flight_bytes += len(payload)
         self._sent += 1
-        # sent by the feeder thread: a write from here would hand the core to the child it wakes
-        # (measured: 2 ms a frame on the stepping thread, against 0.2 ms through the feeder)
-        self._outbox.put(payload)
+        # a small job is written here when the pipe surely takes it at once (the feeder idle, all
+        # unfinished jobs fit): by the feeder a 2 kB frame cost 0.25 ms of CPU (its wake-up, the
+        # lock), here 0.01 ms; larger ones (a 200 kB frame: 2 ms here) go by the feeder
+        if len(payload) > self.direct_bytes or self._handed > self._fed[0] \
+                or self._in_flight_bytes + 8 * len(self._in_flight) > self._pipe_bytes:
+            self._handed += 1
+            self._outbox.put(payload)
+            return
+        try:
+            self._jobs.send_bytes(payload)
+        except OSError:
+            pass                # the child is gone: _read reports it
 
     def _read(self, block: bool) -> None:
         """Take the child's replies (blocking for one when ``block``)."""
@@ -237,22 +247,24 @@ class WriterProcess:
 
 _LIVE: "weakref.WeakSet[WriterProcess]" = weakref.WeakSet()
 
-def _feed(outbox, jobs) -> None:
-    """The feeder thread: send the payloads put in ``outbox``, in order, until None."""
+def _feed(outbox, jobs, fed) -> None:
+    """The feeder thread: send the payloads put in ``outbox``, in order, until None (``fed[0]``: how many sent)."""
     while (payload := outbox.get()) is not None:
         try:
             jobs.send_bytes(payload)
         except OSError:
             pass            # the child is gone: WriterProcess._read reports it
+        fed[0] += 1
 
 
-def _widen(connection) -> None:
-    """Make the pipe of ``connection`` hold 1 MB if the system allows."""
+def _widen(connection) -> int:
+    """Make the pipe of ``connection`` hold 1 MB if the system allows; the bytes it holds."""
     try:
         import fcntl
         fcntl.fcntl(connection.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)
+        return int(fcntl.fcntl(connection.fileno(), getattr(fcntl, "F_GETPIPE_SZ", 1032)))
     except (ImportError, OSError):
-        pass
+        return 4096
 
 
 def _finish(process, outbox, timeout: float = 60.0) -> None:
@@ -273,96 +285,6 @@ def _stop_all() -> None:
     exit function, so run before it): writer processes still running write what they have."""
     for writer in list(_LIVE):
         writer.stop()
-
-
-def _noop() -> None:
-    """A child that does nothing (:func:`ForkServer` warms the fork server with it)."""
-
-
-class ForkServer:
-    """multiprocessing's fork server, as the ``auto`` writers of this process see it: started
-    (once) by the first of them on a thread of its own, with this module imported in it, and
-    ready once a first child forked from it has ended; until then the writers write on their
-    thread."""
-
-    def __init__(self):
-        self._thread: threading.Thread | None = None
-        self._ready = False
-        self.seconds: float | None = None     # wall time it took to get ready (s)
-
-    def start(self) -> None:
-        """Start the fork server and its first child on a thread (once; returns at once)."""
-        if self._thread is None:
-            try:
-                _start_fork_server()
-            except Exception:                   # noqa: BLE001 (the writers stay on their thread)
-                return
-            self._thread = threading.Thread(target=self._warm, name="RunWriter fork server", daemon=True)
-            self._thread.start()
-
-    def _warm(self) -> None:
-        start = time.perf_counter()
-        try:
-            context = multiprocessing.get_context("forkserver")
-            child = context.Process(target=_noop, name="RunWriter fork server warm-up", daemon=True)
-            child.start()
-            child.join()
-        except Exception:                       # noqa: BLE001 (the writers stay on their thread)
-            return
-        self.seconds = time.perf_counter() - start
-        self._ready = True
-
-    def ready(self) -> bool:
-        """Whether a writer process now starts in a few ms."""
-        return self._ready
-
-
-fork_server = ForkServer()
-
-
-def _start_fork_server():
-    """Start multiprocessing's fork server (with this module to import) if it is not running,
-    with Ctrl-C ignored while it is spawned when called on the main thread: the server inherits
-    that, so a Ctrl-C to the process group while it imports the project does not print its
-    KeyboardInterrupt traceback into the run's output (it ignores SIGINT once its imports are
-    done; its writer processes too). The spawn takes milliseconds; the imports happen after."""
-    multiprocessing.get_context("forkserver").set_forkserver_preload([__name__])
-    main_path = multiprocessing.spawn.get_preparation_data("RunWriter").get("init_main_from_path")
-    os.environ.update({} if main_path is None else {_MAIN_PATH: main_path})
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
-    try:
-        multiprocessing.forkserver.ensure_running()
-    finally:
-        os.environ.pop(_MAIN_PATH, None)
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
-
-
-_MAIN_PATH = "HYBRID_FORK_SERVER_MAIN"      # the main script's path, for _preload_main
-
-
-def _preload_main() -> None:
-    """In the fork server (this module preloaded there): a stand-in for the run's main script as
-    ``__main__``, with its path, so that children do not each run the script on start (for the
-    ``hybrid`` command, the whole project imported again, 0.3-0.6 s before a run's first frame;
-    a script's top-level code, such as removing an output folder, in every writer process). The
-    script runs only when a child asks the stand-in for one of its names: writers never do."""
-    path = os.environ.pop(_MAIN_PATH, None)
-    if path is None or getattr(sys.modules.get("__main__"), "__file__", None) == path:
-        return
-    stand_in = types.ModuleType("__mp_main__")
-    stand_in.__file__ = path
-
-    def __getattr__(name):
-        if name.startswith("__") and name.endswith("__"):
-            raise AttributeError(name)
-        stand_in.__dict__.update(runpy.run_path(path, run_name="__mp_main__"))
-        del stand_in.__getattr__
-        return getattr(stand_in, name)
-
-    stand_in.__getattr__ = __getattr__
-    sys.modules["__main__"] = sys.modules["__mp_main__"] = stand_in
 
 
 def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
@@ -414,5 +336,3 @@ def _reply_error(replies, error: BaseException) -> None:
         error = RuntimeError(f"{type(error).__name__}: {error}")
     replies.send(("error", error, remote))
 
-
-_preload_main()
