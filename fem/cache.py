@@ -43,6 +43,7 @@ class FemCache:
     current_tree: k-d tree of the surface nodes at the positions it was built from (its ``data``)
         (``hybrid.coupling.fem_contact``).
     extent: the rest shape's largest extent (m) and slenderness (``hybrid.coupling.auto.extent``).
+    element_size: edge (m) of a regular tet of the mean element volume (``hybrid.coupling.nodes.element_size``).
     warped_places: where a corotated body's mass and free block sit in its stiffness pattern
         (``fem.system._warped_places``).
     """
@@ -59,4 +60,5 @@ class FemCache:
     surface_index: tuple | None = None
     current_tree: object = None
     extent: tuple | None = None
+    element_size: float | None = None
     warped_places: tuple | None = None

@@ -207,6 +207,19 @@ def test_nearest_rows_finds_what_a_kd_tree_finds(seed):
     np.testing.assert_array_equal(kernels.nearest_rows(points, queries), cKDTree(points).query(queries)[1])
 
 
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+@pytest.mark.parametrize("count", [1, 2, 3, 500])
+def test_three_nearest_rows_are_a_kd_trees_three_in_its_order(seed, count):
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, (count, 3))
+    queries = rng.uniform(-1.2, 1.2, (40, 3))
+    want = np.asarray(cKDTree(points).query(queries, k=min(3, count))[1]).reshape(len(queries), -1)
+    np.testing.assert_array_equal(kernels.nearest_three_rows(points, queries), want)
+    # equally near rows: the lower index first
+    twin = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -1.0, 0]])
+    assert kernels.nearest_three_rows(twin, np.zeros((1, 3))).tolist() == [[0, 1, 3]]
+
+
 def box_index(rng, cells=4):
     """A box surface meshed with ``cells`` per side, randomly scaled, as the rest surface of a
     body whose surface nodes are every vertex: (model-like object, tri, around)."""

@@ -30,6 +30,7 @@ from fem.stress import element_strain_rate, element_stress, principal_stress_max
 from fem.system import system_factorisation
 from rigid import quaternion as quat
 
+from .nodes import element_size
 from .touches import impulse_change, switch_groups
 
 
@@ -126,8 +127,7 @@ def element_time(fem, h):
     its wave strain ``dv / c`` (the wave it launches spreads over ``max(c h, element)``), which
     for a load kept on is the strain it settles to; and when the body answers within the step,
     by the strain the step adds."""
-    size = float(np.cbrt(6.0 * np.sqrt(2.0) * fem.elements.tet_volume.mean()))
-    return max(size / wave_speed(fem), h)
+    return max(element_size(fem) / wave_speed(fem), h)
 
 
 def strain_measure(fem, x, v, h, inverse_F=None):

@@ -11,7 +11,7 @@ from rigid.contacts import Contacts, detect, detect_points
 
 from .fem_contact import (EDGE_COS, SurfaceContacts, contact_node_normals, detect_fem_pairs,
                           detect_rigid_points, edge_normals, pair_edge_normals)
-from .nodes import row_norms
+from .nodes import element_size, row_norms
 
 
 @dataclass
@@ -89,8 +89,9 @@ def edge_reach(models, node_body, margin):
     rigid ball 0.5 mm across, within the default 5 mm, had nodes beside its edges turned to their
     own normals, which read their 3 mm gaps as 0.6 mm inside the ball, and the recovery pulled
     the two together."""
-    size = np.array([np.cbrt(6.0 * np.sqrt(2.0) * m.elements.tet_volume.mean()) for m in models])
-    return np.minimum(float(margin), size)[node_body]
+    if len(models) == 1:
+        return np.full(len(node_body), min(float(margin), element_size(models[0])))
+    return np.minimum(float(margin), np.array([element_size(m) for m in models]))[node_body]
 
 
 def _facing_faces(model, nodes, c_nodes, own, detect_again):

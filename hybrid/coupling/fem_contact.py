@@ -34,8 +34,11 @@ from rigid.sdf import SignedDistanceGrid
 from . import kernels, places, rest_grid
 
 # queries of the nearest current surface node up to this many are answered by brute force
-# (hybrid.coupling.kernels.nearest_rows) instead of a k-d tree built anew for the moved surface
+# (hybrid.coupling.kernels.nearest_rows_of) instead of a k-d tree built anew for the moved surface
 BRUTE_NEAREST = 64
+# queries of the rest surface's nearest nodes are answered by brute force
+# (hybrid.coupling.kernels.nearest_three_rows) up to this many query-node pairs
+BRUTE_PAIRS = 32768
 
 
 def _grid(m):
@@ -65,7 +68,10 @@ def _surface_index(m):
 def _nearest_nodes(m, Y):
     """The (up to) three surface nodes of body m nearest each rest point Y (p, 3), nearest first:
     ``(p, 3)`` indices into ``surface_nodes``."""
-    _, close = _surface_index(m)[0].query(Y, k=min(3, len(m.surface_nodes)))
+    tree = _surface_index(m)[0]
+    if len(Y) * tree.n <= BRUTE_PAIRS:
+        return kernels.nearest_three_rows(tree.data, np.ascontiguousarray(Y, dtype=float))
+    _, close = tree.query(Y, k=min(3, len(m.surface_nodes)))
     return np.asarray(close).reshape(len(Y), -1)
 
 

@@ -70,6 +70,33 @@ def nearest_rows(points, queries):
     return out
 
 
+@nb.njit(cache=True)
+def nearest_three_rows(points, queries):
+    """Indices ``(q, min(3, s))`` of the rows of ``points`` (s, 3) nearest each of ``queries``
+    (q, 3), nearest first (the lower index first among equally near rows), by brute force: for a
+    few queries against a small surface, cheaper than a k-d tree's query, whose Python-level
+    set-up dominates when the step has left the caches cold."""
+    s, k = len(points), min(3, len(points))
+    out = np.zeros((len(queries), k), dtype=np.int64)
+    d = np.empty(s)
+    for j in range(len(queries)):
+        q0, q1, q2 = queries[j, 0], queries[j, 1], queries[j, 2]
+        for i in range(s):
+            d0 = points[i, 0] - q0
+            d1 = points[i, 1] - q1
+            d2 = points[i, 2] - q2
+            d[i] = d0 * d0 + d1 * d1 + d2 * d2
+        best = np.full(k, np.inf)
+        for i in range(s):
+            if d[i] < best[k - 1]:
+                m = k - 1
+                while m > 0 and d[i] < best[m - 1]:
+                    best[m], out[j, m] = best[m - 1], out[j, m - 1]
+                    m -= 1
+                best[m], out[j, m] = d[i], i
+    return out
+
+
 @nb.njit(cache=True, inline="always")
 def _corners(surface_nodes, triangles, f):
     """The node indices of surface triangle ``f``."""

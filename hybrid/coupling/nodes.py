@@ -68,6 +68,14 @@ def stack_moving(x, x_base, v, x_rate, nodes, h, out_x, out_v, start):
             out_v[start + k, a] = (x_base[i, a] - x[i, a] + x_rate * v[i, a]) / h
 
 
+def element_size(model):
+    """Edge (m) of a regular tet of FEM ``model``'s mean element volume, kept in its cache
+    (``model.cache.element_size``): the contact detection asks every step."""
+    if model.cache.element_size is None:
+        model.cache.element_size = float(np.cbrt(6.0 * np.sqrt(2.0) * model.elements.tet_volume.mean()))
+    return model.cache.element_size
+
+
 @nb.njit(cache=True)
 def row_norms(a, scale):
     """``scale`` times the Euclidean norm of each row of ``a`` (k, 3): ``np.linalg.norm(a, axis=1)
