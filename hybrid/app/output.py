@@ -137,7 +137,6 @@ class RunWriter:
         self.out_dir = Path(out_dir)
         self.scene_name = str(scene_name)
         self.mode = self._MODES[background]
-        self._frames_dir = self.out_dir / FRAMES_DIR
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
         self._started = False
@@ -188,11 +187,11 @@ class RunWriter:
     @property
     def frames_dir(self) -> Path:
         """The folder of the frame files, ``<out_dir>/frames``."""
-        return self._frames_dir
+        return self.out_dir / FRAMES_DIR
 
     def frame_path(self, index: int) -> Path:
         """Path of frame number ``index`` (0-based): ``frames/frame_00000.vtu`` and on."""
-        return self._frames_dir / f"frame_{index:05d}.vtu"
+        return self.frames_dir / f"frame_{index:05d}.vtu"
 
     # -- lifecycle -----------------------------------------------------------------------
     def _start(self) -> None:
@@ -248,7 +247,9 @@ class RunWriter:
     def flush(self) -> None:
         """Wait until everything handed over is on disk; raise the writer's error if it has not
         been raised yet."""
-        self._submit(("index",))            # (dropped after a failure, as every later job)
+        self._wait()
+        self._raise_error()
+        self._submit(("index",))
         self._wait()
         self._raise_error()
 
@@ -327,12 +328,13 @@ class RunWriter:
         process.submit(("restore", state))
         self._process = process
 
-    # (a writer process takes over only from a writer thread that is done and has not failed)
     def _wait(self) -> None:
-        (self._process or self._writer).wait()
+        for writer in (self._writer, self._process or self._writer):
+            writer.wait()
 
     def _raise_error(self) -> None:
-        (self._process or self._writer).raise_error()
+        for writer in (self._writer, self._process or self._writer):
+            writer.raise_error()
 
     # -- frames --------------------------------------------------------------------------
     def _check_pieces(self, pieces: Sequence[FramePiece]) -> list[tuple]:
