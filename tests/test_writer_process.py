@@ -509,9 +509,9 @@ def test_a_job_written_at_once_never_overtakes_one_waiting_with_the_feeder(tmp_p
     from hybrid.app import writer_process
     held, original = threading.Event(), writer_process._feed
 
-    def feed(outbox, jobs, fed):
+    def feed(*args):
         held.wait(10.0)
-        original(outbox, jobs, fed)
+        original(*args)
 
     monkeypatch.setattr(writer_process, "_feed", feed)
     writer = writer_process.WriterProcess(str(tmp_path), "order.pvd")
@@ -526,3 +526,42 @@ def test_a_job_written_at_once_never_overtakes_one_waiting_with_the_feeder(tmp_p
         held.set()
         writer.stop()
     assert (tmp_path / "order.csv").read_text().split() == ["k", "1", "2"]
+
+
+def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_stays_on_the_thread(tmp_path, monkeypatch):
+    """The child is started off the caller's thread: a start that fails (no more processes)
+    is raised by a later call as an output failure, with nothing written; ``auto``'s launching
+    thread waits for the start and, when it fails, the run keeps writing on its thread."""
+    import errno
+    from hybrid.app import writer_process
+
+    def refused(process):
+        raise OSError(errno.EAGAIN, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(multiprocessing.process.BaseProcess, "start", refused)
+    writer = writer_process.WriterProcess(str(tmp_path / "direct"), "x.pvd")
+    writer.submit(("rows", "a.csv", ("k",), [(1,)]))
+    writer.wait()
+    with pytest.raises(writer_process.WriterProcessError, match="could not start: .*temporarily unavailable"):
+        writer.raise_error()
+    writer.stop()
+    assert not (tmp_path / "direct" / "a.csv").exists() and not children()
+
+    class Server:                          # up from the first frame's region rows
+        calls = 0
+
+        def start(self):
+            pass
+
+        def ready(self):
+            self.calls += 1
+            return self.calls > 2
+
+    def launched(writer, k):
+        if k == 0:
+            writer._launch.join()           # its start failed: the next call stays on the thread
+
+    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(RunWriter, "auto_after", 0.0)
+    pids = write_auto_and_inline(tmp_path, 4, launched)     # (byte for byte as in place)
+    assert pids == [None] * 8 and not children()

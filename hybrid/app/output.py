@@ -137,6 +137,7 @@ class RunWriter:
         self.out_dir = Path(out_dir)
         self.scene_name = str(scene_name)
         self.mode = self._MODES[background]
+        self._frames_dir = self.out_dir / FRAMES_DIR
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
         self._started = False
@@ -187,11 +188,11 @@ class RunWriter:
     @property
     def frames_dir(self) -> Path:
         """The folder of the frame files, ``<out_dir>/frames``."""
-        return self.out_dir / FRAMES_DIR
+        return self._frames_dir
 
     def frame_path(self, index: int) -> Path:
         """Path of frame number ``index`` (0-based): ``frames/frame_00000.vtu`` and on."""
-        return self.frames_dir / f"frame_{index:05d}.vtu"
+        return self._frames_dir / f"frame_{index:05d}.vtu"
 
     # -- lifecycle -----------------------------------------------------------------------
     def _start(self) -> None:
@@ -247,9 +248,7 @@ class RunWriter:
     def flush(self) -> None:
         """Wait until everything handed over is on disk; raise the writer's error if it has not
         been raised yet."""
-        self._wait()
-        self._raise_error()
-        self._submit(("index",))
+        self._submit(("index",))            # (dropped after a failure, as every later job)
         self._wait()
         self._raise_error()
 
@@ -299,22 +298,29 @@ class RunWriter:
         if now >= self._auto_from:
             writer_process.fork_server.start()
         if self._launch is None and writer_process.fork_server.ready():
-            self._launch = threading.Thread(target=self._start_process, name="RunWriter launch", daemon=True)
+            self._launch = threading.Thread(target=self._start_process, args=(True,), name="RunWriter launch",
+                                            daemon=True)
             self._launch.start()
         if self._launch is not None and not self._launch.is_alive():
             self._auto_from = None
             self._take_over()
 
-    def _start_process(self) -> None:
-        """The launching thread: a new writer process, or the error that prevented it."""
+    def _start_process(self, wait: bool = False) -> None:
+        """A new writer process in ``_launched``, or why it could not start (the run stays on the thread;
+        without ``wait``, for the launching thread, a failed start is raised by a later call)."""
         try:
-            self._launched = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+            process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
         except (OSError, RuntimeError) as error:
             self._launched = error
+            return
+        error = process.start_error() if wait else None
+        if error is not None:
+            process.stop()
+        self._launched = error or process
 
     def _take_over(self) -> None:
-        """Hand the files over from the writer thread to the launched writer process (``auto``);
-        stay on the thread if it could not start."""
+        """Hand the files over from the writer thread, once done and if it has not failed, to the
+        launched writer process (``auto``; then only that is waited for); stay on the thread if it could not start."""
         process = self._launched
         if not isinstance(process, WriterProcess):
             self.mode, self._process_error = "thread", process
@@ -329,12 +335,10 @@ class RunWriter:
         self._process = process
 
     def _wait(self) -> None:
-        for writer in (self._writer, self._process or self._writer):
-            writer.wait()
+        (self._process or self._writer).wait()
 
     def _raise_error(self) -> None:
-        for writer in (self._writer, self._process or self._writer):
-            writer.raise_error()
+        (self._process or self._writer).raise_error()
 
     # -- frames --------------------------------------------------------------------------
     def _check_pieces(self, pieces: Sequence[FramePiece]) -> list[tuple]:

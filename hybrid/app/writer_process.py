@@ -109,19 +109,21 @@ class WriterProcess:
                                         name="RunWriter process", daemon=True)
         if method == "forkserver":     # (its imports done once: a writer process starts in ms)
             start_fork_server()
-        self._process.start()
-        receive.close()
-        send.close()
         # whether a reply waits: one poll(2) call (Connection.poll builds a selector each time)
         self._replied = select.poll()
         self._replied.register(self._replies.fileno(), select.POLLIN)
-        # large jobs go by a feeder thread (_send); a pipe of 1 MB takes a frame in one write.
-        # _handed: payloads put in the outbox; _fed[0] (written by the feeder only): those sent
+        # the feeder thread starts the child (2-4 ms waiting for the fork server's fork, not on
+        # the caller's thread), then sends the payloads put in the outbox, in order; large jobs
+        # go by it, and all jobs until it has sent those before (a pipe of 1 MB takes a frame in
+        # one write). _handed: items put in the outbox, the start first; _fed (written by the
+        # feeder only): [items it has done, the error that stopped the child's start or None]
         self._pipe_bytes = _widen(self._jobs)
         self._outbox: queue.SimpleQueue = queue.SimpleQueue()
-        self._handed, self._fed = 0, [0]
-        self._feeder = threading.Thread(target=_feed, args=(self._outbox, self._jobs, self._fed), name="RunWriter feeder",
-                                        daemon=True)
+        self._handed, self._fed = 1, [0, None]
+        self._started = threading.Event()
+        self._feeder = threading.Thread(target=_feed, name="RunWriter feeder", daemon=True,
+                                        args=(self._process, (receive, send), self._started, self._outbox,
+                                              self._jobs, self._fed))
         self._feeder.start()
         self.seconds = 0.0                  # the child's time in jobs (s)
         self._sent = self._done = 0
@@ -134,12 +136,18 @@ class WriterProcess:
         self._keeping = KeptArrays()
         _LIVE.add(self)
         # a writer dropped without stop(): its process still writes what it has and ends
-        self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox)
+        self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox, self._feeder)
 
     @property
-    def pid(self) -> int:
-        """The writer process's id."""
+    def pid(self) -> int | None:
+        """The writer process's id (None if it could not start); waits until it has started."""
+        self._started.wait()
         return self._process.pid
+
+    def start_error(self) -> BaseException | None:
+        """Wait until the child has started; the error that kept it from starting, or None."""
+        self._started.wait()
+        return self._fed[1]
 
     def submit(self, job: tuple, always: bool = False) -> None:
         """Hand ``job`` over; dropped when an earlier job failed (see :meth:`raise_error`) unless
@@ -172,6 +180,10 @@ class WriterProcess:
 
     def _read(self, block: bool) -> None:
         """Take the child's replies (blocking for one when ``block``)."""
+        if self._fed[1] is not None and not self._gone:
+            self._gone = True
+            self._error = self._error or WriterProcessError(f"the writer process could not start: {self._fed[1]}")
+            return
         while not self._gone and (block or self._replied.poll(0)):
             block = False
             try:
@@ -236,7 +248,7 @@ class WriterProcess:
         self._outbox.put(None)
         self._feeder.join()
         self._read(block=False)
-        _finish(self._process, None, timeout)
+        _finish(self._process, None, None, timeout)
         self._finalizer.detach()
         for conn in (self._jobs, self._replies):
             conn.close()
@@ -247,13 +259,26 @@ class WriterProcess:
 
 _LIVE: "weakref.WeakSet[WriterProcess]" = weakref.WeakSet()
 
-def _feed(outbox, jobs, fed) -> None:
-    """The feeder thread: send the payloads put in ``outbox``, in order, until None (``fed[0]``: how many sent)."""
+def _feed(process, child_ends, started, outbox, jobs, fed) -> None:
+    """The feeder thread: start ``process`` (closing this process's copies of its ends of the
+    pipes), then send the payloads put in ``outbox``, in order, until None; ``fed``: [items done,
+    the start counted, the error that stopped the start or None]. A module function, so that
+    the thread keeps no reference to its writer (a writer dropped unstopped is finalised)."""
+    try:
+        process.start()
+    except BaseException as error:      # noqa: BLE001 (reported by WriterProcess._read)
+        fed[1] = error
+    finally:
+        for end in child_ends:
+            end.close()
+        started.set()
+    fed[0] += 1
     while (payload := outbox.get()) is not None:
-        try:
-            jobs.send_bytes(payload)
-        except OSError:
-            pass            # the child is gone: WriterProcess._read reports it
+        if fed[1] is None:
+            try:
+                jobs.send_bytes(payload)
+            except OSError:
+                pass        # the child is gone: WriterProcess._read reports it
         fed[0] += 1
 
 
@@ -267,12 +292,16 @@ def _widen(connection) -> int:
         return 4096
 
 
-def _finish(process, outbox, timeout: float = 60.0) -> None:
-    """End ``process``: the stop message through ``outbox`` (unless sent already), then wait for
-    it (terminated after ``timeout`` s)."""
+def _finish(process, outbox, feeder, timeout: float = 60.0) -> None:
+    """End ``process``: the stop message through ``outbox`` and the ``feeder`` done (unless
+    done already), then wait for it (terminated after ``timeout`` s)."""
     if outbox is not None:
         outbox.put(b"")
         outbox.put(None)
+    if feeder is not None and feeder is not threading.current_thread():
+        feeder.join()
+    if process.pid is None:
+        return              # never started
     process.join(timeout)
     if process.exitcode is None:
         process.terminate()
