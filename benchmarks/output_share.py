@@ -17,6 +17,10 @@ ways, interleaved, ``--repeats`` times:
   is up, then a process. The server is started before the timed runs, as a process's first run
   that writes for a second starts it (a shorter run stays on the thread).
 
+A process's first run writes in place while the fork server starts (``auto``): ``--first-runs
+N`` also times N first runs of the default scene, each in a new Python process (what ``hybrid
+run default --out DIR`` does), with each way.
+
 The output share of a way is (median wall with output - median wall of ``none``) / median wall
 with output; its CPU share the same with the process's CPU time (all threads), steadier when
 other jobs load the machine. Also printed: the stepping thread's own time in the output calls (the frame's
@@ -25,11 +29,13 @@ fields and rows computed in ``hybrid.app.observe``, and ``write_frame`` / ``writ
 scenes run with the default way (``auto``).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/output_share.py [--repeats 5] [--scenes default cube pile]
+        [--first-runs 5]
 """
 import argparse
 import functools
 import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -98,13 +104,50 @@ def one_run(scene_file, way, out_dir):
     return wall, cpu, clock.seconds
 
 
+FIRST_RUN = """
+import sys, tempfile, time
+from hybrid import Simulation
+if __name__ == "__main__":
+    sim = Simulation.from_toml("default")
+    with tempfile.TemporaryDirectory() as folder:
+        start = time.perf_counter()
+        sim.run(out=None if sys.argv[1] == "none" else folder, progress=False, log=lambda m: None)
+        print(time.perf_counter() - start)
+"""
+
+
+def first_runs(count):
+    """Wall time (s, medians) of ``Simulation.run`` on the default scene as a process's first
+    run, ``count`` runs of each way, interleaved, each in a new Python process; printed."""
+    import os
+    walls = {way: [] for way in ("none", "inline", "thread", "auto")}
+    with tempfile.TemporaryDirectory() as folder:
+        script = Path(folder) / "first_run.py"
+        script.write_text(FIRST_RUN)
+        for _ in range(count):
+            for way in walls:
+                env = dict(os.environ, HYBRID_WRITER=way if way != "none" else "auto")
+                out = subprocess.run([sys.executable, str(script), way], env=env, check=True,
+                                     capture_output=True, text=True).stdout
+                walls[way].append(float(out.split()[-1]))
+    base = statistics.median(walls["none"])
+    print(f"\ndefault scene as a process's first run ({count} runs of each way, each in a new process; medians)")
+    for way, values in walls.items():
+        wall = statistics.median(values)
+        print(f"  {way:8s} {wall:8.3f} s  output share {(wall - base) / wall if way != 'none' else 0.0:.3f}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5, help="runs of each way (medians)")
     parser.add_argument("--csv", default="outputs/bench/output_share.csv")
     parser.add_argument("--scenes", nargs="+", choices=("default", "cube", "pile"),
                         default=["default", "cube", "pile"], help="which scenes to run")
+    parser.add_argument("--first-runs", type=int, default=0,
+                        help="also time this many first runs of the default scene in new processes")
     args = parser.parse_args(argv)
+    if args.first_runs:
+        first_runs(args.first_runs)
     from hybrid.app import writer_process
     why = writer_process.unavailable()
     if why is not None:

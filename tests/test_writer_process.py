@@ -230,9 +230,11 @@ def write_auto_and_inline(tmp_path, frames, after_frame=lambda writer, k: None):
     return pids
 
 
-def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_seam(tmp_path, monkeypatch):
-    """``auto`` writes on the thread until the fork server is up, then moves the files (open
-    tables, index, frame count) to a writer process: the files are those written in place."""
+def test_auto_hands_the_files_over_to_a_process_mid_run_without_a_seam(tmp_path, monkeypatch):
+    """``auto`` writes in place, on the stepping thread (no writer thread, which would share the
+    interpreter lock), until the fork server is up, then moves the files (open tables, index,
+    frame count) to a writer process: the files are those written in place."""
+    import threading
     from hybrid.app import writer_process
 
     class Server:                          # up from the fourth frame on
@@ -246,6 +248,7 @@ def test_auto_hands_the_files_from_the_thread_to_a_process_mid_run_without_a_sea
             return self.calls > 6           # two submits (frame, regions) a frame
 
     def launched(writer, k):
+        assert "RunWriter" not in {t.name for t in threading.enumerate()}
         if k == 3:
             writer._launch.join()           # started: the next frame's call hands over
 
@@ -528,10 +531,10 @@ def test_a_job_written_at_once_never_overtakes_one_waiting_with_the_feeder(tmp_p
     assert (tmp_path / "order.csv").read_text().split() == ["k", "1", "2"]
 
 
-def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_stays_on_the_thread(tmp_path, monkeypatch):
+def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_writes_on_in_place(tmp_path, monkeypatch):
     """The child is started off the caller's thread: a start that fails (no more processes)
     is raised by a later call as an output failure, with nothing written; ``auto``'s launching
-    thread waits for the start and, when it fails, the run keeps writing on its thread."""
+    thread waits for the start and, when it fails, the run goes on writing in place."""
     import errno
     from hybrid.app import writer_process
 
@@ -559,7 +562,7 @@ def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_stays_on_t
 
     def launched(writer, k):
         if k == 0:
-            writer._launch.join()           # its start failed: the next call stays on the thread
+            writer._launch.join()           # its start failed: the next call stays in place
 
     monkeypatch.setattr(writer_process, "fork_server", Server())
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)

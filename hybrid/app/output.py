@@ -108,9 +108,9 @@ class RunWriter:
     - ``"process"``: by a writer process, a child of this one that ends with the writer;
     - ``True`` or ``"thread"``: by a writer thread (started when there is work, ended when there
       is none, so it never keeps the interpreter alive);
-    - ``"auto"``: by the writer thread until multiprocessing's fork server is up, then by a writer
-      process; the server is started once per process, by the first run that writes for a
-      second (it takes a second or so: a shorter run would be over first). By the thread only
+    - ``"auto"``: on the caller's thread until multiprocessing's fork server is up, then by a
+      writer process; the server is started once per process, by the first run that writes for a
+      second (it takes a second or so: a shorter run would be over first). By a writer thread
       in a daemonic process (a Dask worker, which cannot have children) and under a main script
       without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
     - ``False`` or ``"inline"``: on the caller's thread.
@@ -127,8 +127,7 @@ class RunWriter:
     queue_frames = 8
     index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
     auto_after = 1.0        # s of wall time after its first output before "auto" starts the fork server
-    _MODES = {False: "inline", True: "thread", "inline": "inline", "thread": "thread",
-              "process": "process", "auto": "auto"}
+    _MODES = {False: "inline", True: "thread", **{way: way for way in ("inline", "thread", "process", "auto")}}
 
     def __init__(self, out_dir: Path | str, scene_name: str, background: bool | str = True):
         if background not in self._MODES:
@@ -146,15 +145,18 @@ class RunWriter:
         # the files as written on this process (inline, thread, and "auto" until a process takes over)
         self._frame_files = FrameFiles(self.out_dir, self.pvd_path.name, self.index_every,
                                        write_vtu=lambda *args: write_vtu(*args))
-        self._writer = WriterThread(self.mode != "inline", self.queue_frames, "RunWriter")
         self._process: WriterProcess | None = None
-        self._process_error: BaseException | None = None     # why "auto" stayed on the thread
+        self._process_error: BaseException | None = None     # why "auto" stayed in place
         self._ended_seconds = 0.0           # writing time of the ended writer process (s)
         self._auto_from: float | None = None  # "auto": when the fork server is to be started
         self._launch: threading.Thread | None = None      # "auto": starting a writer process
         self._launched: WriterProcess | BaseException | None = None
         if self.mode == "auto" and writer_process.unavailable() is None:
             self._auto_from = math.inf
+        # "auto" writes in place until its writer process is up: a thread shares the interpreter lock,
+        # and with it the writer's Python work costs the stepping more than that work (docs/output.md)
+        threaded = self.mode == "thread" or self.mode == "auto" and self._auto_from is None
+        self._writer = WriterThread(threaded, self.queue_frames, "RunWriter")
 
     @property
     def writer_seconds(self) -> float:
@@ -265,7 +267,7 @@ class RunWriter:
         finally:
             self._end()
 
-    # -- the writer: here, on the thread, or in the process ------------------------------
+    # -- the writer: here, on a thread, or in a process ----------------------------------
     def _submit(self, job: tuple) -> None:
         """Hand ``job`` (a :class:`hybrid.app.vtu.FrameFiles` job) to the writer."""
         if self._process is None and self._auto_from is not None:
@@ -275,7 +277,7 @@ class RunWriter:
         if self._process is not None:
             self._process.submit(job)
             return
-        if self.mode == "thread" or self.mode == "auto":
+        if self._writer.background:
             job = owned(job)            # the caller may change its arrays once this returns
         files, writer = self._frame_files, self._writer
         writer.submit(lambda: files.run(job, idle=not writer.pending()))
@@ -284,13 +286,11 @@ class RunWriter:
         """``auto``: with the fork server up at the first job (a later run of this process), a
         writer process from that job on; otherwise start the fork server once this run has
         written for ``auto_after`` s (a shorter run would end before it is up), then a writer
-        process on a thread (a few ms of waiting for the server's fork), which takes over the
-        files from the writer thread once it has started."""
+        process on a thread (a few ms of waiting for the server's fork), which takes the files over once started."""
         if self._auto_from == math.inf:
             self._auto_from = now + self.auto_after
             if writer_process.fork_server.ready():
-                # the server is up (a later run of this process): the writer process from the
-                # first job, started here (a few ms), with nothing written on the thread to hand over
+                # the server is up (a later run of this process): the writer process from the first job
                 self._auto_from = None
                 self._start_process()
                 self._take_over()
@@ -306,8 +306,8 @@ class RunWriter:
             self._take_over()
 
     def _start_process(self, wait: bool = False) -> None:
-        """A new writer process in ``_launched``, or why it could not start (the run stays on the thread;
-        without ``wait``, for the launching thread, a failed start is raised by a later call)."""
+        """A new writer process in ``_launched``, or why it could not start (the run goes on writing in
+        place; without ``wait``, for the launching thread, a failed start is raised by a later call)."""
         try:
             process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
         except (OSError, RuntimeError) as error:
@@ -319,16 +319,16 @@ class RunWriter:
         self._launched = error or process
 
     def _take_over(self) -> None:
-        """Hand the files over from the writer thread, once done and if it has not failed, to the
-        launched writer process (``auto``; then only that is waited for); stay on the thread if it could not start."""
+        """Hand the files over to the launched writer process (``auto``; then only that is waited for);
+        stay in place if it could not start."""
         process = self._launched
         if not isinstance(process, WriterProcess):
-            self.mode, self._process_error = "thread", process
+            self.mode, self._process_error = "inline", process
             return
         self._writer.wait()
         if self._writer.failed():
             process.stop()
-            return                       # a failed thread's error is raised as it is
+            return                       # its error is raised as it is
         state = self._frame_files.state()
         self._frame_files.close()
         process.submit(("restore", state))
