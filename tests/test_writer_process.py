@@ -568,3 +568,27 @@ def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_writes_on_
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
     pids = write_auto_and_inline(tmp_path, 4, launched)     # (byte for byte as in place)
     assert pids == [None] * 8 and not children()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_a_wait_for_a_writer_whose_feeder_thread_died_ends_with_an_error(tmp_path, monkeypatch):
+    """A feeder thread that ends before sending its jobs (here it fails at once, so the child
+    never starts) leaves the caller no reply to wait for: ``wait`` ends with an output failure
+    instead of waiting for ever, and ``stop`` returns."""
+    import threading
+    from hybrid.app import writer_process
+
+    def broken(*args):
+        raise RuntimeError("the feeder broke")
+
+    monkeypatch.setattr(writer_process, "_feed", broken)
+    writer = writer_process.WriterProcess(str(tmp_path), "x.pvd")
+    writer.submit(("rows", "a.csv", ("k",), [(1,)]))
+    waiting = threading.Thread(target=writer.wait, daemon=True)      # (a hang fails, not blocks, the test)
+    waiting.start()
+    waiting.join(15.0)
+    assert not waiting.is_alive()
+    with pytest.raises(writer_process.WriterProcessError, match="feeder thread ended"):
+        writer.raise_error()
+    writer.stop()
+    assert not (tmp_path / "a.csv").exists()

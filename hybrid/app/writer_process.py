@@ -185,6 +185,13 @@ class WriterProcess:
             self._error = self._error or WriterProcessError(f"the writer process could not start: {self._fed[1]}")
             return
         while not self._gone and (block or self._replied.poll(0)):
+            if block and not self._replied.poll(1000):          # no reply for a second
+                if not self._feeder.is_alive() and self._fed[0] < self._handed:
+                    # the feeder thread ended with jobs it did not send: no reply can come
+                    self._gone = True
+                    self._error = self._error or WriterProcessError("the writer's feeder thread ended early")
+                    return
+                continue
             block = False
             try:
                 kind, *values = self._replies.recv()
