@@ -590,5 +590,6 @@ def test_a_wait_for_a_writer_whose_feeder_thread_died_ends_with_an_error(tmp_pat
     assert not waiting.is_alive()
     with pytest.raises(writer_process.WriterProcessError, match="feeder thread ended"):
         writer.raise_error()
+    assert writer.pid is None and "feeder thread ended" in str(writer.start_error())
     writer.stop()
     assert not (tmp_path / "a.csv").exists()

@@ -141,12 +141,14 @@ class WriterProcess:
     @property
     def pid(self) -> int | None:
         """The writer process's id (None if it could not start); waits until it has started."""
-        self._started.wait()
+        self.start_error()
         return self._process.pid
 
     def start_error(self) -> BaseException | None:
         """Wait until the child has started; the error that kept it from starting, or None."""
-        self._started.wait()
+        while not self._started.wait(1.0):
+            if not self._feeder.is_alive():         # (it ended before it tried)
+                return WriterProcessError("the writer's feeder thread ended early")
         return self._fed[1]
 
     def submit(self, job: tuple, always: bool = False) -> None:
