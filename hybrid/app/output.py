@@ -110,9 +110,9 @@ class RunWriter:
       is none, so it never keeps the interpreter alive);
     - ``"auto"``: on the caller's thread until multiprocessing's fork server is up, then by a
       writer process; the server is started once per process, by the first run that writes for a
-      second (it takes a second or so: a shorter run would be over first). By a writer thread
-      in a daemonic process (a Dask worker, which cannot have children) and under a main script
-      without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
+      second (it takes a second or so: a shorter run would be over first). On the caller's thread
+      throughout in a daemonic process (a Dask worker, which cannot have children) and under a main
+      script without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
     - ``False`` or ``"inline"``: on the caller's thread.
 
     ``write_frame`` and ``write_regions`` check and copy their input on the caller's thread, raise
@@ -153,10 +153,9 @@ class RunWriter:
         self._launched: WriterProcess | BaseException | None = None
         if self.mode == "auto" and writer_process.unavailable() is None:
             self._auto_from = math.inf
-        # "auto" writes in place until its writer process is up: a thread shares the interpreter lock,
-        # and with it the writer's Python work costs the stepping more than that work (docs/output.md)
-        threaded = self.mode == "thread" or self.mode == "auto" and self._auto_from is None
-        self._writer = WriterThread(threaded, self.queue_frames, "RunWriter")
+        # "auto" writes in place until (or unless) a writer process is up: a thread shares the interpreter
+        # lock, and with it the writer's Python work costs the stepping more than that work (docs/output.md)
+        self._writer = WriterThread(self.mode == "thread", self.queue_frames, "RunWriter")
 
     @property
     def writer_seconds(self) -> float:
