@@ -206,6 +206,20 @@ def _alive(pid):
         return False
 
 
+class FakeForkServer:
+    """A stand-in for ``writer_process.fork_server``: ready from its ``after + 1``-th question on."""
+
+    def __init__(self, after):
+        self.after, self.calls = after, 0
+
+    def start(self):
+        pass
+
+    def ready(self):
+        self.calls += 1
+        return self.calls > self.after
+
+
 def write_auto_and_inline(tmp_path, frames, after_frame=lambda writer, k: None):
     """``frames`` frames (and region rows) written the ``auto`` way and in place, into
     ``tmp_path/auto`` and ``tmp_path/False``; ``after_frame(writer, k)`` runs after the auto way's
@@ -237,22 +251,12 @@ def test_auto_hands_the_files_over_to_a_process_mid_run_without_a_seam(tmp_path,
     import threading
     from hybrid.app import writer_process
 
-    class Server:                          # up from the fourth frame on
-        calls = 0
-
-        def start(self):
-            pass
-
-        def ready(self):
-            self.calls += 1
-            return self.calls > 6           # two submits (frame, regions) a frame
-
     def launched(writer, k):
         assert "RunWriter" not in {t.name for t in threading.enumerate()}
         if k == 3:
             writer._launch.join()           # started: the next frame's call hands over
 
-    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(writer_process, "fork_server", FakeForkServer(6))  # up from the fourth frame on (2 asks a frame)
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
     pids = write_auto_and_inline(tmp_path, 7, launched)
     # the process is launched at the fourth frame and has taken over by the fifth
@@ -267,21 +271,11 @@ def test_auto_handing_over_at_the_close_keeps_every_frame_in_the_index(tmp_path,
     after a resumed ``shatter``). It is told what the index lists and brings it up to date."""
     from hybrid.app import writer_process
 
-    class Server:                          # up at the fifth frame's region rows
-        calls = 0
-
-        def start(self):
-            pass
-
-        def ready(self):
-            self.calls += 1
-            return self.calls > 9
-
     def launched(writer, k):
         if k == 4:
             writer._launch.join()           # started: the close's index job hands over
 
-    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(writer_process, "fork_server", FakeForkServer(9))  # up at the fifth frame's region rows
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
     pids = write_auto_and_inline(tmp_path, 5, launched)      # (the .pvd byte for byte too)
     assert pids == [None] * 10
@@ -552,21 +546,11 @@ def test_a_writer_process_that_cannot_start_fails_the_output_and_auto_writes_on_
     writer.stop()
     assert not (tmp_path / "direct" / "a.csv").exists() and not children()
 
-    class Server:                          # up from the first frame's region rows
-        calls = 0
-
-        def start(self):
-            pass
-
-        def ready(self):
-            self.calls += 1
-            return self.calls > 2
-
     def launched(writer, k):
         if k == 0:
             writer._launch.join()           # its start failed: the next call stays in place
 
-    monkeypatch.setattr(writer_process, "fork_server", Server())
+    monkeypatch.setattr(writer_process, "fork_server", FakeForkServer(2))  # up from the first frame's region rows
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
     pids = write_auto_and_inline(tmp_path, 4, launched)     # (byte for byte as in place)
     assert pids == [None] * 8 and not children()
