@@ -33,6 +33,7 @@ scenes run with the default way (``auto``).
 """
 import argparse
 import functools
+import os
 import shutil
 import statistics
 import subprocess
@@ -119,7 +120,6 @@ if __name__ == "__main__":
 def first_runs(count):
     """Wall time (s, medians) of ``Simulation.run`` on the default scene as a process's first
     run, ``count`` runs of each way, interleaved, each in a new Python process; printed."""
-    import os
     walls = {way: [] for way in ("none", "inline", "thread", "auto")}
     with tempfile.TemporaryDirectory() as folder:
         script = Path(folder) / "first_run.py"

@@ -146,7 +146,6 @@ class RunWriter:
         self._frame_files = FrameFiles(self.out_dir, self.pvd_path.name, self.index_every,
                                        write_vtu=lambda *args: write_vtu(*args))
         self._process: WriterProcess | None = None
-        self._process_error: BaseException | None = None     # why "auto" stayed in place
         self._ended_seconds = 0.0           # writing time of the ended writer process (s)
         self._auto_from: float | None = None  # "auto": when the fork server is to be started
         self._launch: threading.Thread | None = None      # "auto": starting a writer process
@@ -322,7 +321,7 @@ class RunWriter:
         stay in place if it could not start."""
         process = self._launched
         if not isinstance(process, WriterProcess):
-            self.mode, self._process_error = "inline", process
+            self.mode = "inline"
             return
         self._writer.wait()
         if self._writer.failed():
