@@ -477,6 +477,26 @@ def test_a_run_whose_writer_process_is_killed_ends_as_an_output_failure(tmp_path
     assert read_summary(tmp_path / "killed")["status"] == "failed"
 
 
+def test_frames_handed_over_while_the_writer_naps_and_after_it_blocks_are_all_written(tmp_path):
+    """The writer process naps between jobs that come often and blocks once none has come for a
+    while (writer_process.NAPPING): frames handed over at once, and after pauses longer than
+    that, all reach the disk in order, and a flush after a pause returns."""
+    from hybrid.app import writer_process
+    tris = np.array([[0, 1, 2]])
+    pauses = [0.0, 0.0, 3 * writer_process.NAPPING, 0.0, 3 * writer_process.NAPPING]
+    with RunWriter(tmp_path / "run", "naps", background="process") as writer:
+        for k, pause in enumerate(pauses):
+            time.sleep(pause)
+            writer.write_frame(0.1 * k, [FramePiece(1, np.full((3, 3), float(k)), [("triangle", tris)])])
+        time.sleep(3 * writer_process.NAPPING)
+        writer.flush()
+        assert writer.frames_written == len(pauses)
+        writer.close({})
+    times, paths, _ = read_run(tmp_path / "run")
+    assert times == [0.1 * k for k in range(len(pauses))]
+    assert [meshio.read(p).points[0, 0] for p in paths] == [float(k) for k in range(len(pauses))]
+
+
 def test_small_frames_written_at_once_and_large_ones_by_the_feeder_arrive_in_order(tmp_path):
     """Frames small enough for the pipe are written on the caller's thread, larger ones by the
     feeder thread; a small frame behind a large one still waiting for the feeder must not
