@@ -19,6 +19,7 @@ raised on the stepping thread, naming the process.
 from __future__ import annotations
 
 import atexit
+import math
 import multiprocessing
 import pickle
 import queue
@@ -374,7 +375,8 @@ def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> No
             # per job (a reply read on the stepping thread costs 40-50 us)
             if result is not None or done % 32 == 0 or job[0] == "sync":
                 replies.send(("done", done, seconds, result))
-            last = time.monotonic()
+            # (the run waits for a sync: what comes next, often the stop, is answered at once)
+            last = -math.inf if job[0] == "sync" else time.monotonic()
     finally:
         if not failed:
             files.index()
