@@ -46,6 +46,8 @@ class FemCache:
     element_size: edge (m) of a regular tet of the mean element volume (``hybrid.coupling.nodes.element_size``).
     warped_places: where a corotated body's mass and free block sit in its stiffness pattern
         (``fem.system._warped_places``).
+    frame_cells: the tets as the frames write them, a read-only copy (a writer process keeps it
+        from frame to frame; ``hybrid.app.observe``).
     """
     factor: FactorCache = field(default_factory=FactorCache)
     response: object = None
@@ -62,3 +64,4 @@ class FemCache:
     extent: tuple | None = None
     element_size: float | None = None
     warped_places: tuple | None = None
+    frame_cells: object = None

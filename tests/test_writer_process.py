@@ -89,9 +89,13 @@ def test_a_run_written_by_the_writer_process_equals_the_run_written_in_place(tmp
     assert not children()
 
 
+ONE_TET = np.array([[0, 1, 2, 3]])
+ONE_TET.flags.writeable = False     # (a model's cells: frames after the first go as their values)
+
+
 def piece(t, rng):
     points = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) + [0, 0, t]
-    return FramePiece(body_id=1, points=points, cells=[("tetra", np.array([[0, 1, 2, 3]]))],
+    return FramePiece(body_id=1, points=points, cells=[("tetra", ONE_TET)],
                       cell_data={"von_mises": rng.uniform(size=1)},
                       point_data={"velocity": rng.normal(size=(4, 3))})
 

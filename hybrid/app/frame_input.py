@@ -88,6 +88,8 @@ def owned(job: tuple) -> tuple:
     """``job`` with its frame's arrays copied (a job run later by the writer thread); read-only
     arrays that own their data (a model's surfaces, kept from frame to frame) cannot change and
     are not copied."""
+    if job[0] == "values":
+        return job[:4] + ([_kept(v) for v in job[4]],) + job[5:]
     if job[0] != "frame":
         return job
     pieces = [(_kept(body_id) if np.ndim(body_id) else body_id, _kept(points), [(t, _kept(c)) for t, c in blocks],

@@ -36,7 +36,10 @@ def _tet_piece(body_id, m, s):
     """The FramePiece of an FEM body (model ``m``, state ``s``): its tets with their fields."""
     cell = "tetra10" if m.order == 2 else "tetra"
     cell_data = tet_fields(m, s, deferred=True) | {"deformable": np.int8(1)}   # rigid bodies' cells: 0
-    return FramePiece(body_id, s.x, [(cell, m.tets)], cell_data=cell_data,
+    if m.cache.frame_cells is None:
+        m.cache.frame_cells = np.array(m.tets, dtype=np.int64)
+        m.cache.frame_cells.flags.writeable = False
+    return FramePiece(body_id, s.x, [(cell, m.cache.frame_cells)], cell_data=cell_data,
                       point_data={"displacement": s.x - m.rest_points, "velocity": s.v})
 
 

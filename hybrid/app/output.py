@@ -39,6 +39,7 @@ from . import writer_process
 from .text_files import atomic_write_text as _atomic_write_text, check_rows, plain as _plain
 from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
 from .frame_input import check_pieces, owned
+from .frame_layout import LastFrame
 from .writer_process import WriterProcess
 from .writer_thread import WriterThread
 
@@ -142,6 +143,7 @@ class RunWriter:
         self._started = False
         self._closed = False
         self._queued = 0                      # frames handed over (written or waiting)
+        self._last_frame = LastFrame()        # a frame of its layout goes as its values
         # the files as written on this process (inline, thread, and "auto" until a process takes over)
         self._frame_files = FrameFiles(self.out_dir, self.pvd_path.name, self.index_every,
                                        write_vtu=lambda *args: write_vtu(*args))
@@ -272,6 +274,7 @@ class RunWriter:
             self._auto(time.monotonic())
         if self._process is None and self.mode == "process":
             self._process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+        job = self._last_frame.handed(job, self._process or self._writer)
         if self._process is not None:
             self._process.submit(job)
             return
@@ -281,10 +284,9 @@ class RunWriter:
         writer.submit(lambda: files.run(job, idle=not writer.pending()))
 
     def _auto(self, now: float) -> None:
-        """``auto``: with the fork server up at the first job (a later run of this process), a
-        writer process from that job on; otherwise start the fork server once this run has
-        written for ``auto_after`` s (a shorter run would end before it is up), then a writer
-        process on a thread (a few ms of waiting for the server's fork), which takes the files over once started."""
+        """``auto``: with the fork server up at the first job (a later run of this process), a writer process
+        from that job on; otherwise start the server once this run has written for ``auto_after`` s (a shorter
+        run would end first), then a writer process on a thread, which takes the files over once started."""
         if self._auto_from == math.inf:
             self._auto_from = now + self.auto_after
             if writer_process.fork_server.ready():
@@ -357,15 +359,14 @@ class RunWriter:
 
         ``body_rows`` are tuples in the order of ``BODY_COLUMNS`` or dicts with exactly those keys.
         The input is checked (ValueError) and copied here; the files are written by the writer.
-        Returns the path the frame file gets.
-        """
+        Returns the path the frame file gets."""
         self._raise_error()
-        checked = self._check_pieces(pieces)
+        repeat = self._last_frame.repeat(pieces)      # (the last frame's layout: checked then)
+        body = repeat or (self._check_pieces(pieces), dict(self._cell_fields), dict(self._point_fields))
         rows = check_rows(body_rows, BODY_COLUMNS)
         self._start()
         path = self.frame_path(self._queued)
-        self._submit(("frame", float(time), path.name, checked, dict(self._cell_fields),
-                      dict(self._point_fields), BODIES_CSV, BODY_COLUMNS, rows))
+        self._submit(("values" if repeat else "frame", float(time), path.name, *body, BODIES_CSV, BODY_COLUMNS, rows))
         self._queued += 1
         return path
 

@@ -307,7 +307,7 @@ BUSY_INDEX = 10
 class FrameFiles:
     """The files of one run as written so far, and the jobs that write them.
 
-    A job is a tuple ``(name, *args)`` naming a method: ``frame``, ``rows``, ``index``,
+    A job is a tuple ``(name, *args)`` naming a method: ``frame``, ``values``, ``rows``, ``index``,
     ``restore`` or ``state``. ``write_vtu``: the function that writes a frame file (the default
     :func:`hybrid.app.vtu.write_vtu`). ``index_every``: wall time (s), at least, between rewrites
     of the ``.pvd`` while frames come (replacing a file waits a few ms for the disk)."""
@@ -324,8 +324,9 @@ class FrameFiles:
         self.index_time = -math.inf         # time.monotonic() of its last rewrite
         self.tables: dict[str, Any] = {}    # CSV file name -> open file
         self.encoder = VtuEncoder()
+        self.last: tuple | None = None      # the last frame's pieces and fields (for ``values``)
 
-    JOBS = ("frame", "rows", "index", "restore", "state")
+    JOBS = ("frame", "values", "rows", "index", "restore", "state")
 
     def run(self, job: tuple, idle: bool) -> Any:
         """Run ``job``; then, when ``idle`` (no job waits) and the ``.pvd`` was last written
@@ -346,6 +347,7 @@ class FrameFiles:
     def frame(self, t: float, name: str, pieces, cell_fields, point_fields, table, columns, rows) -> None:
         """Frame file ``frames/<name>`` of the checked ``pieces`` (merged with
         :func:`hybrid.app.vtu.merge_pieces`), its ``.pvd`` line, and its ``rows`` in ``table``."""
+        self.last = (pieces, cell_fields, point_fields)
         mesh = merge_pieces(pieces, cell_fields, point_fields)
         path = self.out_dir / FRAMES_DIR / name
         tmp = temporary_path(path)
@@ -360,6 +362,12 @@ class FrameFiles:
         self.pvd_lines.append(pvd_line(t, self.files[-1]))
         self.count += 1
         self.rows(table, columns, rows)
+
+    def values(self, t: float, name: str, paths, values, table, columns, rows) -> None:
+        """A frame of the last frame's layout, its ``values`` at ``paths`` (:mod:`hybrid.app.frame_layout`)."""
+        from .frame_layout import filled        # (which imports this module)
+        pieces, cell_fields, point_fields = self.last
+        self.frame(t, name, filled(pieces, paths, values), cell_fields, point_fields, table, columns, rows)
 
     def rows(self, table: str, columns, rows) -> None:
         """Append ``rows`` (checked tuples in ``columns`` order) to the CSV file ``table``, which
@@ -393,6 +401,7 @@ class FrameFiles:
         taken back to it): the ``.pvd`` on disk lists ``listed`` of its frames (all of them if
         not said), its tables exist with exactly those lengths and are appended to."""
         self.close()
+        self.last = None
         self.count, self.times, self.files = int(state["count"]), list(state["times"]), list(state["files"])
         self.pvd_lines = [pvd_line(t, f) for t, f in zip(self.times, self.files)]
         self.pvd_listed = int(state.get("listed", len(self.pvd_lines)))
