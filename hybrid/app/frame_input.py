@@ -120,12 +120,14 @@ class KeptArrays:
     def dumps(self, job: tuple) -> bytes:
         """``job`` pickled (the stepping side), a frame's kept arrays by number: the pickler's
         hook sees the objects that are not plain Python data (arrays, their wrappers), not each
-        of the rows' thousands of numbers."""
+        of the rows' thousands of numbers. Other jobs hold no kept arrays (a ``values`` job's
+        arrays are those that change) and go by the plain pickler, without the hook."""
+        if job[0] != "frame":
+            return pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
         buffer = io.BytesIO()
         pickler = _KeepingPickler(buffer, self)
         pickler.dump(job)
-        if job[0] == "frame":
-            self.kept = pickler.used
+        self.kept = pickler.used
         return buffer.getvalue()
 
     def loads(self, payload: bytes) -> tuple:
