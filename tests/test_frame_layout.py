@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from hybrid.app import output
-from hybrid.app.output import FramePiece, RunWriter, read_run
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.run_files import read_run
 from hybrid.app.vtu import Deferred
 from rigid.model import posed_by_orientation
 

@@ -8,7 +8,8 @@ import meshio
 import numpy as np
 import pytest
 
-from hybrid.app.output import BODY_COLUMNS, REGION_COLUMNS, FramePiece, RunWriter, read_run
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.run_files import BODY_COLUMNS, REGION_COLUMNS, read_run
 
 BOX_POINTS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
 BOX_TRIANGLES = np.array([

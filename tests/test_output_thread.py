@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from hybrid.app import output
-from hybrid.app.output import FramePiece, RunWriter, read_run
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.run_files import read_run
 from hybrid.app.output_resume import ResumableWriter
 
 TET_POINTS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])

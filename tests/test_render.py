@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from hybrid.app import render
-from hybrid.app.output import FramePiece, RunWriter, read_run
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.run_files import read_run
 from hybrid.app.render import BODY_PALETTE, movie_fps, probe_backend, render_run
 
 WIDTH, HEIGHT = 320, 240

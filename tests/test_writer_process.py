@@ -16,7 +16,8 @@ import pytest
 
 from hybrid import Simulation
 from hybrid.app import run as run_module
-from hybrid.app.output import FramePiece, RunWriter, read_run
+from hybrid.app.output import FramePiece, RunWriter
+from hybrid.app.run_files import read_run
 from hybrid.app.output_resume import ResumableWriter
 
 SCENE = """
@@ -477,7 +478,7 @@ def test_a_run_whose_writer_process_is_killed_ends_as_an_output_failure(tmp_path
     from hybrid.coupling.stability import OutputFailure
     with pytest.raises(OutputFailure, match="writer process"):
         run_with(tmp_path, monkeypatch, "process", "killed")
-    from hybrid.app.output import read_summary
+    from hybrid.app.run_files import read_summary
     assert read_summary(tmp_path / "killed")["status"] == "failed"
 
 

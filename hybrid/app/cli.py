@@ -192,7 +192,7 @@ def _seconds(text):
 
 def _render(args):
     from xml.etree.ElementTree import ParseError
-    from .output import read_run
+    from .run_files import read_run
     from .render import MAX_SIZE, render_run
     run_dir = Path(args.dir)
     if not (16 <= min(args.size) and max(args.size) <= MAX_SIZE):

@@ -10,7 +10,8 @@ folder back to that point: frames written after it are deleted, the tables cut t
 import os
 from pathlib import Path
 
-from .output import BODIES_CSV, FRAME_PATTERN, FRAMES_DIR, REGIONS_CSV, SUMMARY_JSON, RunWriter
+from .output import FRAMES_DIR, RunWriter
+from .run_files import BODIES_CSV, FRAME_PATTERN, REGIONS_CSV, SUMMARY_JSON
 from .text_files import atomic_write_text as _atomic_write_text
 from .vtu import pvd_text as _pvd_text
 

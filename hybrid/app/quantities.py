@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .output import BODIES_CSV, BODY_COLUMNS, REGION_COLUMNS, REGIONS_CSV, read_run, read_summary
+from .run_files import BODIES_CSV, BODY_COLUMNS, REGION_COLUMNS, REGIONS_CSV, read_run, read_summary
 
 BODY_VALUES = tuple(c for c in BODY_COLUMNS if c not in ("time", "body", "model"))
 REGION_VALUES = tuple(c for c in REGION_COLUMNS if c not in ("time", "body", "region"))

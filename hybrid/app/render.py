@@ -16,7 +16,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from hybrid.app.offscreen import WINDOW_ENV, probe_backend, use_backend  # noqa: F401 (re-exported)
-from hybrid.app.output import find_pvd, read_run
+from hybrid.app.run_files import find_pvd, read_run
 
 # Categorical colours indexed by body_id (saturated, none of them grey like the ground).
 BODY_PALETTE = np.array([

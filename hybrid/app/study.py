@@ -22,7 +22,7 @@ import traceback
 from pathlib import Path
 
 from .entry import Terminated
-from .output import BODIES_CSV, read_summary
+from .run_files import BODIES_CSV, read_summary
 from .scene import SceneError
 from .variants import SettingError, combinations, make_variants, setting_pairs
 
