@@ -49,6 +49,14 @@ density = 500.0
 """
 
 
+@pytest.fixture(autouse=True)
+def no_idle_writer():
+    """Each test starts without an idle writer process kept from an earlier test's run
+    (writer_process.pool), as a process's first run does."""
+    from hybrid.app import writer_process
+    writer_process.pool.clear()
+
+
 def scene_file(tmp_path, brick_z=0.3):
     path = tmp_path / "mixed.toml"
     path.write_text(SCENE.format(brick_z=brick_z))
@@ -66,8 +74,11 @@ def run_with(tmp_path, monkeypatch, background, name):
 
 
 def children():
-    """Live child processes of this one (multiprocessing's fork server aside)."""
-    return [p for p in multiprocessing.active_children()]
+    """Live child processes of this one but the idle writer process kept for the next run
+    (writer_process.pool; multiprocessing's fork server aside)."""
+    from hybrid.app import writer_process
+    idle = writer_process.pool.idle_pid
+    return [p for p in multiprocessing.active_children() if p.pid != idle]
 
 
 @pytest.mark.parametrize("keep_bytes", [16 << 10, 0])
@@ -484,16 +495,16 @@ def test_a_run_whose_writer_process_is_killed_ends_as_an_output_failure(tmp_path
 
 def test_frames_handed_over_while_the_writer_naps_and_after_it_blocks_are_all_written(tmp_path):
     """The writer process naps between jobs that come often and blocks once none has come for a
-    while (writer_process.NAPPING): frames handed over at once, and after pauses longer than
+    while (writer_child.NAPPING): frames handed over at once, and after pauses longer than
     that, all reach the disk in order, and a flush after a pause returns."""
-    from hybrid.app import writer_process
+    from hybrid.app import writer_child
     tris = np.array([[0, 1, 2]])
-    pauses = [0.0, 0.0, 3 * writer_process.NAPPING, 0.0, 3 * writer_process.NAPPING]
+    pauses = [0.0, 0.0, 3 * writer_child.NAPPING, 0.0, 3 * writer_child.NAPPING]
     with RunWriter(tmp_path / "run", "naps", background="process") as writer:
         for k, pause in enumerate(pauses):
             time.sleep(pause)
             writer.write_frame(0.1 * k, [FramePiece(1, np.full((3, 3), float(k)), [("triangle", tris)])])
-        time.sleep(3 * writer_process.NAPPING)
+        time.sleep(3 * writer_child.NAPPING)
         writer.flush()
         assert writer.frames_written == len(pauses)
         writer.close({})
@@ -604,3 +615,83 @@ def test_a_wait_for_a_writer_whose_feeder_thread_died_ends_with_an_error(tmp_pat
     assert writer.pid is None and "feeder thread ended" in str(writer.start_error())
     writer.stop()
     assert not (tmp_path / "a.csv").exists()
+
+
+def write_frames(run_dir, background, frames=5, seed=4):
+    """``frames`` frames and region rows written the ``background`` way; the writer process's id."""
+    rng = np.random.default_rng(seed)
+    with RunWriter(run_dir, "drop", background=background) as writer:
+        for k in range(frames):
+            writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+            writer.write_regions([(0.01 * k, "jelly", "anchor0", 1.0, 2.0, 3.0, 0.0, 0.0, k)])
+        pid = writer.writer_pid
+        writer.close({"frames": frames})
+    return pid
+
+
+def same_files(a, b):
+    names = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert names == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for name in names:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_a_later_run_takes_the_idle_writer_process_and_writes_its_own_files(tmp_path):
+    """A run's writer process is kept, idle, for the process's next run (no start beside the
+    stepping): the next run's files, a different folder and frame count, are those written in
+    place, and none of the first run's state (frames, kept arrays, index) leaks into them."""
+    from hybrid.app import writer_process
+    first = write_frames(tmp_path / "first", "process", frames=5)
+    assert writer_process.pool.idle_pid == first and _alive(first)
+    second = write_frames(tmp_path / "second", "process", frames=3, seed=5)
+    assert second == first
+    write_frames(tmp_path / "first_inline", False, frames=5)
+    write_frames(tmp_path / "second_inline", False, frames=3, seed=5)
+    same_files(tmp_path / "first", tmp_path / "first_inline")
+    same_files(tmp_path / "second", tmp_path / "second_inline")
+    assert not children()
+
+
+def test_a_writer_process_whose_run_failed_or_that_ended_is_not_taken_again(tmp_path):
+    from hybrid.app import writer_process
+    rng = np.random.default_rng(2)
+    with RunWriter(tmp_path / "failed", "drop", background="process") as writer:
+        writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
+        failed = writer.writer_pid
+        (tmp_path / "failed" / "frames" / "frame_00001.vtu").mkdir()     # frame 1 cannot go there
+        writer.write_frame(0.01, [piece(0.01, rng)], rows(0.01))
+        with pytest.raises(IsADirectoryError):
+            writer.close({})
+    assert writer_process.pool.idle_pid is None
+    kept = write_frames(tmp_path / "next", "process")
+    assert kept != failed and writer_process.pool.idle_pid == kept
+    os.kill(kept, signal.SIGKILL)                       # ended while idle: a new one takes over
+    for _ in range(200):
+        if not _alive(kept):
+            break
+        time.sleep(0.01)
+    fresh = write_frames(tmp_path / "after", "process")
+    assert fresh not in (kept, failed)
+    write_frames(tmp_path / "inline", False)
+    same_files(tmp_path / "after", tmp_path / "inline")
+
+
+def test_the_idle_writer_process_ends_with_the_python_process(tmp_path):
+    script = tmp_path / "one_run.py"
+    script.write_text(
+        "import numpy as np\n"
+        "from hybrid.app.output import FramePiece, RunWriter\n"
+        "if __name__ == '__main__':\n"
+        f"    with RunWriter({str(tmp_path / 'run')!r}, 'one', background='process') as writer:\n"
+        "        writer.write_frame(0.0, [FramePiece(1, np.eye(3), [('triangle', np.array([[0, 1, 2]]))])])\n"
+        "        print(writer.writer_pid)\n"
+        "        writer.close({})\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    pid = int(done.stdout.split()[0])
+    for _ in range(300):
+        if not _alive(pid):
+            break
+        time.sleep(0.01)
+    assert not _alive(pid)
+    assert read_run(tmp_path / "run")[0] == [0.0]

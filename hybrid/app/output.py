@@ -95,7 +95,8 @@ class RunWriter:
 
     ``background`` says where the files are written (:mod:`hybrid.app.writer_process`):
 
-    - ``"process"``: by a writer process, a child of this one that ends with the writer;
+    - ``"process"``: by a writer process, a child of this one (kept idle for its next run once the
+      files are closed: ``writer_process.pool``);
     - ``True`` or ``"thread"``: by a writer thread (started when there is work, ended when there
       is none, so it never keeps the interpreter alive);
     - ``"auto"``: on the caller's thread until multiprocessing's fork server is up, then by a
@@ -111,8 +112,7 @@ class RunWriter:
     The files are written in the order of the calls, byte for byte as in place. A writer error (a full
     disk) stops the writing, keeping the frames before it and a ``.pvd`` listing them, and is
     raised on the caller's thread by the next call. ``flush()`` waits until every queued frame is
-    on disk, and so does reading ``frames_written``. ``close()`` ends the writer process.
-    """
+    on disk, and so does reading ``frames_written``. ``close()`` gives the writer process back."""
 
     queue_frames = 8
     index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
@@ -129,8 +129,7 @@ class RunWriter:
         self._frames_dir = self.out_dir / FRAMES_DIR
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
-        self._started = False
-        self._closed = False
+        self._started = self._closed = False
         self._queued = 0                      # frames handed over (written or waiting)
         self._last_frame = LastFrame()        # a frame of its layout goes as its values
         # the files as written on this process (inline, thread, and "auto" until a process takes over)
@@ -138,11 +137,10 @@ class RunWriter:
                                        write_vtu=lambda *args: write_vtu(*args))
         self._process: WriterProcess | None = None
         self._ended_seconds = 0.0           # writing time of the ended writer process (s)
-        self._auto_from: float | None = None  # "auto": when the fork server is to be started
-        self._launch: threading.Thread | None = None      # "auto": starting a writer process
+        # "auto": when the fork server is to be started (never: None), the thread starting a writer process
+        self._auto_from = math.inf if self.mode == "auto" and writer_process.unavailable() is None else None
+        self._launch: threading.Thread | None = None
         self._launched: WriterProcess | BaseException | None = None
-        if self.mode == "auto" and writer_process.unavailable() is None:
-            self._auto_from = math.inf
         # "auto" writes in place until (or unless) a writer process is up: a thread shares the interpreter
         # lock, and with it the writer's Python work costs the stepping more than that work (docs/output.md)
         self._writer = WriterThread(self.mode == "thread", self.queue_frames, "RunWriter")
@@ -224,17 +222,23 @@ class RunWriter:
             self._raise_error()                 # a writer error nobody has seen yet
 
     def _end(self) -> None:
-        """Close the tables and end the writer process (its files closed)."""
+        """Close the tables and give the writer process back (its files closed)."""
         self._frame_files.close()
         if self._launch is not None and self._process is None:      # started, not taken over
             self._launch.join()
             if isinstance(self._launched, WriterProcess):
-                self._launched.stop()
+                writer_process.pool.give(self._launched)
         if self._process is not None:
-            self._process.stop()
-            self._ended_seconds += self._process.seconds
-            self._process = None
+            self._give_back()
         self._closed = True
+
+    def _give_back(self) -> WriterProcess:
+        """Give the writer process back, every job done and its files closed (kept for this
+        process's next run, writer_process.pool); it, for its error."""
+        process, self._process = self._process, None
+        writer_process.pool.give(process)
+        self._ended_seconds += process.seconds
+        return process
 
     def flush(self) -> None:
         """Wait until everything handed over is on disk; raise the writer's error if it has not
@@ -245,10 +249,13 @@ class RunWriter:
 
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
         """Wait for the frames handed over, write ``summary.json`` (if a summary is given), close
-        the CSV files and end the writer process. Raises the writer's error (if not raised yet)
-        instead of writing the summary."""
+        the CSV files and give the writer process back. Raises the writer's error (if not raised
+        yet) instead of writing the summary."""
         try:
-            self.flush()
+            if self._process is not None:
+                self._give_back().raise_error()     # (one wait: the frames, the index, the files closed)
+            else:
+                self.flush()
             if summary is not None:
                 self._start()
                 text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
@@ -262,7 +269,7 @@ class RunWriter:
         if self._process is None and self._auto_from is not None:
             self._auto(time.monotonic())
         if self._process is None and self.mode == "process":
-            self._process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+            self._process = self._new_process()
         job = self._last_frame.handed(job, self._process or self._writer)
         if self._process is not None:
             self._process.submit(job)
@@ -298,7 +305,7 @@ class RunWriter:
         """A new writer process in ``_launched``, or why it could not start (the run goes on writing in
         place; without ``wait``, for the launching thread, a failed start is raised by a later call)."""
         try:
-            process = WriterProcess(self.out_dir, self.pvd_path.name, self.index_every)
+            process = self._new_process()
         except (OSError, RuntimeError) as error:
             self._launched = error
             return
@@ -306,6 +313,11 @@ class RunWriter:
         if error is not None:
             process.stop()
         self._launched = error or process
+
+    def _new_process(self) -> WriterProcess:
+        """This process's idle writer process (writer_process.pool), else a new one."""
+        args = (self.out_dir, self.pvd_path.name, self.index_every)
+        return writer_process.pool.take(*args) or WriterProcess(*args)
 
     def _take_over(self) -> None:
         """Hand the files over to the launched writer process (``auto``; then only that is waited for);
@@ -321,7 +333,7 @@ class RunWriter:
         state = self._frame_files.state()
         self._frame_files.close()
         process.submit(("restore", state))
-        self._process = process
+        self._process, self._launched = process, None
 
     def _wait(self) -> None:
         (self._process or self._writer).wait()

@@ -19,17 +19,13 @@ raised on the stepping thread, naming the process.
 from __future__ import annotations
 
 import atexit
-import math
 import multiprocessing
 import pickle
 import queue
 import re
 import select
-import signal
 import sys
 import threading
-import time
-import traceback
 import weakref
 from collections import deque
 from pathlib import Path
@@ -37,7 +33,7 @@ from pathlib import Path
 from . import fork_server as forking
 from .fork_server import start_fork_server
 from .frame_input import KeptArrays
-from .vtu import FrameFiles
+from .writer_child import serve
 
 
 class WriterProcessError(OSError):
@@ -106,7 +102,7 @@ class WriterProcess:
         context = multiprocessing.get_context(method)
         receive, self._jobs = context.Pipe(duplex=False)
         self._replies, send = context.Pipe(duplex=False)
-        self._process = context.Process(target=_serve, args=(receive, send, str(out_dir), pvd_name, index_every),
+        self._process = context.Process(target=serve, args=(receive, send, str(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
         if method == "forkserver":     # (its imports done once: a writer process starts in ms)
             start_fork_server()
@@ -182,7 +178,9 @@ class WriterProcess:
             pass                # the child is gone: _read reports it
 
     def _read(self, block: bool) -> None:
-        """Take the child's replies (blocking for one when ``block``)."""
+        """Take the child's replies (blocking for one when ``block``; none once stopped)."""
+        if self._process is None:
+            return
         if self._fed[1] is not None and not self._gone:
             self._gone = True
             self._error = self._error or WriterProcessError(f"the writer process could not start: {self._fed[1]}")
@@ -248,6 +246,35 @@ class WriterProcess:
         if self._error is not None and not self._error_raised:
             self._error_raised = True
             raise self._error
+
+    def release(self) -> bool:
+        """Close this run's files, every job done, and keep the process for another run
+        (:meth:`reopen`): True when it can be kept (it is alive and no job failed); otherwise
+        it is stopped (its error kept for :meth:`raise_error`)."""
+        self.wait()
+        if self._error is None and not self._gone:
+            self.submit(("release",))           # answered once the files are closed (no sync after
+            while not self._gone and self._done < self._sent:      # it: the child awaits "open")
+                self._read(block=True)
+        if self._error is not None or self._gone:
+            self.stop()
+            return False
+        return True
+
+    def alive(self) -> bool:
+        """Whether the child runs and can take jobs (not stopped, gone or failed)."""
+        if self._process is None or self._gone:
+            return False
+        self._read(block=False)
+        return not self._gone and self._error is None and self._process.is_alive()
+
+    def reopen(self, out_dir: str, pvd_name: str, index_every: float = 0.2) -> None:
+        """Write another run's files (a released writer: nothing in flight, its feeder idle)."""
+        self.seconds, self._sent, self._done, self._state = 0.0, 0, 0, None
+        self._in_flight.clear()
+        self._in_flight_bytes = 0
+        self._keeping = KeptArrays()
+        self._jobs.send_bytes(pickle.dumps(("open", str(out_dir), pvd_name, index_every)))
 
     def stop(self, timeout: float = 60.0) -> None:
         """Let the child write what it has, close its files and end; it is terminated if it has
@@ -326,69 +353,55 @@ def _stop_all() -> None:
         writer.stop()
 
 
-# A pipe write that wakes a reader blocked on the pipe costs the writing process 40-50 us on a
-# virtual machine (waking the other core), a third of a small frame's hand-over. For NAPPING s
-# after each job the writer process naps NAP s at a time and looks for the next one instead of
-# blocking, so that a run handing over frames more often than that wakes no one; after that it
-# blocks (a run that hands over a frame a second pays the wake-up, not a thousand looks a second).
-NAP = 0.001
-NAPPING = 0.05
+class WriterPool:
+    """The writer process a Python process keeps between its runs (at most one, idle, its files
+    closed): a run takes it instead of starting one (no fork, no start-up beside the stepping)
+    and gives it back when it closes its files; a writer whose run failed is stopped instead.
+    It ends with the process (:func:`_stop_all`), as the fork server does."""
+
+    def __init__(self):
+        self._idle: WriterProcess | None = None
+        self._lock = threading.Lock()
+
+    def take(self, out_dir: str, pvd_name: str, index_every: float = 0.2) -> WriterProcess | None:
+        """The idle writer process, writing the files of ``out_dir`` now; None if there is none
+        (or this process may not have one now, :func:`unavailable`)."""
+        if unavailable() is not None:
+            return None
+        with self._lock:
+            process, self._idle = self._idle, None
+        if process is None:
+            return None
+        try:
+            if process.alive():
+                process.reopen(out_dir, pvd_name, index_every)
+                return process
+        except OSError:
+            pass                                # (it ended while idle: a new one)
+        process.stop()
+        return None
+
+    def clear(self) -> None:
+        """Stop the idle writer process, if any."""
+        with self._lock:
+            process, self._idle = self._idle, None
+        if process is not None:
+            process.stop()
+
+    def give(self, process: WriterProcess) -> None:
+        """Take ``process`` back at the end of its run (:meth:`WriterProcess.release`)."""
+        if not process.release():
+            return
+        with self._lock:
+            process, self._idle = self._idle, process
+        if process is not None:
+            process.stop()                      # (one idle writer is enough)
+
+    @property
+    def idle_pid(self) -> int | None:
+        """The idle writer process's id, or None."""
+        idle = self._idle
+        return idle.pid if idle is not None else None
 
 
-def _serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
-    """The writer process: run the jobs received on ``jobs`` until an empty message (stop) or
-    the end of the pipe, replying ``("done", jobs done, seconds, result)`` or ``("error", error,
-    traceback)`` on ``replies``. Ctrl-C and SIGTERM are the run's to handle (sent to the whole
-    process group, they reach this process too): it keeps writing until the run stops it, or
-    until the run's process is gone."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    files = FrameFiles(out_dir, pvd_name, index_every)
-    keeping = KeptArrays()
-    seconds, failed, done = 0.0, False, 0
-    waiting = select.poll()
-    waiting.register(jobs.fileno(), select.POLLIN)
-    last = time.monotonic()
-    try:
-        while True:
-            # while jobs come often, nap and look instead of blocking (see NAP)
-            while not waiting.poll(0) and time.monotonic() - last < NAPPING:
-                time.sleep(NAP)
-            try:
-                payload = jobs.recv_bytes()
-            except (EOFError, OSError):
-                break                       # the run's process is gone
-            if not payload:
-                break
-            result = None
-            job = keeping.loads(payload)
-            if job[0] != "sync" and (not failed or job[0] == "state"):
-                start = time.perf_counter()
-                try:
-                    result = files.run(job, idle=not waiting.poll(0))
-                except BaseException as error:     # noqa: BLE001 (sent to the stepping thread)
-                    failed = True
-                    _reply_error(replies, error)
-                seconds += time.perf_counter() - start
-            done += 1
-            # a reply when the run waits (a sync job), with a result, and every 32 jobs: not one
-            # per job (a reply read on the stepping thread costs 40-50 us)
-            if result is not None or done % 32 == 0 or job[0] == "sync":
-                replies.send(("done", done, seconds, result))
-            # (the run waits for a sync: what comes next, often the stop, is answered at once)
-            last = -math.inf if job[0] == "sync" else time.monotonic()
-    finally:
-        if not failed:
-            files.index()
-        files.close()
-
-
-def _reply_error(replies, error: BaseException) -> None:
-    """Send ``error`` with its traceback (as a RuntimeError naming it if it does not pickle)."""
-    remote = "".join(traceback.format_exception(error))
-    try:
-        pickle.loads(pickle.dumps(error))
-    except Exception:                       # noqa: BLE001
-        error = RuntimeError(f"{type(error).__name__}: {error}")
-    replies.send(("error", error, remote))
-
+pool = WriterPool()
