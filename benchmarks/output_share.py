@@ -13,9 +13,12 @@ ways, interleaved, ``--repeats`` times:
   background=False)``, the writer before issue 24);
 - ``thread``: the same files written by a writer thread (``background="thread"``);
 - ``process``: written by a writer process (``background="process"``);
-- ``auto``: the default (``background="auto"``): the thread until multiprocessing's fork server
+- ``auto``: the default (``background="auto"``): in place until multiprocessing's fork server
   is up, then a process. The server is started before the timed runs, as a process's first run
-  that writes for a second starts it (a shorter run stays on the thread).
+  that writes for a second starts it (a shorter run stays in place).
+
+``process`` and ``auto`` take the idle writer process an earlier run left
+(``hybrid.app.writer_process.pool``), as the later runs of a Python process do.
 
 A process's first run writes in place while the fork server starts (``auto``): ``--first-runs
 N`` also times N first runs of the default scene, each in a new Python process (what ``hybrid

@@ -287,11 +287,21 @@ def test_auto_handing_over_at_the_close_keeps_every_frame_in_the_index(tmp_path,
     after a resumed ``shatter``). It is told what the index lists and brings it up to date."""
     from hybrid.app import writer_process
 
+    import threading
+    release = threading.Event()
+    real_start = RunWriter._start_process
+
+    def held_start(writer, wait=False):     # (a loaded machine could start it before the close)
+        assert release.wait(10.0)
+        real_start(writer, wait)
+
     def launched(writer, k):
         if k == 4:
+            release.set()
             writer._launch.join()           # started: the close's index job hands over
 
-    monkeypatch.setattr(writer_process, "fork_server", FakeForkServer(9))  # up at the fifth frame's region rows
+    monkeypatch.setattr(RunWriter, "_start_process", held_start)
+    monkeypatch.setattr(writer_process, "fork_server", FakeForkServer(9))  # up at the fifth frame
     monkeypatch.setattr(RunWriter, "auto_after", 0.0)
     pids = write_auto_and_inline(tmp_path, 5, launched)      # (the .pvd byte for byte too)
     assert pids == [None] * 10
@@ -695,3 +705,13 @@ def test_the_idle_writer_process_ends_with_the_python_process(tmp_path):
         time.sleep(0.01)
     assert not _alive(pid)
     assert read_run(tmp_path / "run")[0] == [0.0]
+
+
+def test_the_idle_writer_process_writes_a_relative_folder_where_the_run_is(tmp_path, monkeypatch):
+    """A writer process kept from a run in another working directory writes a later run's
+    relative folder under the later run's working directory, not its own."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        monkeypatch.chdir(tmp_path / name)
+        write_frames(Path("out"), "process")
+    assert read_run(tmp_path / "b" / "out")[0] == read_run(tmp_path / "a" / "out")[0] == [0.01 * k for k in range(5)]

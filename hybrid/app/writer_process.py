@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import atexit
 import multiprocessing
+import os
 import pickle
 import queue
 import re
@@ -102,7 +103,8 @@ class WriterProcess:
         context = multiprocessing.get_context(method)
         receive, self._jobs = context.Pipe(duplex=False)
         self._replies, send = context.Pipe(duplex=False)
-        self._process = context.Process(target=serve, args=(receive, send, str(out_dir), pvd_name, index_every),
+        # (absolute: a writer kept for a later run does not follow a change of directory)
+        self._process = context.Process(target=serve, args=(receive, send, os.path.abspath(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
         if method == "forkserver":     # (its imports done once: a writer process starts in ms)
             start_fork_server()
@@ -274,7 +276,7 @@ class WriterProcess:
         self._in_flight.clear()
         self._in_flight_bytes = 0
         self._keeping = KeptArrays()
-        self._jobs.send_bytes(pickle.dumps(("open", str(out_dir), pvd_name, index_every)))
+        self._jobs.send_bytes(pickle.dumps(("open", os.path.abspath(out_dir), pvd_name, index_every)))
 
     def stop(self, timeout: float = 60.0) -> None:
         """Let the child write what it has, close its files and end; it is terminated if it has
@@ -361,12 +363,13 @@ class WriterPool:
 
     def __init__(self):
         self._idle: WriterProcess | None = None
+        self._owner = os.getpid()           # (a process forked from this one has no child here)
         self._lock = threading.Lock()
 
     def take(self, out_dir: str, pvd_name: str, index_every: float = 0.2) -> WriterProcess | None:
         """The idle writer process, writing the files of ``out_dir`` now; None if there is none
         (or this process may not have one now, :func:`unavailable`)."""
-        if unavailable() is not None:
+        if unavailable() is not None or os.getpid() != self._owner:
             return None
         with self._lock:
             process, self._idle = self._idle, None
@@ -382,10 +385,10 @@ class WriterPool:
         return None
 
     def clear(self) -> None:
-        """Stop the idle writer process, if any."""
+        """Stop the idle writer process, if any (of this process)."""
         with self._lock:
             process, self._idle = self._idle, None
-        if process is not None:
+        if process is not None and self._owner == os.getpid():
             process.stop()
 
     def give(self, process: WriterProcess) -> None:
@@ -393,9 +396,11 @@ class WriterPool:
         if not process.release():
             return
         with self._lock:
-            process, self._idle = self._idle, process
-        if process is not None:
-            process.stop()                      # (one idle writer is enough)
+            # one idle writer is enough (one kept by the process this one was forked from is its own)
+            old = self._idle if self._owner == os.getpid() else None
+            self._idle, self._owner = process, os.getpid()
+        if old is not None:
+            old.stop()
 
     @property
     def idle_pid(self) -> int | None:
