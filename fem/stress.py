@@ -105,6 +105,8 @@ def region_table(model, state):
     (the plastic displacement reference updates baked into the rest shape added back: a load-
     deflection curve runs on through them).
     """
+    if not model.region_names:
+        return []
     u = state.x - model.rest_points
     if state.node_rest_shift is not None:
         u = u + state.node_rest_shift

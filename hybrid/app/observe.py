@@ -172,6 +172,8 @@ def _parked_orientation(model, state, i, k):
 def region_rows(model, state):
     """Rows ``time,body,region,fx,fy,fz,ux,uy,uz`` for every anchor and load region."""
     from fem.stress import region_table
+    if not any(m.region_names for m in model.fem) and not any(p.fem.region_names for p in model.parked.values()):
+        return []                   # (no body has regions: no states posed for none)
     out = []
     for k, m, s in fem_states(model, state):
         for name, *values in region_table(m, s):
