@@ -12,9 +12,11 @@ to check and copy; the interpreter lock no longer makes the stepping wait for th
 
 The process ignores SIGINT (a Ctrl-C reaches every process of the terminal's group; the run
 stops cleanly and closes its writer, which writes every frame handed over), writes what it has
-received and ends when the run closes its writer or when the run's process is gone (its end of
-the pipe closed), and stops at the first job that fails: later jobs are dropped and the error is
-raised on the stepping thread, naming the process.
+received, and stops at the first job that fails: later jobs are dropped and the error is raised
+on the stepping thread, naming the process. When the run closes its writer the process closes
+the run's files and waits, idle, for the next run of the same Python process (:class:`WriterPool`,
+``pool``); it ends when that process ends or is gone (its end of the pipe closed). Its own
+side is :mod:`hybrid.app.writer_child`.
 """
 from __future__ import annotations
 
