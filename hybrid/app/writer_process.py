@@ -257,8 +257,9 @@ class WriterProcess:
         it is stopped (its error kept for :meth:`raise_error`)."""
         self.wait()
         if self._error is None and not self._gone:
-            self.submit(("release",))           # answered once the files are closed (no sync after
-            while not self._gone and self._done < self._sent:      # it: the child awaits "open")
+            # answered once the files are closed; no sync after it (the child then awaits "open")
+            self.submit(("release",))
+            while not self._gone and self._done < self._sent:
                 self._read(block=True)
         if self._error is not None or self._gone:
             self.stop()
