@@ -2,8 +2,6 @@
 import numpy as np
 
 from fem import dynamics as fem_dyn
-from fem.plasticity import elastic_stress
-from fem.stress import principal_stress_max
 from rigid import quaternion as quat
 from rigid.model import FORCE_LIKE, posed_by_orientation
 from rigid.step_kernels import body_report
@@ -11,7 +9,7 @@ from rigid.step_kernels import body_report
 from hybrid.coupling.switch import fem_state
 
 from .output import FramePiece
-from .peaks import element_strains, strain_tensors
+from .peaks import element_strains, principal_stress_of_strains
 from .vtu import Deferred
 
 
@@ -19,11 +17,12 @@ def tet_fields(fem_model, fem_state, deferred=False):
     """Per-tet fields of an FEM body: ``von_mises`` and ``principal_stress`` (largest principal
     stress, Pa) of the element stress, ``plastic_strain`` (accumulated equivalent plastic strain,
     the element's largest over its points; 0.0 without plasticity) and ``yielded`` (0/1).
-    ``deferred``: ``principal_stress`` as a :class:`hybrid.app.vtu.Deferred` of the stresses,
+    ``deferred``: ``principal_stress`` as a :class:`hybrid.app.vtu.Deferred` of the strain rows,
     computed by the run's writer (the batched eigenvalues are most of a frame's fields' time)."""
     e, vm, _, _ = element_strains(fem_model, fem_state)
-    sigma = elastic_stress(strain_tensors(e), 0.0, fem_model.mu, fem_model.lam)
-    principal = Deferred(principal_stress_max, sigma) if deferred else principal_stress_max(sigma)
+    strains = (e, float(fem_model.mu), float(fem_model.lam))
+    principal = (Deferred(principal_stress_of_strains, strains, rows=len(e)) if deferred
+                 else principal_stress_of_strains(*strains))
     fields = {"von_mises": vm, "principal_stress": principal,
               "plastic_strain": 0.0, "yielded": 0}
     if fem_state.tet_peeq is not None:

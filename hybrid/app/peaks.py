@@ -12,6 +12,7 @@ import numba as nb
 import numpy as np
 
 from fem.plasticity import elastic_stress
+from fem.stress import principal_stress_max
 from fem.rotations import element_rotations
 
 QUANTITIES = ("von_mises", "principal_stress", "plastic_strain")
@@ -123,6 +124,14 @@ def element_strains(m, s):
         return _element_strains_turned(s.x, element_rotations(m, s.x), m.rest_points,
                                        m.elements.tet_nodes, G, eps_p, m.mu, m.lam)
     return _element_strains(s.x, s.c, s.R, m.rest_offsets, m.elements.tet_nodes, G, eps_p, m.mu, m.lam)
+
+
+def principal_stress_of_strains(e, mu, lam):
+    """Largest principal stress ``(k,)`` (Pa) of the isotropic elastic stress (Lame ``mu``,
+    ``lam``) of strain rows ``e`` ``(k, 6)`` (:func:`element_strains`): what a frame's
+    ``principal_stress`` field holds, computed by the run's writer from the rows (half the bytes
+    of the stress tensors, and none of their products on the stepping thread)."""
+    return principal_stress_max(elastic_stress(strain_tensors(e), 0.0, mu, lam))
 
 
 def strain_tensors(e):
