@@ -627,6 +627,14 @@ def test_a_wait_for_a_writer_whose_feeder_thread_died_ends_with_an_error(tmp_pat
     assert not (tmp_path / "a.csv").exists()
 
 
+def _wait_ended(pid, seconds=3.0):
+    """Wait up to ``seconds`` for process ``pid`` to end (see :func:`_alive`)."""
+    for _ in range(int(seconds / 0.01)):
+        if not _alive(pid):
+            return
+        time.sleep(0.01)
+
+
 def write_frames(run_dir, background, frames=5, seed=4):
     """``frames`` frames and region rows written the ``background`` way; the writer process's id."""
     rng = np.random.default_rng(seed)
@@ -676,10 +684,7 @@ def test_a_writer_process_whose_run_failed_or_that_ended_is_not_taken_again(tmp_
     kept = write_frames(tmp_path / "next", "process")
     assert kept != failed and writer_process.pool.idle_pid == kept
     os.kill(kept, signal.SIGKILL)                       # ended while idle: a new one takes over
-    for _ in range(200):
-        if not _alive(kept):
-            break
-        time.sleep(0.01)
+    _wait_ended(kept)
     fresh = write_frames(tmp_path / "after", "process")
     assert fresh not in (kept, failed)
     write_frames(tmp_path / "inline", False)
@@ -699,10 +704,7 @@ def test_the_idle_writer_process_ends_with_the_python_process(tmp_path):
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     pid = int(done.stdout.split()[0])
-    for _ in range(300):
-        if not _alive(pid):
-            break
-        time.sleep(0.01)
+    _wait_ended(pid)
     assert not _alive(pid)
     assert read_run(tmp_path / "run")[0] == [0.0]
 
