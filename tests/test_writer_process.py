@@ -717,3 +717,32 @@ def test_the_idle_writer_process_writes_a_relative_folder_where_the_run_is(tmp_p
         monkeypatch.chdir(tmp_path / name)
         write_frames(Path("out"), "process")
     assert read_run(tmp_path / "b" / "out")[0] == read_run(tmp_path / "a" / "out")[0] == [0.01 * k for k in range(5)]
+
+
+def test_hybrid_run_writes_every_frame_by_the_writer_process_it_started_while_building(tmp_path, monkeypatch):
+    """``hybrid run`` starts the writer process before it builds the scene (idle, touching no
+    file); its run then writes every frame there, none in place, and keeps it for a later run.
+    (The start is waited for here: a build as short as this one's could end before it.)"""
+    from hybrid.app import cli, output, vtu, writer_process
+    in_place, started = [], []
+    original = vtu.FrameFiles.run
+    monkeypatch.setattr(vtu.FrameFiles, "run", lambda self, job, idle: in_place.append(job[0]) or original(self, job, idle))
+    start = output.start_writer_early
+
+    def start_and_wait():
+        start()
+        for _ in range(3000):
+            if writer_process.pool.idle_pid is not None and writer_process.fork_server.ready():
+                break
+            time.sleep(0.01)
+        started.append(writer_process.pool.idle_pid)
+
+    monkeypatch.setattr(output, "start_writer_early", start_and_wait)
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    assert cli.main(["run", str(scene_file(tmp_path)), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert len(started) == 1 and started[0] is not None
+    assert in_place == [] and writer_process.pool.idle_pid == started[0] and _alive(started[0])
+    times = read_run(tmp_path / "out")[0]
+    assert len(times) == 7 and times == sorted(times)          # 0.06 s at 100 frames/s
+    assert list((tmp_path / "cwd").iterdir()) == []

@@ -93,12 +93,21 @@ def _run(args):
               file=sys.stderr)
         return 2
     from .checkpoint import CheckpointError, Stopped, stop_on_signals
-    from .output_resume import CHECKPOINT
+    from .output_resume import CHECKPOINT, writer_from_environment
     if not args.resume and (out / CHECKPOINT).exists():
         # a run started afresh there would remove it: an hour's run lost to a missing flag
         print(f"{path}: --out {out} holds a run that did not finish ({CHECKPOINT}): add --resume to continue "
               f"it, or delete {out / CHECKPOINT} to start again there", file=sys.stderr)
         return 2
+    try:
+        writer = writer_from_environment()
+    except ValueError as err:
+        print(f"{err}", file=sys.stderr)
+        return 2
+    if writer in ("auto", "process"):
+        # the writer process starts while the scene is built (its first frame is then written there)
+        from .output import start_writer_early
+        start_writer_early()
     deformable = sum(b.model != "rigid" for b in scene.bodies)
     if deformable and not args.resume:      # (a large mesh's factorisation can take a minute)
         print(f"building '{scene.name}': meshing and factorising {deformable} deformable "
@@ -109,12 +118,6 @@ def _run(args):
         return _rejected(path, err)
     except (MeshError, ValueError, CheckpointError) as err:
         print(f"{path}: {err}", file=sys.stderr)
-        return 2
-    from .output_resume import writer_from_environment
-    try:
-        writer_from_environment()
-    except ValueError as err:
-        print(f"{err}", file=sys.stderr)
         return 2
     unwritable = _unwritable(out)
     if unwritable is not None:

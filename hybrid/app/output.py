@@ -101,7 +101,8 @@ class RunWriter:
       is none, so it never keeps the interpreter alive);
     - ``"auto"``: on the caller's thread until multiprocessing's fork server is up, then by a
       writer process; the server is started once per process, by the first run that writes for a
-      second (it takes a second or so: a shorter run would be over first). On the caller's thread
+      second (it takes a second or so: a shorter run would be over first), or with a writer
+      process by :func:`start_writer_early` (``hybrid run``, before it builds the scene). On the caller's thread
       throughout in a daemonic process (a Dask worker, which cannot have children) and under a main
       script without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
     - ``False`` or ``"inline"``: on the caller's thread.
@@ -379,3 +380,27 @@ class RunWriter:
             return
         self._start()
         self._submit(("rows", REGIONS_CSV, REGION_COLUMNS, rows))
+
+
+def start_writer_early() -> None:
+    """Start this process's writer process ahead of its first run, idle (``hybrid run`` calls it
+    before building the scene, which takes longer than the fork server's start): the run then
+    writes by that process from its first frame, as a later run of a study does, instead of in
+    place while the server starts. Returns at once; nothing where no writer process can be had."""
+    if writer_process.unavailable() is not None or writer_process.pool.idle_pid is not None:
+        return
+    writer_process.fork_server.start()      # (here: on the main thread, it ignores Ctrl-C while it imports)
+    threading.Thread(target=_idle_writer, name="RunWriter early start", daemon=True).start()
+
+
+def _idle_writer() -> None:
+    """A writer process started and given to the pool, idle (no file touched: it writes nothing until
+    a run reopens it on its folder)."""
+    try:
+        process = WriterProcess(".", "idle.pvd")
+    except (OSError, RuntimeError):
+        return
+    if process.start_error() is not None:
+        process.stop()
+        return
+    writer_process.pool.give(process)
