@@ -746,3 +746,26 @@ def test_hybrid_run_writes_every_frame_by_the_writer_process_it_started_while_bu
     times = read_run(tmp_path / "out")[0]
     assert len(times) == 7 and times == sorted(times)          # 0.06 s at 100 frames/s
     assert list((tmp_path / "cwd").iterdir()) == []
+
+
+def test_a_process_that_ends_while_its_writer_process_starts_early_ends_quietly(tmp_path):
+    """Ending the process (Ctrl-C during ``hybrid run``'s build) at any moment of the early
+    writer's start prints nothing, leaves no file and no process behind."""
+    script = tmp_path / "early.py"
+    script.write_text(
+        "import sys, time\n"
+        "from hybrid.app import output, writer_process\n"
+        "if __name__ == '__main__':\n"
+        "    output.start_writer_early()\n"
+        "    time.sleep(float(sys.argv[1]))\n"
+        "    print(writer_process.pool.idle_pid)\n")
+    for delay in (0.0, 0.1, 0.15, 0.2, 0.3, 1.0):
+        done = subprocess.run([sys.executable, str(script), str(delay)], capture_output=True, text=True,
+                              timeout=120, cwd=tmp_path)
+        assert done.returncode == 0 and done.stderr == "", (delay, done.stderr)
+        idle = done.stdout.split()[0]
+        if idle != "None":
+            _wait_ended(int(idle))
+            assert not _alive(int(idle))
+    assert idle != "None"                   # (started within the second)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["early.py"]

@@ -394,13 +394,14 @@ def start_writer_early() -> None:
 
 
 def _idle_writer() -> None:
-    """A writer process started and given to the pool, idle (no file touched: it writes nothing until
-    a run reopens it on its folder)."""
+    """A writer process started idle, with no folder (it touches no file until a run reopens it on
+    its own), given to the pool once it runs. Only the pool touches it after that: this thread
+    never reads its replies, which the process's exit (writer_process._stop_all) may be reading."""
     try:
-        process = WriterProcess(".", "idle.pvd")
+        process = WriterProcess(None, "")
     except (OSError, RuntimeError):
         return
-    if process.start_error() is not None:
-        process.stop()
-        return
-    writer_process.pool.give(process)
+    if process.start_error() is None:
+        writer_process.pool.give(process, idle=True)
+    else:
+        process.stop()          # (it never ran: nothing to read)

@@ -27,14 +27,15 @@ def serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> Non
     the end of the pipe, replying ``("done", jobs done, seconds, result)`` or ``("error", error,
     traceback)`` on ``replies``. A ``("release",)`` job closes the run's files (answered with the
     result ``"released"``); an ``("open", out_dir, pvd_name, index_every)`` message then starts
-    the next run's, its jobs counted from zero. Ctrl-C and SIGTERM are the run's to handle (sent
+    the next run's, its jobs counted from zero; with ``out_dir`` None it awaits that message first
+    (started idle). Ctrl-C and SIGTERM are the run's to handle (sent
     to the whole process group, they reach this process too): it keeps writing until the run
     stops it, or until the run's process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     waiting = select.poll()
     waiting.register(jobs.fileno(), select.POLLIN)
-    target = (out_dir, pvd_name, index_every)
+    target = (out_dir, pvd_name, index_every) if out_dir is not None else _next_run(jobs)
     while target is not None:
         target = _serve_run(jobs, replies, waiting, FrameFiles(*target))
 
@@ -77,7 +78,12 @@ def _serve_run(jobs, replies, waiting, files: FrameFiles) -> tuple | None:
             files.index()
         files.close()
     replies.send(("done", done + 1, seconds, "released"))
-    payload = _receive(jobs)                # the next run, or the stop
+    return _next_run(jobs)
+
+
+def _next_run(jobs) -> tuple | None:
+    """The next run's ``(out_dir, pvd_name, index_every)`` (an ``open`` message), or None at the stop."""
+    payload = _receive(jobs)
     job = None if payload is None else pickle.loads(payload)
     return tuple(job[1:]) if job is not None and job[0] == "open" else None
 

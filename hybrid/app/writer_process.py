@@ -97,7 +97,7 @@ class WriterProcess:
     direct_bytes = 64 << 10
     start_method = "forkserver"
 
-    def __init__(self, out_dir: str, pvd_name: str, index_every: float = 0.2, start_method: str | None = None):
+    def __init__(self, out_dir: str | None, pvd_name: str, index_every: float = 0.2, start_method: str | None = None):
         why = unavailable()
         if why is not None:
             raise RuntimeError(f"no writer process: {why}")
@@ -106,7 +106,7 @@ class WriterProcess:
         receive, self._jobs = context.Pipe(duplex=False)
         self._replies, send = context.Pipe(duplex=False)
         # (absolute: a writer kept for a later run does not follow a change of directory)
-        self._process = context.Process(target=serve, args=(receive, send, os.path.abspath(out_dir), pvd_name, index_every),
+        self._process = context.Process(target=serve, args=(receive, send, out_dir and os.path.abspath(out_dir), pvd_name, index_every),
                                         name="RunWriter process", daemon=True)
         if method == "forkserver":     # (its imports done once: a writer process starts in ms)
             start_fork_server()
@@ -394,9 +394,10 @@ class WriterPool:
         if process is not None and self._owner == os.getpid():
             process.stop()
 
-    def give(self, process: WriterProcess) -> None:
-        """Take ``process`` back at the end of its run (:meth:`WriterProcess.release`)."""
-        if not process.release():
+    def give(self, process: WriterProcess, idle: bool = False) -> None:
+        """Take ``process`` back at the end of its run (:meth:`WriterProcess.release`), or one
+        started ``idle`` (no folder: ``WriterProcess(None, ...)``, awaiting :meth:`~WriterProcess.reopen`)."""
+        if not (idle or process.release()):
             return
         with self._lock:
             # one idle writer is enough (one kept by the process this one was forked from is its own)
