@@ -18,12 +18,12 @@ ways, interleaved, ``--repeats`` times:
   that writes for a second starts it (a shorter run stays in place).
 
 ``process`` and ``auto`` take the idle writer process an earlier run left
-(``hybrid.app.writer_process.pool``), as the later runs of a Python process do.
+(``hybrid.app.writer_pool.pool``), as the later runs of a Python process do.
 
 A process's first run: ``--first-runs N`` (default 5; 0 for none) also times N first runs of
 the default scene, each in a new Python process, with each way, and ``run``: what ``hybrid run
 default --out DIR`` does, ``auto`` with the writer process started while the scene is built
-(``hybrid.app.output.start_writer_early``). ``auto`` there is a script's first
+(``hybrid.app.writer_pool.start_early``). ``auto`` there is a script's first
 ``Simulation.run``, which writes in place while the fork server starts.
 
 The output share of a way is (median wall with output - median wall of ``none``) / median wall
@@ -113,10 +113,10 @@ def one_run(scene_file, way, out_dir):
 FIRST_RUN = """
 import sys, tempfile, time
 from hybrid import Simulation
-from hybrid.app.output import start_writer_early
+from hybrid.app.writer_pool import start_early
 if __name__ == "__main__":
     if sys.argv[1] == "run":
-        start_writer_early()        # as hybrid run does before it builds the scene
+        start_early()        # as hybrid run does as it starts building the scene
     sim = Simulation.from_toml("default")
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()

@@ -291,7 +291,7 @@ class Simulation:
         # a state running away (absurd scene values) overflows on its way to the finiteness
         # check, which names the body: numpy's warnings about it (in the steps, the frames' totals
         # and the summary's drifts) would only be noise around it
-        with forwarded(step_log, log), Recorder(out, self.scene.name) as recorder, \
+        with forwarded(step_log, log), Recorder(out, self.scene.name, position.until) as recorder, \
                 np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             recorder.watch(self.peaks, self.impacts)
             if snapshot is None:

@@ -2,6 +2,7 @@
 rigid and FEM bodies, a writer error raised on the stepping side with the frames before it kept,
 an interrupted run keeping its frames, and no child process left once a run has ended."""
 
+import math
 import os
 import signal
 import subprocess
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from hybrid import Simulation
-from hybrid.app import run as run_module
+from hybrid.app import run as run_module, writer_pool
 from hybrid.app.output import FramePiece, RunWriter
 from hybrid.app.run_files import read_run
 from hybrid.app.output_resume import ResumableWriter
@@ -52,9 +53,8 @@ density = 500.0
 @pytest.fixture(autouse=True)
 def no_idle_writer():
     """Each test starts without an idle writer process kept from an earlier test's run
-    (writer_process.pool), as a process's first run does."""
-    from hybrid.app import writer_process
-    writer_process.pool.clear()
+    (writer_pool.pool), as a process's first run does."""
+    writer_pool.pool.clear()
 
 
 def scene_file(tmp_path, brick_z=0.3):
@@ -75,9 +75,8 @@ def run_with(tmp_path, monkeypatch, background, name):
 
 def children():
     """Live child processes of this one but the idle writer process kept for the next run
-    (writer_process.pool; multiprocessing's fork server aside)."""
-    from hybrid.app import writer_process
-    idle = writer_process.pool.idle_pid
+    (writer_pool.pool; multiprocessing's fork server aside)."""
+    idle = writer_pool.pool.idle_pid
     return [p for p in multiprocessing.active_children() if p.pid != idle]
 
 
@@ -658,9 +657,8 @@ def test_a_later_run_takes_the_idle_writer_process_and_writes_its_own_files(tmp_
     """A run's writer process is kept, idle, for the process's next run (no start beside the
     stepping): the next run's files, a different folder and frame count, are those written in
     place, and none of the first run's state (frames, kept arrays, index) leaks into them."""
-    from hybrid.app import writer_process
     first = write_frames(tmp_path / "first", "process", frames=5)
-    assert writer_process.pool.idle_pid == first and _alive(first)
+    assert writer_pool.pool.idle_pid == first and _alive(first)
     second = write_frames(tmp_path / "second", "process", frames=3, seed=5)
     assert second == first
     write_frames(tmp_path / "first_inline", False, frames=5)
@@ -671,7 +669,6 @@ def test_a_later_run_takes_the_idle_writer_process_and_writes_its_own_files(tmp_
 
 
 def test_a_writer_process_whose_run_failed_or_that_ended_is_not_taken_again(tmp_path):
-    from hybrid.app import writer_process
     rng = np.random.default_rng(2)
     with RunWriter(tmp_path / "failed", "drop", background="process") as writer:
         writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
@@ -680,9 +677,9 @@ def test_a_writer_process_whose_run_failed_or_that_ended_is_not_taken_again(tmp_
         writer.write_frame(0.01, [piece(0.01, rng)], rows(0.01))
         with pytest.raises(IsADirectoryError):
             writer.close({})
-    assert writer_process.pool.idle_pid is None
+    assert writer_pool.pool.idle_pid is None
     kept = write_frames(tmp_path / "next", "process")
-    assert kept != failed and writer_process.pool.idle_pid == kept
+    assert kept != failed and writer_pool.pool.idle_pid == kept
     os.kill(kept, signal.SIGKILL)                       # ended while idle: a new one takes over
     _wait_ended(kept)
     fresh = write_frames(tmp_path / "after", "process")
@@ -723,26 +720,26 @@ def test_hybrid_run_writes_every_frame_by_the_writer_process_it_started_while_bu
     """``hybrid run`` starts the writer process before it builds the scene (idle, touching no
     file); its run then writes every frame there, none in place, and keeps it for a later run.
     (The start is waited for here: a build as short as this one's could end before it.)"""
-    from hybrid.app import cli, output, vtu, writer_process
+    from hybrid.app import cli, vtu, writer_pool, writer_process
     in_place, started = [], []
     original = vtu.FrameFiles.run
     monkeypatch.setattr(vtu.FrameFiles, "run", lambda self, job, idle: in_place.append(job[0]) or original(self, job, idle))
-    start = output.start_writer_early
+    start = writer_pool.start_early
 
     def start_and_wait():
         start()
         for _ in range(3000):
-            if writer_process.pool.idle_pid is not None and writer_process.fork_server.ready():
+            if writer_pool.pool.idle_pid is not None and writer_process.fork_server.ready():
                 break
             time.sleep(0.01)
-        started.append(writer_process.pool.idle_pid)
+        started.append(writer_pool.pool.idle_pid)
 
-    monkeypatch.setattr(output, "start_writer_early", start_and_wait)
+    monkeypatch.setattr(writer_pool, "start_early", start_and_wait)
     (tmp_path / "cwd").mkdir()
     monkeypatch.chdir(tmp_path / "cwd")
     assert cli.main(["run", str(scene_file(tmp_path)), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     assert len(started) == 1 and started[0] is not None
-    assert in_place == [] and writer_process.pool.idle_pid == started[0] and _alive(started[0])
+    assert in_place == [] and writer_pool.pool.idle_pid == started[0] and _alive(started[0])
     times = read_run(tmp_path / "out")[0]
     assert len(times) == 7 and times == sorted(times)          # 0.06 s at 100 frames/s
     assert list((tmp_path / "cwd").iterdir()) == []
@@ -754,11 +751,11 @@ def test_a_process_that_ends_while_its_writer_process_starts_early_ends_quietly(
     script = tmp_path / "early.py"
     script.write_text(
         "import sys, time\n"
-        "from hybrid.app import output, writer_process\n"
+        "from hybrid.app import writer_pool\n"
         "if __name__ == '__main__':\n"
-        "    output.start_writer_early()\n"
+        "    writer_pool.start_early()\n"
         "    time.sleep(float(sys.argv[1]))\n"
-        "    print(writer_process.pool.idle_pid)\n")
+        "    print(writer_pool.pool.idle_pid)\n")
     for delay in (0.0, 0.1, 0.15, 0.2, 0.3, 1.0):
         done = subprocess.run([sys.executable, str(script), str(delay)], capture_output=True, text=True,
                               timeout=120, cwd=tmp_path)
@@ -769,3 +766,45 @@ def test_a_process_that_ends_while_its_writer_process_starts_early_ends_quietly(
             assert not _alive(int(idle))
     assert idle != "None"                   # (started within the second)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["early.py"]
+
+
+class StartCounter(FakeForkServer):
+    """A fork server that is never up, counting the starts asked of it."""
+
+    def __init__(self):
+        super().__init__(math.inf)
+        self.starts = 0
+
+    def start(self):
+        self.starts += 1
+
+
+def test_auto_starts_the_fork_server_once_the_run_expects_to_write_for_auto_ahead_more(tmp_path, monkeypatch):
+    """``auto`` starts the fork server at the first frame after the run says it will write for
+    ``auto_ahead`` s more (its first frames written in place), not only after writing for
+    ``auto_after``; a run that expects less does not start it."""
+    from hybrid.app import writer_process
+    server = StartCounter()
+    monkeypatch.setattr(writer_process, "fork_server", server)
+    rng = np.random.default_rng(1)
+    with RunWriter(tmp_path / "run", "drop", background="auto") as writer:
+        writer.write_frame(0.0, [piece(0.0, rng)], rows(0.0))
+        writer.expect(0.5 * RunWriter.auto_ahead)
+        writer.write_frame(0.01, [piece(0.01, rng)], rows(0.01))
+        assert server.starts == 0
+        writer.expect(2.0 * RunWriter.auto_ahead)
+        writer.write_frame(0.02, [piece(0.02, rng)], rows(0.02))
+        assert server.starts == 1
+        writer.close({})
+    assert read_run(tmp_path / "run")[0] == [0.0, 0.01, 0.02]
+
+
+def test_a_run_tells_its_writer_the_wall_time_left_at_its_rate(tmp_path, monkeypatch):
+    """``Simulation.run`` tells the writer after each frame how long the rest of the run takes
+    at its rate so far: positive while there is simulated time left, 0 at the end."""
+    told = []
+    monkeypatch.setattr(RunWriter, "expect", lambda writer, seconds: told.append(seconds))
+    Simulation.from_toml(scene_file(tmp_path)).run(out=tmp_path / "out", progress=False, log=lambda m: None)
+    frames = len(read_run(tmp_path / "out")[0])
+    assert len(told) == frames - 1                  # (none at the first frame: no rate yet)
+    assert all(s > 0 for s in told[:-1]) and abs(told[-1]) < 1e-9

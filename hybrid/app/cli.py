@@ -106,8 +106,8 @@ def _run(args):
         return 2
     if writer in ("auto", "process"):
         # the writer process starts while the scene is built (its first frame is then written there)
-        from .output import start_writer_early
-        start_writer_early()
+        from .writer_pool import start_early
+        start_early()
     deformable = sum(b.model != "rigid" for b in scene.bodies)
     if deformable and not args.resume:      # (a large mesh's factorisation can take a minute)
         print(f"building '{scene.name}': meshing and factorising {deformable} deformable "

@@ -56,6 +56,11 @@ class ForkServer:
         self.seconds = time.perf_counter() - start
         self._ready = True
 
+    def wait(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for the warm-up under way, if any, to end."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+
     def ready(self) -> bool:
         """Whether a writer process now starts in a few ms."""
         return self._ready

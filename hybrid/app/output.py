@@ -33,7 +33,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from . import writer_process
+from . import writer_pool, writer_process
 from .text_files import atomic_write_text as _atomic_write_text, check_rows, plain as _plain
 from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
 from .frame_input import check_pieces, owned
@@ -96,13 +96,14 @@ class RunWriter:
     ``background`` says where the files are written (:mod:`hybrid.app.writer_process`):
 
     - ``"process"``: by a writer process, a child of this one (kept idle for its next run once the
-      files are closed: ``writer_process.pool``);
+      files are closed: ``writer_pool.pool``);
     - ``True`` or ``"thread"``: by a writer thread (started when there is work, ended when there
       is none, so it never keeps the interpreter alive);
     - ``"auto"``: on the caller's thread until multiprocessing's fork server is up, then by a
-      writer process; the server is started once per process, by the first run that writes for a
-      second (it takes a second or so: a shorter run would be over first), or with a writer
-      process by :func:`start_writer_early` (``hybrid run``, before it builds the scene). On the caller's thread
+      writer process; the server is started once per process, by the first run that has written
+      for a second or expects to write for 0.3 s more (:meth:`expect`; the server takes 0.15 s
+      or so, a shorter run would be over first), or with a writer process by
+      :func:`hybrid.app.writer_pool.start_early` (``hybrid run``, as it starts building the scene). On the caller's thread
       throughout in a daemonic process (a Dask worker, which cannot have children) and under a main
       script without an ``if __name__ == "__main__":`` guard (multiprocessing would run it again);
     - ``False`` or ``"inline"``: on the caller's thread.
@@ -118,6 +119,7 @@ class RunWriter:
     queue_frames = 8
     index_every = 0.2       # s of wall time, at least, between rewrites of the .pvd during a run
     auto_after = 1.0        # s of wall time after its first output before "auto" starts the fork server
+    auto_ahead = 0.3        # or s of wall time the run expects to write still (expect): the server is up in 0.15 s
     _MODES = {False: "inline", True: "thread", **{way: way for way in ("inline", "thread", "process", "auto")}}
 
     def __init__(self, out_dir: Path | str, scene_name: str, background: bool | str = True):
@@ -140,6 +142,7 @@ class RunWriter:
         self._ended_seconds = 0.0           # writing time of the ended writer process (s)
         # "auto": when the fork server is to be started (never: None), the thread starting a writer process
         self._auto_from = math.inf if self.mode == "auto" and writer_process.unavailable() is None else None
+        self._expected_end = -math.inf      # time.monotonic() the run expects to write until (expect)
         self._launch: threading.Thread | None = None
         self._launched: WriterProcess | BaseException | None = None
         # "auto" writes in place until (or unless) a writer process is up: a thread shares the interpreter
@@ -228,16 +231,16 @@ class RunWriter:
         if self._launch is not None and self._process is None:      # started, not taken over
             self._launch.join()
             if isinstance(self._launched, WriterProcess):
-                writer_process.pool.give(self._launched)
+                writer_pool.pool.give(self._launched)
         if self._process is not None:
             self._give_back()
         self._closed = True
 
     def _give_back(self) -> WriterProcess:
         """Give the writer process back, every job done and its files closed (kept for this
-        process's next run, writer_process.pool); it, for its error."""
+        process's next run, writer_pool.pool); it, for its error."""
         process, self._process = self._process, None
-        writer_process.pool.give(process)
+        writer_pool.pool.give(process)
         self._ended_seconds += process.seconds
         return process
 
@@ -282,8 +285,9 @@ class RunWriter:
 
     def _auto(self, now: float) -> None:
         """``auto``: with the fork server up at the first job (a later run of this process), a writer process
-        from that job on; otherwise start the server once this run has written for ``auto_after`` s (a shorter
-        run would end first), then a writer process on a thread, which takes the files over once started."""
+        from that job on; otherwise start the server once this run has written for ``auto_after`` s or expects
+        to write ``auto_ahead`` s more (a shorter run would end first), then a writer process on a thread,
+        which takes the files over once started."""
         if self._auto_from == math.inf:
             self._auto_from = now + self.auto_after
             if writer_process.fork_server.ready():
@@ -292,7 +296,7 @@ class RunWriter:
                 self._start_process()
                 self._take_over()
                 return
-        if now >= self._auto_from:
+        if now >= self._auto_from or self._expected_end - now >= self.auto_ahead:
             writer_process.fork_server.start()
         if self._launch is None and writer_process.fork_server.ready():
             self._launch = threading.Thread(target=self._start_process, args=(True,), name="RunWriter launch",
@@ -301,6 +305,11 @@ class RunWriter:
         if self._launch is not None and not self._launch.is_alive():
             self._auto_from = None
             self._take_over()
+
+    def expect(self, seconds: float) -> None:
+        """The run expects to write for about ``seconds`` (wall) more: ``auto`` starts the fork server as
+        soon as that is ``auto_ahead`` or more, rather than once it has written for ``auto_after``."""
+        self._expected_end = time.monotonic() + seconds
 
     def _start_process(self, wait: bool = False) -> None:
         """A new writer process in ``_launched``, or why it could not start (the run goes on writing in
@@ -316,9 +325,9 @@ class RunWriter:
         self._launched = error or process
 
     def _new_process(self) -> WriterProcess:
-        """This process's idle writer process (writer_process.pool), else a new one."""
+        """This process's idle writer process (writer_pool.pool), else a new one."""
         args = (self.out_dir, self.pvd_path.name, self.index_every)
-        return writer_process.pool.take(*args) or WriterProcess(*args)
+        return writer_pool.pool.take(*args) or WriterProcess(*args)
 
     def _take_over(self) -> None:
         """Hand the files over to the launched writer process (``auto``; then only that is waited for);
@@ -380,28 +389,3 @@ class RunWriter:
             return
         self._start()
         self._submit(("rows", REGIONS_CSV, REGION_COLUMNS, rows))
-
-
-def start_writer_early() -> None:
-    """Start this process's writer process ahead of its first run, idle (``hybrid run`` calls it
-    before building the scene, which takes longer than the fork server's start): the run then
-    writes by that process from its first frame, as a later run of a study does, instead of in
-    place while the server starts. Returns at once; nothing where no writer process can be had."""
-    if writer_process.unavailable() is not None or writer_process.pool.idle_pid is not None:
-        return
-    writer_process.fork_server.start()      # (here: on the main thread, it ignores Ctrl-C while it imports)
-    threading.Thread(target=_idle_writer, name="RunWriter early start", daemon=True).start()
-
-
-def _idle_writer() -> None:
-    """A writer process started idle, with no folder (it touches no file until a run reopens it on
-    its own), given to the pool once it runs. Only the pool touches it after that: this thread
-    never reads its replies, which the process's exit (writer_process._stop_all) may be reading."""
-    try:
-        process = WriterProcess(None, "")
-    except (OSError, RuntimeError):
-        return
-    if process.start_error() is None:
-        writer_process.pool.give(process, idle=True)
-    else:
-        process.stop()          # (it never ran: nothing to read)

@@ -158,8 +158,9 @@ class Recorder:
     momenta, the momentum the bodies carry) of every recorded frame kept for the summary. Use it
     as a context manager so the files are closed on error."""
 
-    def __init__(self, out_dir, scene_name):
+    def __init__(self, out_dir, scene_name, until=None):
         self.writer = ResumableWriter(out_dir, scene_name) if out_dir is not None else None
+        self.until, self._first = until, None   # the run's end (simulated s); the first frame's (wall s, t)
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.kinetic = []       # the frames' kinetic energies (J), for the energy watchdog
         self.potentials = []    # and the loads' potential energies (J)
@@ -187,6 +188,7 @@ class Recorder:
             regions = observe.region_rows(model, state)
             if regions:
                 self.writer.write_regions(regions)
+            self._expect(float(state.time))
         e, p, l = observe.totals(model, state)
         self.energies.append(e), self.momenta.append(p), self.angular.append(l)
         self.kinetic.append(observe.kinetic(model, state))
@@ -194,6 +196,13 @@ class Recorder:
         self.potentials.append(energy_watch.loads(model, state))
         self.frames += 1
         energy_watch.check(model, state, self.energies, self.kinetic, self.potentials)
+
+    def _expect(self, t):
+        """Tell the writer the wall time left to ``until`` at the run's rate since its first frame."""
+        now = clock.perf_counter()
+        self._first = self._first or (now, t)
+        if self.until is not None and t > self._first[1]:
+            self.writer.expect((now - self._first[0]) / (t - self._first[1]) * (self.until - t))
 
     def snapshot(self):
         """What :meth:`restore` needs to continue this recorder (a checkpoint keeps it): the

@@ -14,8 +14,8 @@ The process ignores SIGINT (a Ctrl-C reaches every process of the terminal's gro
 stops cleanly and closes its writer, which writes every frame handed over), writes what it has
 received, and stops at the first job that fails: later jobs are dropped and the error is raised
 on the stepping thread, naming the process. When the run closes its writer the process closes
-the run's files and waits, idle, for the next run of the same Python process (:class:`WriterPool`,
-``pool``); it ends when that process ends or is gone (its end of the pipe closed). Its own
+the run's files and waits, idle, for the next run of the same Python process
+(:mod:`hybrid.app.writer_pool`); it ends when that process ends or is gone (its end of the pipe closed). Its own
 side is :mod:`hybrid.app.writer_child`.
 """
 from __future__ import annotations
@@ -356,61 +356,3 @@ def _stop_all() -> None:
     exit function, so run before it): writer processes still running write what they have."""
     for writer in list(_LIVE):
         writer.stop()
-
-
-class WriterPool:
-    """The writer process a Python process keeps between its runs (at most one, idle, its files
-    closed): a run takes it instead of starting one (no fork, no start-up beside the stepping)
-    and gives it back when it closes its files; a writer whose run failed is stopped instead.
-    It ends with the process (:func:`_stop_all`), as the fork server does."""
-
-    def __init__(self):
-        self._idle: WriterProcess | None = None
-        self._owner = os.getpid()           # (a process forked from this one has no child here)
-        self._lock = threading.Lock()
-
-    def take(self, out_dir: str, pvd_name: str, index_every: float = 0.2) -> WriterProcess | None:
-        """The idle writer process, writing the files of ``out_dir`` now; None if there is none
-        (or this process may not have one now, :func:`unavailable`)."""
-        if unavailable() is not None or os.getpid() != self._owner:
-            return None
-        with self._lock:
-            process, self._idle = self._idle, None
-        if process is None:
-            return None
-        try:
-            if process.alive():
-                process.reopen(out_dir, pvd_name, index_every)
-                return process
-        except OSError:
-            pass                                # (it ended while idle: a new one)
-        process.stop()
-        return None
-
-    def clear(self) -> None:
-        """Stop the idle writer process, if any (of this process)."""
-        with self._lock:
-            process, self._idle = self._idle, None
-        if process is not None and self._owner == os.getpid():
-            process.stop()
-
-    def give(self, process: WriterProcess, idle: bool = False) -> None:
-        """Take ``process`` back at the end of its run (:meth:`WriterProcess.release`), or one
-        started ``idle`` (no folder: ``WriterProcess(None, ...)``, awaiting :meth:`~WriterProcess.reopen`)."""
-        if not (idle or process.release()):
-            return
-        with self._lock:
-            # one idle writer is enough (one kept by the process this one was forked from is its own)
-            old = self._idle if self._owner == os.getpid() else None
-            self._idle, self._owner = process, os.getpid()
-        if old is not None:
-            old.stop()
-
-    @property
-    def idle_pid(self) -> int | None:
-        """The idle writer process's id, or None."""
-        idle = self._idle
-        return idle.pid if idle is not None else None
-
-
-pool = WriterPool()
