@@ -15,7 +15,7 @@ ways, interleaved, ``--repeats`` times:
 - ``process``: written by a writer process (``background="process"``);
 - ``auto``: the default (``background="auto"``): in place until multiprocessing's fork server
   is up, then a process. The server is started before the timed runs, as a process's first run
-  that writes for a second starts it (a shorter run stays in place).
+  that expects to write for 0.3 s more starts it (a shorter run stays in place).
 
 ``process`` and ``auto`` take the idle writer process an earlier run left
 (``hybrid.app.writer_pool.pool``), as the later runs of a Python process do.
@@ -163,7 +163,7 @@ def main(argv=None):
     why = writer_process.unavailable()
     if why is not None:
         sys.exit(f"no writer process here: {why}")
-    # as in a process whose runs have written for a second: the fork server up
+    # as in a process whose runs have written a while: the fork server up
     start = time.perf_counter()
     writer_process.fork_server.start()
     while not writer_process.fork_server.ready() and time.perf_counter() - start < 60:
