@@ -97,3 +97,19 @@ def test_a_bad_frame_after_repeated_ones_is_still_refused(tmp_path):
             writer.write_frame(0.5, bad)
         writer.close({})
     assert len(read_run(tmp_path / "run")[1]) == 3
+
+
+def test_a_values_job_crosses_the_pipe_with_its_arrays_unchanged():
+    """A ``values`` job's arrays go to a writer process as their bytes: they come back with the
+    same type, shape and values, views and non-contiguous ones included."""
+    from hybrid.app.frame_input import KeptArrays
+    rng = np.random.default_rng(3)
+    block = rng.random((6, 5))
+    arrays = [rng.random((8, 3)), block[:, 1:4], block.T, np.arange(12, dtype=np.int32).reshape(3, 4),
+              rng.random((0, 3)), np.array([True, False])]
+    job = ("values", 0.5, "frame_00001.vtu", [(0, 1)] * len(arrays), arrays, "bodies.csv", ("time",), [(0.5,)])
+    back = KeptArrays().loads(KeptArrays().dumps(job))
+    assert back[:4] == job[:4] and back[5:] == job[5:]
+    for got, sent in zip(back[4], arrays, strict=True):
+        assert got.dtype == sent.dtype and got.shape == sent.shape
+        np.testing.assert_array_equal(got, sent)
