@@ -22,7 +22,7 @@ NAP = 0.001
 NAPPING = 0.05
 
 
-def serve(jobs, replies, out_dir: str, pvd_name: str, index_every: float) -> None:
+def serve(jobs, replies, out_dir: str | None, pvd_name: str, index_every: float) -> None:
     """The writer process: run the jobs received on ``jobs`` until an empty message (stop) or
     the end of the pipe, replying ``("done", jobs done, seconds, result)`` or ``("error", error,
     traceback)`` on ``replies``. A ``("release",)`` job closes the run's files (answered with the

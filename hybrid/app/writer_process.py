@@ -90,7 +90,8 @@ class WriterProcess:
     feeder thread, so the caller does not wait for a child that is starting or busy; it waits when more than ``limit_bytes`` of jobs (and more
     than ``limit`` jobs) are in flight. ``start_method``: ``forkserver`` (default; the fork
     server is started once per process and imports this module, so a writer process starts in a
-    few ms) or ``spawn``."""
+    few ms) or ``spawn``. With ``out_dir`` None it starts idle, touching no file until :meth:`reopen`
+    gives it a run's folder."""
 
     limit = 8
     limit_bytes = 64 << 20
