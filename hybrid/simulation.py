@@ -21,8 +21,8 @@ from .app.build import build
 from .app.deformable import deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
-from .app.run import (Progress, Recorder, below_planes, forwarded, frame_hints, overlapping_bodies,
-                      rigid_hints, summary)
+from .app.hints import frame_hints, rigid_hints
+from .app.run import Progress, Recorder, below_planes, forwarded, overlapping_bodies, summary
 from .app.scene import SceneError, load_scene
 from .app.scene.data import rechecked
 from .coupling.stability import OutputFailure, StepFailure

@@ -1,0 +1,81 @@
+"""Hints in the run log: where a scene's choice of model or frame costs time or accuracy.
+
+After a run, :class:`hybrid.simulation.Simulation` logs a note for each body whose largest strain
+(``hybrid.app.peaks.Peaks``) says it would be better modelled otherwise: rigid, when an FEM or
+auto body never strained enough to need FEM (:func:`rigid_hints`); corotated, when a
+floating-frame body strained or turned parts of itself beyond what linear elasticity in one frame
+follows (:func:`frame_hints`).
+"""
+import math
+
+
+def rigid_hints(model, strains, struck=()):
+    """Log lines suggesting ``model = "rigid"`` for FEM or auto bodies whose largest strain over
+    every step (``strains``, as for :func:`hybrid.app.run.stepping`) stayed below the strain an auto body would
+    turn deformable at (its elastify threshold; the default for an FEM body). Only for free bodies
+    without loads: a rigid body carries none, and a fixed one would not show an anchored body's
+    deflection, which is what a small strain there is usually wanted for; and not for the bodies
+    named in ``struck`` (warned of an under-resolved impact: their strain is underestimated)."""
+    from hybrid.coupling.auto import elastify_threshold
+    lines = []
+    for body in model.scene.bodies:
+        strain = strains.get(body.name)
+        if body.model not in ("fem", "auto") or strain is None or model.fragment_of[
+                model.names.index(body.name)] != model.names.index(body.name):
+            continue
+        if body.loads or body.anchors or body.name in struck:
+            continue
+        limit = elastify_threshold(body)
+        if strain < limit:
+            lines.append(f"note: '{body.name}' never strained beyond {limit:.0e} (largest "
+                         f"{strain:.1e}): model = \"rigid\" would step it as fast as a rigid body")
+    return lines
+
+
+# the largest element strain in the floating frame beyond which the run log suggests the
+# corotated frame: linear strain grows with the rotation of a part of the body (1 - cos),
+# 5% at about 18 degrees; a rubber cantilever at P L^2 / E I = 2 read 0.088, its tip 35% past
+# the elastica, without a word
+FLOATING_STRAIN = 0.05
+# the largest turn of an element in the floating frame beyond which the same is said (the skew
+# part of its displacement gradient, t): linear elasticity takes it for no strain, and moves the
+# element's points along the tangents, turning it by atan(t) and stretching it sqrt(1 + t^2)-fold
+# (5% at 18 degrees); a bar hinged along one edge swung and swelled 8,000-fold in volume with a
+# linear strain of 5e-5
+FLOATING_TURN = 0.32
+
+
+def frame_hints(model, strains, spinning=(), turns=None):
+    """Log lines suggesting ``frame = "corotated"`` for floating-frame bodies whose largest
+    strain over every step (``strains``, as for :func:`hybrid.app.run.stepping`) passed FLOATING_STRAIN, or
+    whose largest element turn in their frame (``turns``, rad, hybrid.app.peaks.Peaks.turns)
+    passed FLOATING_TURN: linear elasticity in one best-fit frame (the world's for an anchored
+    body) does not follow the large rotation of a part of the body; not for bodies named in
+    ``spinning`` (warned that their step turns them too far: the corotated frame would not help)."""
+    turns, found = turns or {}, {}
+    origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
+    for body in model.scene.bodies:
+        if body.model not in ("fem", "auto") or body.frame != "floating" or body.name in spinning:
+            continue
+        strain, turn = strains.get(body.name) or 0.0, turns.get(body.name, 0.0)
+        if strain > FLOATING_STRAIN or turn > FLOATING_TURN:
+            # a body and its fracture pieces in one line (a shattered tile's hundred pieces)
+            own = model.names[origin[model.names.index(body.name)]]
+            largest = found.setdefault(own, [0.0, 0.0, 0, bool(body.anchors)])
+            largest[:3] = max(largest[0], strain), max(largest[1], turn), largest[2] + 1
+    lines = []
+    for name, (strain, turn, count, anchored) in found.items():
+        said = []
+        if strain > FLOATING_STRAIN:
+            said.append(f"reached a strain of {strain:.2g}")
+        if turn > FLOATING_TURN:
+            stretch = math.sqrt(1 + turn * turn)
+            said.append(f"turned parts of itself by up to {math.degrees(math.atan(turn)):.0f} degrees "
+                        f"against {'its anchors' if anchored else 'its best-fit frame'} (taken "
+                        "for no strain, and stretched "
+                        + (f"by {stretch - 1:.0%})" if stretch < 2 else f"{stretch:.0f}-fold)"))
+        pieces = f" ({count} bodies: it and its fracture pieces, the largest figures)" if count > 1 else ""
+        lines.append(f"note: '{name}'{pieces} " + " and ".join(said) + " in the floating frame, "
+                     "whose linear elasticity holds for small strains and small rotations of "
+                     "its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
+    return lines
