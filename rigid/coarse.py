@@ -200,7 +200,7 @@ def aggregates(idx, ent, share, rows, basis, point, lam):
         keys[j] = ((a + 1) * (count + 1) + (b + 1)) * 6 + _direction_bin(n0, n1, n2)
     order = np.argsort(keys)
     agg = np.full(m, -1, np.int64)
-    A = 0
+    A = np.int64(0)     # (not the literal 0: _mode_weights would be compiled twice)
     for t in range(m):
         j = order[t]
         if keys[j] >= 0:
