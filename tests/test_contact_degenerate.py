@@ -359,6 +359,47 @@ def test_a_frictionless_box_slides_across_the_node_lines_of_a_thin_plank(sim):
     assert np.max(np.abs(np.array(speeds) - 0.25)) < 0.01 * 0.25
 
 
+BALL_ON_NODE = """
+[simulation]
+dt = 0.001
+[[planes]]
+[[bodies]]
+name = "plate"
+model = "fem"
+young = 7e10
+poisson = 0.33
+density = 2700
+shape = {{ type = "box", size = [0.3, 0.3, 0.01], resolution = 0.02 }}
+position = [0, 0, 0.005]
+[[bodies]]
+name = "ball"
+shape = {{ type = "{shape}", radius = 0.02{extra} }}
+density = 7800
+friction = {friction}
+position = [{x}, 0.05, 0.03]
+orientation = {orientation}
+"""
+
+
+@pytest.mark.parametrize("shape, extra, orientation", [
+    ("sphere", "", "[1, 0, 0, 0]"),
+    # a capsule lying along y: the points of its axis over a node line
+    ("capsule", ", height = 0.08", "[0.7071067811865476, 0.7071067811865476, 0, 0]")])
+def test_a_ball_resting_right_over_a_node_of_a_flat_plate_stays_there(sim, shape, extra, orientation):
+    """A frictionless steel ball (and a capsule on its side) laid on an aluminium plate lying on
+    the ground, 1 um off a node of the plate's top face. The plate is flat there, so the ball is
+    in neutral equilibrium and stays at rest. Met by that node along the ball's own normal, which
+    tilts by the offset over the radius, it stood on a pin: the offset grew as cosh(t sqrt(g / r)),
+    to 0.38 mm in 0.3 s, and, given room, the ball slid on at 11 mm/s with the energy of sinking
+    onto the faces around the node."""
+    s = sim(BALL_ON_NODE.format(shape=shape, extra=extra, friction=0.0, x=0.05 + 1e-6,
+                                orientation=orientation)).advance(0.3)
+    ball = s.body("ball")
+    assert abs(ball.position[0] - (0.05 + 1e-6)) < 1e-7 and abs(ball.position[1] - 0.05) < 1e-7
+    assert np.linalg.norm(ball.velocity[:2]) < 1e-6
+    assert ball.position[2] == pytest.approx(0.03, abs=1e-6)
+
+
 SOFT_ON_SOFT = """
 [simulation]
 dt = 0.001

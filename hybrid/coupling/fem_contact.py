@@ -87,6 +87,12 @@ def contact_node_normals(models, states, node_offset, node_body, contacts):
                             contacts.body_a[contacts.body_b >= 0], flat=False)
 
 
+def smooth_node_normals(models, states, node_offset, node_body, stacked):
+    """Own outward unit normals ``(k, 3)`` of the ``stacked`` surface nodes that lie on a smooth
+    part of their body's surface; zero rows for those on its edges and corners (:func:`_node_normals`)."""
+    return _stacked_normals(models, states, node_offset, node_body, stacked, flat=True)
+
+
 def edge_normals(contacts, own, near):
     """Normals ``(c, 3)``, gaps ``(c,)`` and which contacts are met from the front ``(c,)`` bool,
     for surface nodes' ``contacts`` (stacked node a, rigid body b >= 0 or a plane).
@@ -190,7 +196,9 @@ def _current_nearest(m, s, x):
     return tree.query(x)[1] if len(x) else np.zeros(0, np.int64)
 
 
-# a rigid point this share of the off-node distance behind its nearest node is kept (_against)
+# a rigid point within this share of the contact margin of its nearest node, across the normal,
+# is that node's contact (detect_rigid_points); one this share of that distance behind it is kept
+OFF_NODE = 0.1
 OFF_NODE_DEPTH = 0.01
 
 
@@ -203,7 +211,10 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     ``off_nodes`` (m), points within that distance of their nearest node across the normal are left
     out (that node's own contact covers them), unless they lie more than ``OFF_NODE_DEPTH *
     off_nodes`` behind it (under it: a box's edge sunk under a soft pad's rim node that slid out
-    past it, which meets the box at its own height). ``facing`` (p, 3): the points' own outward unit
+    past it, which meets the box at its own height) or have a radius (a ball's centre: the node
+    meets the ball along the ball's own normal, which tilts as the ball moves off it, so a ball
+    resting right over a node of a flat face stood on a pin and rolled off it, faster by tenfold
+    every 0.1 s, until it sank between the nodes and rolled on with the energy of the fall). ``facing`` (p, 3): the points' own outward unit
     normals (world; nodes of another deformable body), which choose the face they meet at b's sharp
     edges (places.places); None: none."""
     radius = np.zeros(len(x)) if radius is None else radius
@@ -227,7 +238,8 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     close = _nearest_nodes(mb, Y)
     if off_nodes is not None:
         keep = np.nonzero(kernels.off_nodes_kept(sb.x, mb.surface_nodes, close[:, 0], x[near],
-                                                 n_rest[near], R, off_nodes, OFF_NODE_DEPTH * off_nodes))[0]
+                                                 n_rest[near], R, off_nodes, OFF_NODE_DEPTH * off_nodes)
+                          | (radius[near] > 0.0))[0]
         near, Y, close = near[keep], Y[keep], close[keep]
         if not len(near):
             return near, np.zeros((0, 3), np.int64), np.zeros((0, 3)), near, np.zeros((0, 3)), \
@@ -387,7 +399,7 @@ def detect_rigid_points(rigid, position, rotation, rigid_sweep, models, states, 
         # node's own contact with the rigid body; a second one there only slows the solver
         # (a box's corners on the benchmark slab's nodes: 20 sweeps instead of 9)
         rows, corners, weights, nearest, point, normal, gap = _against(
-            mb, sb, motion, x, slack + rigid_sweep[owner], rigid.point_radius[at], 0.1 * margin)
+            mb, sb, motion, x, slack + rigid_sweep[owner], rigid.point_radius[at], OFF_NODE * margin)
         r = owner[rows]
         _append(parts, r, ib[corners], weights, ib[nearest], point, normal, gap,
                 combine_friction(rigid.body_friction[r], bodies[j].friction),
