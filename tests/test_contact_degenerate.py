@@ -13,6 +13,7 @@ from fem.model import build_fem_model
 from fem.split import EDGE_VERTEX_SLOTS, split_mesh, tet_faces
 from hybrid.coupling.detect import detect_all
 from hybrid.coupling.nodes import SurfaceNodes
+from hybrid.coupling.places import closest_weights
 from rigid import step as rigid_step
 from rigid.resolve import SolverBodies
 from rigid.solver import contact_basis, pgs
@@ -398,6 +399,52 @@ def test_a_ball_resting_right_over_a_node_of_a_flat_plate_stays_there(sim, shape
     assert abs(ball.position[0] - (0.05 + 1e-6)) < 1e-7 and abs(ball.position[1] - 0.05) < 1e-7
     assert np.linalg.norm(ball.velocity[:2]) < 1e-6
     assert ball.position[2] == pytest.approx(0.03, abs=1e-6)
+
+
+# a one-tet piece of the shattered tile (hybrid/scenes/shatter.toml) lying on the ground, and
+# the steel ball that struck it, 0.8 mm off its top edge (m)
+SLIVER = np.array([[0.051945954751806585, 0.005895483587649093, 0.017647052915664665],
+                   [0.038518927917429835, -0.024345989766112353, 0.0],
+                   [0.05576520047139444, 0.014497488913819377, 0.0],
+                   [0.0033664400387162924, -0.008738516730821299, 0.0]])
+SLIVER_BALL = np.array([0.05913480051882535, -0.02550167339258356, 0.04462352054141731])
+SLIVER_SCENE = """
+[simulation]
+dt = 0.001
+gravity = [0, 0, 0]
+[[bodies]]
+name = "sliver"
+model = "fem"
+mesh = "sliver.vtu"
+young = 5e8
+density = 2500
+[[bodies]]
+name = "ball"
+shape = { type = "sphere", radius = 0.04 }
+density = 7800
+position = [%r, %r, %r]
+"""
+
+
+def test_a_ball_beside_a_one_tet_piece_is_met_at_its_true_distance(sim, tmp_path):
+    """A steel ball beside a one-tet piece of a shattered tile, in zero gravity, its surface 0.8 mm
+    from the piece. Met on the face the distance grid put its centre over, along that
+    face's normal, the ball read as 4 mm inside the piece, and the recovery shoved the piece 8 mm
+    sideways and 4 mm into the ground in a step. Its centre is met at its true distance to the
+    piece, the closest place on any face (as a point without a radius is), and nothing moves."""
+    meshio.write(tmp_path / "sliver.vtu", meshio.Mesh(SLIVER, [("tetra", np.array([[0, 1, 2, 3]]))]))
+    s = sim(SLIVER_SCENE % tuple(float(c) for c in SLIVER_BALL), base_dir=tmp_path)
+    _, found = _found(s)
+    faces = [SLIVER[[a, b, c]] for a, b, c in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3))]
+    true = min(np.linalg.norm(SLIVER_BALL - f[0] - v * (f[1] - f[0]) - w * (f[2] - f[0]))
+               for f in faces for v, w in [closest_weights(*SLIVER_BALL, *f)]) - 0.04
+    assert 0.0005 < true < 0.001
+    ball = found.on_faces.a == s.rigid_index("ball")
+    assert ball.any()
+    assert found.on_faces.gap[ball] == pytest.approx(true, abs=1e-9)
+    s.advance(0.005)
+    assert np.linalg.norm(s.body("ball").velocity) < 1e-12
+    assert np.abs(s.body("sliver").points - SLIVER).max() < 1e-12
 
 
 SOFT_ON_SOFT = """

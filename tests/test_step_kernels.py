@@ -165,15 +165,17 @@ def places_reference(P, tri, around, moved, Y, close, grid_n, X_now, radius, fac
             n[k] = distinct[int(np.argmax(against))]       # the face facing the node
             continue
         n[k] = line[k] / np.linalg.norm(line[k]) if clear else total
-    # read behind its place but clearly in front of the surface where it is closest to it now
-    # (along the pseudo-normal there): met there, at its distance along the line to it
+    # read behind its place (a ball: its surface) but clearly in front of the surface where it is
+    # closest to it now (along the pseudo-normal there): met there, at its distance along the line
+    # (a ball only where that is farther than along the face)
     reading = np.einsum("ij,ij->i", line, n)
     met = []
-    for k in np.nonzero(reading < 0.0)[0]:
+    for k in np.nonzero(reading < radius)[0]:
         candidates = around[close[k]].ravel()
         f, w, to, height = outside_reference(P, tri, around, moved, X_now[k], candidates[candidates >= 0],
                                              edge[k] ** 2)
-        if height > places.CLEAR * edge[k]:
+        farther = np.linalg.norm(to) > reading[k] + 1e-9 * edge[k]
+        if height > places.CLEAR * edge[k] and (radius[k] == 0.0 or farther):
             corners[k], weights[k] = tri[f], w
             n[k], reading[k] = to / np.linalg.norm(to), np.linalg.norm(to)
             met.append(k)

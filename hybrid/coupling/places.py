@@ -391,14 +391,20 @@ def places(Y, close, around, triangles, P, moved, n_rest, X_now, radius, facing)
                          triangles, P, moved, seen_n, rest, now)
         normal[k] = n
         gap[k] = line[0] * n[0] + line[1] * n[1] + line[2] * n[2]
-        if gap[k] < 0.0:
+        if gap[k] < radius[k]:
             size = e0 * e0 + e1 * e1 + e2 * e2
             g, w3, line, height = _outside(X_now[k], faces, dist, count, size, triangles, around, P,
                                            moved, now)
-            if height > CLEAR * np.sqrt(size):
+            length = np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
+            # a ball's centre in front of the surface but within its radius of the face's plane
+            # is met there only where that reads it farther off (off the face's edge; over the
+            # face both read alike, but for round-off): a ball
+            # beside a one-tet piece read 4 mm inside it along a face whose plane it was near,
+            # and the piece was shoved 8 mm sideways and into the ground
+            farther = length > gap[k] + 1e-9 * np.sqrt(size)
+            if height > CLEAR * np.sqrt(size) and (radius[k] == 0.0 or farther):
                 corners[k] = triangles[g]
                 weights[k] = w3
-                length = np.sqrt(line[0] * line[0] + line[1] * line[1] + line[2] * line[2])
                 normal[k] = line / length
                 gap[k] = length
         gap[k] -= radius[k]
