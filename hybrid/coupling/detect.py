@@ -135,6 +135,8 @@ def _under_rounded(model, state, nodes, c_nodes, on_faces, off):
         return c_nodes
     radius = model.rigid.point_radius[on_faces.sample]
     f = np.nonzero(radius > 0.0)[0]
+    if not len(f):
+        return c_nodes
     d = nodes.x[on_faces.nearest[f]] - on_faces.point[f]
     across = d - np.einsum("ij,ij->i", d, on_faces.normal[f])[:, None] * on_faces.normal[f]
     f = f[np.einsum("ij,ij->i", across, across) <= off * off]
