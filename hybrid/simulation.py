@@ -18,7 +18,7 @@ import numpy as np
 
 from .app import checkpoint, geometry, observe
 from .app.build import build
-from .app.deformable import deep_starts, material_warnings, mesh_notes
+from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.hints import frame_hints, rigid_hints
@@ -147,8 +147,9 @@ class Simulation:
                                           for a, b in overlapping_bodies(self.model, self.state)]
         self.warnings += _uneven_duration(scene.simulation.duration, scene.simulation.dt)
         below = below_planes(self.model, self.state)
-        if deep_starts(scene, self.model, below):
-            raise SceneError(deep_starts(scene, self.model, below))
+        problems = deep_starts(scene, self.model, below) + beyond(scene, self.model, self.state)
+        if problems:
+            raise SceneError(problems)
         self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
                           f"in its first step{'s' if name in self.model.rigid.names else ''}" for name, depth in below]
         self.spinning = _fast_spin(scene)

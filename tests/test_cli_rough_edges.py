@@ -194,16 +194,17 @@ def test_a_folder_named_as_a_built_in_scene_does_not_hide_it(tmp_path, capsys, m
 def test_a_runaway_start_says_so_without_numpys_warnings(tmp_path, capsys):
     """A box started at 1e300 m/s stopped as unstable, naming it, after three numpy
     RuntimeWarnings with source lines (the first frame's totals and the summary's drifts
-    overflowing): they are noise around the message."""
+    overflowing): they are noise around the message. It is refused as a start beyond the
+    run's limits, naming the field."""
     scene = tmp_path / "fast.toml"
     scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "box"\n'
                      'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nvelocity = [1e300, 0, 0]\n')
     import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 3
+        assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "unstable: body 'box'" in err and "Warning" not in err, err
+    assert "field 'velocity' starts it at a speed of 1e+300 m/s" in err and "Warning" not in err, err
 
 
 def test_an_unbreakable_box_holding_no_element_is_a_problem_as_an_empty_anchor_box_is(tmp_path, capsys):
@@ -246,15 +247,71 @@ def test_a_deformable_body_started_deep_in_the_ground_is_refused(tmp_path, capsy
         assert code == 0 and "starts 0.0005 m inside a plane: it is pushed out in its first step" in err, err
 
 
-def test_a_rigid_body_spinning_without_bound_stops_the_run_naming_its_rim_speed(tmp_path, capsys):
+def test_a_rigid_body_spinning_without_bound_stops_the_run_naming_its_rim_speed(tmp_path):
     """A rigid box started at 1e160 rad/s ran to the end with status ok, its kinetic energy inf
-    and the energy drift nan: only its speed and position were checked. Its rim speed is."""
+    and the energy drift nan: only its speed and position were checked. Its rim speed is (a
+    scene starting so is refused; here the spin comes after the start)."""
+    import warnings
+    from dataclasses import replace
+    from hybrid import Simulation
+    from hybrid.coupling.stability import InstabilityError
     scene = tmp_path / "spin.toml"
     scene.write_text('[simulation]\nduration = 0.01\n[[bodies]]\nname = "b"\n'
-                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nangular_velocity = [1e160, 0, 0]\n')
-    import warnings
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    sim = Simulation(str(scene))
+    rs = sim.state.rigid
+    sim.state = replace(sim.state, rigid=replace(rs, angular_momentum=rs.angular_momentum + [1e157, 0, 0]))
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 3
-    err = capsys.readouterr().err
-    assert "unstable: body 'b' at t = 0.001 s: rim speed (m/s)" in err and "Warning" not in err, err
+        with pytest.raises(InstabilityError, match=r"unstable: body 'b' at t = 0.001 s: rim speed \(m/s\)"):
+            sim.step()
+
+
+@pytest.mark.parametrize("field, value, quantity", [
+    ("velocity", "[12000.0, 0, 0]", "a speed of 1.2e+04 m/s"),
+    ("angular_velocity", "[0, 0, 3e5]", "a rim speed of"),
+    ("position", "[2e6, 0, 0]", "a distance from the origin of 2e+06 m"),
+])
+def test_a_scene_starting_beyond_the_runs_divergence_limits_is_refused(tmp_path, capsys, field, value,
+                                                                       quantity):
+    """A ball started at 12 km/s passed `validate` and its run stopped as unstable at the first
+    step (the check after every step stops at 1e4 m/s and 1e6 m from the origin): such a start
+    is a problem of the field that gives it, and a start just inside the limits runs."""
+    for given, refused in ((value, True), ("[9000.0, 0, 0]" if field == "velocity" else "[0, 0, 0]", False)):
+        scene = tmp_path / f"{refused}.toml"
+        scene.write_text('[simulation]\nduration = 0.002\ngravity = [0, 0, 0]\n[[bodies]]\nname = "ball"\n'
+                         f'shape = {{ type = "sphere", radius = 0.05 }}\n{field} = {given}\n')
+        assert main(["validate", str(scene)]) == (2 if refused else 0)
+        code = main(["run", str(scene), "--out", str(tmp_path / f"out{refused}"), "--quiet"])
+        err = capsys.readouterr().err
+        if refused:
+            assert code == 2 and f"field '{field}' starts it at {quantity}" in err, err
+            assert "a run stops as unstable beyond" in err and not (tmp_path / "outTrue").exists()
+        else:
+            assert code == 0, err
+
+
+def test_a_command_whose_reader_has_left_ends_without_a_traceback(tmp_path):
+    """``hybrid scenes | head -1`` printed a BrokenPipeError traceback and exited 1: the reader
+    of the output leaving is no error of the command."""
+    import os
+    import subprocess
+    import sys
+    read, write = os.pipe()
+    os.close(read)                       # the reader has left before the first line
+    try:
+        done = subprocess.run([sys.executable, "-m", "hybrid", "scenes"], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+
+
+def test_a_run_of_a_vanishingly_small_step_ends_with_its_summary(tmp_path, capsys):
+    """dt = duration = 1e-200 s: the summary's energy floor divided by the duration squared,
+    which is 0.0, and the run ended in a ZeroDivisionError traceback without its summary."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text('[simulation]\nduration = 1e-200\ndt = 1e-200\n[[planes]]\n[[bodies]]\nname = "b"\n'
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nposition = [0, 0, 0.05]\n')
+    assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "out" / "summary.json").exists()

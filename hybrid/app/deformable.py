@@ -9,6 +9,8 @@ from fem.mesh import (box_tet_mesh, check_tets, cylinder_tet_mesh, quadratic_tet
 from fem.model import build_fem_model, rest_state
 from rigid import quaternion as quat
 
+from hybrid.coupling.stability import beyond_limits
+
 from . import geometry
 from .scene.describe import toml_text
 
@@ -252,6 +254,17 @@ def build_bodies(bodies, dt, *, linear_solver="cholmod", corotated_solver="cg", 
         models.append(model)
         states.append(rest_state(model, v=v))
     return models, states
+
+
+def beyond(scene, model, state):
+    """Problems (scene file messages) of the bodies that start beyond the limits of the check
+    after every step (hybrid.coupling.stability.beyond_limits): run, they would stop as unstable
+    at their first step."""
+    index = {b.name: i for i, b in enumerate(scene.bodies)}
+    return [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field "
+            f"'{field}' starts it at a {quantity} of {value:.3g} {unit}: a run stops as unstable "
+            f"beyond {limit:.0e} {unit} (allowed: up to {limit:.0e} {unit})"
+            for name, field, quantity, unit, value, limit in beyond_limits(model, state)]
 
 
 def body_label(body, index):

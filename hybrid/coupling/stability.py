@@ -6,7 +6,8 @@ import numpy as np
 
 from rigid.model import angular_velocity
 
-# above these the run is declared unstable (no scene of everyday objects gets near them)
+# above these the run is declared unstable (no scene of everyday objects gets near them; a scene
+# that starts beyond them is refused, see beyond_limits)
 MAX_SPEED = 1.0e4       # m/s
 MAX_DISTANCE = 1.0e6    # m
 
@@ -92,6 +93,31 @@ def check_finite(model, state):
                                        worst if math.isfinite(worst) else float("nan"))
 
 
+def beyond_limits(model, state):
+    """``(body name, scene field, quantity, unit, value, limit)`` for each body whose state already
+    passes a limit of :func:`check_finite` (a scene that starts there would stop as unstable at
+    its first step): speed (``velocity``), rim speed (``angular_velocity``), distance from the
+    origin (``position``)."""
+    rm, rs, found = model.rigid, state.rigid, []
+    if rm.body_count:
+        rim = _scaled_norms(angular_velocity(rm, rs)) * rm.body_radius
+        for field, quantity, size, limit in (
+                ("velocity", "speed", _scaled_norms(rs.velocity), MAX_SPEED),
+                ("angular_velocity", "rim speed", rim, MAX_SPEED),
+                ("position", "distance from the origin", _scaled_norms(rs.position), MAX_DISTANCE)):
+            unit = "m" if field == "position" else "m/s"
+            found += [(model.names[model.rigid_ids[i]], field, quantity, unit, float(size[i]), limit)
+                      for i in np.nonzero(size > limit)[0]]
+    for j, s in enumerate(state.fem):
+        speed, distance = largest_norms(s.v, s.x)
+        name = model.names[model.fem_ids[j]]
+        if speed > MAX_SPEED:
+            found.append((name, "velocity", "node speed", "m/s", speed, MAX_SPEED))
+        if distance > MAX_DISTANCE:
+            found.append((name, "position", "node distance from the origin", "m", distance, MAX_DISTANCE))
+    return found
+
+
 @nb.njit(cache=True)
 def largest_norms(v, x):
     """The largest row norms of ``v`` and ``x`` (n, 3), in one pass; NaN for an array with a NaN
@@ -110,6 +136,13 @@ def largest_norms(v, x):
         elif sx > worst_x:
             worst_x = sx
     return (math.nan if nan_v else math.sqrt(worst_v)), (math.nan if nan_x else math.sqrt(worst_x))
+
+
+def _scaled_norms(a):
+    """Row norms (n,) of ``a`` (n, 3) that do not overflow for values past 1e154."""
+    scale = np.abs(a).max(axis=1, initial=0.0)
+    safe = np.where(scale > 0, scale, 1.0)[:, None]
+    return scale * _row_norms(a / safe)
 
 
 def _row_norms(a, squared=False):

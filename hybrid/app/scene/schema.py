@@ -248,12 +248,15 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     _positive("density", 1000.0, "kg/m^3", "Mass density."),
     Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame). "
           "A body starting inside a plane is warned of and pushed out; a deformable one may start "
-          "at most 1% of its size inside (its nodes are pushed out in one step)."),
+          "at most 1% of its size inside (its nodes are pushed out in one step). At most 1e6 m "
+          "from the origin (docs/limits.md)."),
     Field("orientation", "quaternion", (1.0, 0.0, 0.0, 0.0), "", "Unit quaternion `[w, x, y, z]`; "
           "renormalised if its norm is within 1e-3 of 1 (`[0.7071, 0.7071, 0, 0]` is a quarter "
           "turn about x)."),
-    Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Initial velocity (world frame)."),
-    Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world frame)."),
+    Field("velocity", "vector", (0.0, 0.0, 0.0), "m/s", "Initial velocity (world frame); at most "
+          "1e4 m/s, beyond which a run stops as unstable (docs/limits.md)."),
+    Field("angular_velocity", "vector", (0.0, 0.0, 0.0), "rad/s", "Initial angular velocity (world "
+          "frame); its rim speed (times the body's radius) at most 1e4 m/s."),
     _non_negative("friction", 0.5, "", "Coulomb friction coefficient."),
     _unit_interval("restitution", 0.0, "Coefficient of restitution of the body's collisions "
                    "while it is rigid (the larger of the two bodies' counts). A deformable body (`fem`, "
