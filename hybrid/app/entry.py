@@ -7,6 +7,7 @@ scheduler's, ``timeout``'s) ended the process without a word. Once a run steps,
 130 / 143); before that, and in commands without a run, they end the command with one line and
 those exit codes.
 """
+import os
 import signal
 import sys
 
@@ -57,6 +58,11 @@ def main(argv=None):
     except Terminated:
         print("hybrid: stopped (SIGTERM)", file=sys.stderr)
         return 143
+    except BrokenPipeError:
+        # the reader of the output left (``hybrid scenes | head -1``): no traceback, and none
+        # again when Python flushes stdout at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     finally:
         sys.unraisablehook = hook
         for s, handler in previous.items():

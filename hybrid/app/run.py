@@ -110,7 +110,7 @@ def _crawl_energy(model):
     total = float((rm.body_mass[free] * (2.0 * rm.body_radius[free]) ** 2).sum()) if rm.body_count else 0.0
     for m in model.fem:
         total += float(m.node_mass.sum() * np.ptp(m.rest_points, axis=0).max() ** 2)
-    return ROUND_OFF * total / T ** 2
+    return ROUND_OFF * total / T / T       # (T ** 2 is 0 for a duration of 1e-200 s)
 
 
 # energies below this part of the bodies' energy at a crawl are round-off (_crawl_energy)
@@ -237,6 +237,8 @@ class Recorder:
         no_external = not np.any(model.gravity) and model.rigid.plane_point.shape[0] == 0 \
             and not np.any(model.rigid.body_fixed) and not any(m.anchor_nodes or m.load_nodes for m in model.fem)
         E, P, L = np.array(self.energies), np.array(self.momenta), np.array(self.angular)
+        if len(self.potentials) == len(E):      # with the constant loads' potential (their work)
+            E = E + np.array(self.potentials)
         # what the bodies carry: the largest kinetic energy, or change of potential and elastic
         # energy (a body falling from rest at z = 0 has a total energy of zero throughout)
         K = np.array(self.kinetic)
@@ -256,7 +258,7 @@ class Recorder:
                     "the bodies' kinetic energy moving their own size over the duration, for momenta "
                     "the largest sum of the bodies' and nodes' own |p| or |x x p| (bodies meeting "
                     "head-on carry momentum that sums to zero); energy includes "
-                    "gravity and elastic energy and is conserved only without friction, inelastic "
+                    "gravity, elastic energy and the loads' potential and is conserved only without friction, inelastic "
                     "contact or damping, and not where an anchor moves (it does work); momenta only "
                     "without gravity, planes, fixed bodies or anchors",
         }
@@ -264,7 +266,7 @@ class Recorder:
 
 def energy_changers(model):
     """What in the scene may change its total energy, in the summary's words: "moving anchors"
-    (they do work on their bodies), "friction", "restitution below 1", "deformable contact"
+    (they do work on their bodies), "loads on auto bodies", "friction", "restitution below 1", "deformable contact"
     (inelastic whatever the restitution), "damping", "backward
     Euler" (the default integrator of deformable bodies damps their vibrations), "plastic flow"
     and "fracture" (friction and restitution only where something can touch something); empty
@@ -274,6 +276,8 @@ def energy_changers(model):
     touching = (*scene.bodies, *scene.planes) if len(scene.bodies) + len(scene.planes) > 1 else ()
     found = {
         "moving anchors": any(np.any(m.anchor_velocity) for m in model.fem),
+        # (a deformable body's loads are counted by their potential; an auto body's not while rigid)
+        "loads on auto bodies": any(b.model == "auto" and b.loads for b in scene.bodies),
         "friction": any(x.friction > 0 for x in touching),
         "restitution below 1": any(x.restitution < 1 for x in touching),
         # (restitution acts on rigid contacts: a deformable body's contacts are inelastic)
