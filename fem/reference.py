@@ -33,6 +33,7 @@ import numpy as np
 
 from fem.dynamics import body_frame
 from fem.model import with_rest_points
+from fem.momentum import angular_momentum, center_of_mass, linear_momentum, mass_moments, mass_weights
 from fem.plastic_flow import rest_frame_plastic_force, state_plastic_force
 from fem.solver import Factorisation
 from fem.stress import quadrature_strain
@@ -108,7 +109,26 @@ def update_reference(model, state, dt=None):
         force += state.node_plastic_force - rest_frame_plastic_force(model, eps_p)
     shift = u_p if state.node_rest_shift is None else state.node_rest_shift + u_p
     return new_model, state.replace(R=R, c=c, tet_plastic_strain=eps_p_new, node_plastic_force=force,
-                                    node_rest_shift=shift)
+                                    node_rest_shift=shift, v=_momenta_kept(model, new_model, state))
+
+
+def _momenta_kept(model, new_model, state):
+    """The velocities ``(n, 3)`` with which ``new_model`` (its nodes' masses shared out anew by
+    the new shape) carries the linear and angular momentum ``model`` carried: ``v`` plus the
+    rigid motion that makes up the difference. Kept as they were, a plate dented by a ball at
+    30 m/s gained 1.8e-6 N s at an update, where every step keeps it to 1e-14. Anchored bodies
+    (their anchors take momentum) keep ``v``."""
+    v, x = state.v, state.x
+    if model.has_anchors:
+        return v
+    p_old, p_new = linear_momentum(model, state), linear_momentum(new_model, state)
+    total = mass_weights(new_model).sum()
+    c = center_of_mass(new_model, state)
+    a = (p_old - p_new) / total
+    inertia, _ = mass_moments(new_model, x - c, v)
+    dl = angular_momentum(model, state) - angular_momentum(new_model, state) - total * np.cross(c, a)
+    b = np.linalg.solve(inertia, dl)
+    return v + a + np.cross(b, x - c)
 
 
 def apply_reference_updates(models, states, dt):
