@@ -11,11 +11,14 @@ STACK_COS = 0.34
 
 
 @nb.njit(cache=True)
-def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
+def stack_levels(ia, ib, normal, up, body_count, is_static, group_of, carries):
     """Height of each body in the contact graph (Guendelman 2003 shock propagation).
 
     Static bodies are level 0; a body resting (normal within ~70 degrees of up) on a body of level
-    k has level <= k + 1. The particles of one group (``group_of`` >= 0, the touched nodes of one
+    k through a contact that ``carries`` (c,) bool (a load: a speculative contact across a gap
+    does not) has level <= k + 1. (Counted, the ground 1 mm under the middle cube of a stack of
+    1 mm cubes, within the 5 mm contact margin, put every cube at the level of the lowest: the
+    stack was not swept level by level, and it leaned 5 degrees in 0.5 s.) The particles of one group (``group_of`` >= 0, the touched nodes of one
     deformable body) are one body: all take the level of the lowest (a slab lying on the ground
     carries what rests on its top). Bodies touching nothing below them get a level above every other.
     """
@@ -42,6 +45,8 @@ def stack_levels(ia, ib, normal, up, body_count, is_static, group_of):
                 level[i] = lowest[group_of[i]]
                 changed = True
         for k in range(len(ia)):
+            if not carries[k]:
+                continue
             s = normal[k, 0] * up[0] + normal[k, 1] * up[1] + normal[k, 2] * up[2]
             if s > STACK_COS:
                 upper, lower = ia[k], ib[k]
@@ -92,7 +97,7 @@ def sweep_levels(ia, ib, ra, rb, point, normal, up, static, selected, target, fr
     contacts; ``apply_lam`` (False: the velocities include lam; an argument, not a literal, so
     that the sweeps compiled for the contact pass serve here too). Returns the per-contact
     inverse-mass scales (scale_a, scale_b) that freeze the lower sides."""
-    level = stack_levels(ia, ib, normal, up, len(inv_m), static, group_of)
+    level = stack_levels(ia, ib, normal, up, len(inv_m), static, group_of, lam[:, 0] > 0.0)
     contact_level, scale_a, scale_b = shock_scales(ia, ib, level)
     top = -1
     for k in range(len(ia)):
