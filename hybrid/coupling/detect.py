@@ -69,7 +69,7 @@ def detect_all(model, state, nodes, rigid_bodies, h, rotation=None):
     # (the rigid body is side a); side b is a place in a surface triangle
     pairs = detect_fem_pairs(model.fem, state.fem, bodies, nodes.offset, nodes.x, sweep, margin)
     pairs.normal, pairs.gap, front = pair_edge_normals(model.fem, state.fem, nodes.offset, nodes.body,
-                                                       pairs, reach[pairs.a])
+                                                       pairs, reach[pairs.a], nodes.x)
     pairs = _movable(pairs, anchored[pairs.a], anchored, front)
     on_faces = detect_rigid_points(rm, rs.position, R, rigid_sweep, model.fem, state.fem, bodies,
                                    nodes.offset, sweep, margin)

@@ -127,7 +127,7 @@ def edge_normals(contacts, own, near):
 
 
 
-def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
+def pair_edge_normals(models, states, node_offset, node_body, pairs, near, node_x):
     """Normals ``(c, 3)``, gaps ``(c,)`` and which are met from the front ``(c,)`` bool, of the
     node-against-face ``pairs`` (stacked node a, a place on another deformable body's face b), as
     :func:`edge_normals` gives them for rigid bodies (its ``near`` and angles apply): a node on a
@@ -138,10 +138,17 @@ def pair_edge_normals(models, states, node_offset, node_body, pairs, near):
     an edge or corner its triangles' mean normal, turns more than 110 degrees from b has b behind
     it (a shattered pane's top nodes read 4 mm inside a piece beside them and took 420 J of strain
     in one step; at a crack's corner a fresh piece's node met the plug beside it from behind, and
-    dragged it along as it flew off)."""
+    dragged it along as it flew off). A turned node's gap is its height over its place now
+    (``node_x`` (k, 3): the stacked nodes' positions), not the face's gap times the cosine between
+    the normals, which measures a node beside b's face against its plane past its edge: a plate's
+    nodes 5 mm beside a soft box's side face read its 4.7 mrad tilt as a 23 um penetration, 95 um
+    under its bottom edge, and held that side up: the box rested balanced on its other edge."""
     own = _stacked_normals(models, states, node_offset, node_body, pairs.a)
     normal, gap, front = kernels.edge_turns(pairs.normal, pairs.gap, np.zeros(pairs.count, np.int64),
                                             own, float(EDGE_COS), np.asarray(near, float))
+    turned = np.nonzero(np.any(normal != pairs.normal, axis=1))[0]
+    place = np.einsum("cj,cja->ca", pairs.weights[turned], node_x[pairs.corners[turned]])
+    gap[turned] = np.einsum("ca,ca->c", node_x[pairs.a[turned]] - place, normal[turned])
     edge = np.nonzero(np.einsum("ij,ij->i", own, own) < 0.5)[0]
     if len(edge):
         mean = _stacked_normals(models, states, node_offset, node_body, pairs.a[edge], flat=False)
