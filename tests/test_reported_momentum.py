@@ -170,8 +170,10 @@ def test_rigid_pieces_of_a_soft_tile_keep_the_mass_and_momentum_of_their_nodes(o
     bodies' total mass went from 0.70 to 1.25 kg. A P2 piece took its mass from its corners
     only, its mid-edge nodes' momentum lost (1.5e-3 of the total per run). Each piece keeps its
     nodes' masses as the body lumps them, and the momentum they carried (with a consistent mass,
-    its rows' sums)."""
-    sim = Sim(SOFT_TILE_RIGID_PIECES + f"order = {order}\nmass_matrix = \"{mass}\"\n")
+    its rows' sums). (The tile is punched through and its parts turn far: corotated. In the
+    floating frame, re-fitted after a split, their linear strain read 82 J over the 29 J in play
+    in a step, and the energy watch stopped the run when that step was a frame's.)"""
+    sim = Sim(SOFT_TILE_RIGID_PIECES + f"order = {order}\nmass_matrix = \"{mass}\"\nframe = \"corotated\"\n")
 
     def total():
         rm = sim.model.rigid
