@@ -389,3 +389,18 @@ def test_the_summarys_energy_counts_the_work_of_constant_loads():
     # the body's motion is F t / m: the work is real, and what the drift is measured against
     box = sim.body("box")
     assert abs(box.velocity[0] - 3.0 * 0.2 / (1000.0 * 0.002)) < 1e-9 * 0.3
+
+
+def test_restitution_is_no_energy_changer_where_only_deformable_bodies_meet_planes():
+    """A deformable body dropped on a frictionless plane: the summary listed 'restitution below 1'
+    (the default restitution of both), which acts on rigid contacts only."""
+    text = ("[simulation]\nduration = 0.002\n[[planes]]\nfriction = 0.0\n[[bodies]]\nname = \"box\"\n"
+            "model = \"fem\"\nshape = { type = \"box\", size = [0.1, 0.1, 0.1] }\nyoung = 1e6\n"
+            "position = [0, 0, 0.1]\nintegrator = \"newmark\"\nfriction = 0.0\n")
+    sim = Simulation(parse_scene(tomllib.loads(text), "<test>", Path(".")))
+    assert sim.run(progress=False, log=lambda m: None)["conservation"]["energy_changed_by"] == \
+        ["deformable contact"]
+    rigid = text.replace('model = "fem"\n', "").replace("young = 1e6\n", "").replace('integrator = "newmark"\n', "")
+    sim = Simulation(parse_scene(tomllib.loads(rigid), "<test>", Path(".")))
+    assert sim.run(progress=False, log=lambda m: None)["conservation"]["energy_changed_by"] == \
+        ["restitution below 1"]

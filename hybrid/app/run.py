@@ -279,8 +279,10 @@ def energy_changers(model):
         # (a deformable body's loads are counted by their potential; an auto body's not while rigid)
         "loads on auto bodies": any(b.model == "auto" and b.loads for b in scene.bodies),
         "friction": any(x.friction > 0 for x in touching),
-        "restitution below 1": any(x.restitution < 1 for x in touching),
-        # (restitution acts on rigid contacts: a deformable body's contacts are inelastic)
+        # (restitution acts on rigid contacts, taking the larger of the two counts: a deformable
+        # body's contacts are inelastic, and a plane's restitution meets only rigid bodies)
+        "restitution below 1": sum(x.restitution < 1 for x in touching) >= 2 and any(
+            getattr(x, "model", "plane") in ("rigid", "auto") and x.restitution < 1 for x in touching),
         "deformable contact": bool(touching) and bool(deformable),
         "damping": any(b.damping.mass > 0 or b.damping.stiffness > 0 for b in deformable),
         "backward Euler": any(b.integrator == "backward_euler" for b in deformable),
