@@ -49,6 +49,9 @@ def collide(out, problem, impact, support, tau, approach, h, gravity, settings):
     # group of bodies touching through the pass's contacts, the group takes Poisson's rule: the
     # inelastic impulses, and e times them again, which never adds energy
     group = _groups(problem.bodies, ia, ib, active)
+    bouncy = np.zeros(group.max() + 1 if len(group) else 0, dtype=bool)
+    bouncy[group[ia[impact & (contacts.restitution > 0)]]] = True
+    out.bouncing = bouncy[group]
     energy0 = _kinetic(problem.bodies, v0, w0)
     before = np.bincount(group, energy0)
     gained = np.bincount(group, _kinetic(problem.bodies, v, w) - energy0)

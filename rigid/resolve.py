@@ -97,7 +97,8 @@ class Resolution:
     contact pass's accumulated impulses in its contact basis (to warm-start a repeat solve), and
     the penetration recovery's pseudo-impulses on side a (world, N s times s: a deformable body
     moves its positions by its response to them) with the share ``(c, 2)`` each side took (0 on a
-    side shock propagation froze, else 1)."""
+    side shock propagation froze, else 1); per body (n,) bool, ``bouncing``: in a group of
+    bodies touching through an impact with restitution (None: no impact)."""
     velocity: np.ndarray
     angular: np.ndarray
     shift: np.ndarray
@@ -112,6 +113,7 @@ class Resolution:
     pseudo_impulse: np.ndarray = None
     pseudo_share: np.ndarray = None
     impact: np.ndarray = None
+    bouncing: np.ndarray = None
 
 
 @dataclass
@@ -176,7 +178,8 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     # 1. collisions: restitution at each impact's time within the step
     if previous is not None:     # position-level results belong to the first solve of the step
         for name in ("shift", "shift_rotation", "pseudo_velocity", "pseudo_angular", "impact_dv",
-                     "momentum_fix", "collision_impulse", "pseudo_impulse", "pseudo_share", "impact"):
+                     "momentum_fix", "collision_impulse", "pseudo_impulse", "pseudo_share", "impact",
+                     "bouncing"):
             setattr(out, name, getattr(previous, name))
     else:
         impact, tau, approach = _impacts(problem, on_particle, h, gravity, settings)

@@ -78,9 +78,14 @@ def _spin_kept(model, state, res, h):
     more the faster it spins (a box spinning at 32 rad/s struck a ball with e = 1 and gained 6.7%
     at dt = 2 ms, one at 45 rad/s landing on a plane 6.8%). Such a body keeps its impulses at
     the start of the step: no turn, and where its shift was balanced by a momentum correction,
-    neither (each body's correction balances its own shift, so momenta stay exact)."""
+    neither (each body's correction balances its own shift, so momenta stay exact). Only bodies
+    in a group that bounces (``res.bouncing``): in an inelastic one the impact takes more than the
+    move adds, and the move keeps its corners out of what it struck (moved back without it, the
+    boxes of a pile of 1,000 sank up to the slop, 0.5 mm, where they sink 0.03)."""
     shift, turn, fix = res.shift, res.shift_rotation, res.momentum_fix
-    moved = ~model.body_fixed & ((turn != 0).any(axis=1) | (fix != 0).any(axis=1))
+    if res.bouncing is None:
+        return shift, turn, fix
+    moved = res.bouncing & ~model.body_fixed & ((turn != 0).any(axis=1) | (fix != 0).any(axis=1))
     if not moved.any():
         return shift, turn, fix
     b = np.flatnonzero(moved)

@@ -78,7 +78,8 @@ def integrate(model, state, fems, predicted, nodes, problem, res, v, h):
     nb = model.rigid.body_count
     rigid_res = rigid_step.Resolution(*(a[:nb] for a in (
         res.velocity, res.angular, res.shift, res.shift_rotation, res.pseudo_velocity,
-        res.pseudo_angular, res.impact_dv, res.momentum_fix)))
+        res.pseudo_angular, res.impact_dv, res.momentum_fix)),
+        bouncing=None if res.bouncing is None else res.bouncing[:nb])
     new_rigid = rigid_step.drift(model.rigid, state.rigid, rigid_res, h, v)
     shifts = _recovery_shifts(model, state, fems, predicted, nodes, problem, res, h)
     new_fem = [fem_dyn.finish(m, s, pr, h, shift) for m, s, pr, shift in zip(fems, state.fem, predicted, shifts)]
