@@ -18,9 +18,10 @@ def stack_levels(ia, ib, normal, up, body_count, is_static, group_of, carries):
     k through a contact that ``carries`` (c,) bool (a load: a speculative contact across a gap
     does not) has level <= k + 1. (Counted, the ground 1 mm under the middle cube of a stack of
     1 mm cubes, within the 5 mm contact margin, put every cube at the level of the lowest: the
-    stack was not swept level by level, and it leaned 5 degrees in 0.5 s.) The particles of one group (``group_of`` >= 0, the touched nodes of one
-    deformable body) are one body: all take the level of the lowest (a slab lying on the ground
-    carries what rests on its top). Bodies touching nothing below them get a level above every other.
+    stack was not swept level by level, and it leaned 5 degrees in 0.5 s.) The particles of one
+    group (``group_of`` >= 0, the touched nodes of one deformable body) are one body: all take
+    the level of the lowest (a slab lying on the ground carries what rests on its top). Bodies
+    touching nothing below them get a level above every other.
     """
     big = body_count + 1
     level = np.full(body_count, big, dtype=np.int64)
