@@ -268,7 +268,7 @@ class ImpactWatch:
             impact = impact_estimate(m.young, m.poisson, m.density, m.yield_stress, extent, radius,
                                      reduced, speed)
             nodes_on = int(np.unique(c.node[lead]).size)
-            where = (f"t = {state.time:.4g} s: '{body.name}' struck by '{partner_name}' at "
+            where = (f"t = {state.time:.6g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
             if impact.tau < STEPS_PER_IMPACT * model.dt:
                 self.step_tau = min(impact.tau, self.step_tau or np.inf)

@@ -46,7 +46,7 @@ class Switch:
     def message(self):
         """One line for the run log."""
         kind = "a rigid body" if self.event == "rigidify" else "an FEM body again"
-        return f"t = {self.time:.4f} s: '{self.body}' is stepped as {kind} ({self.event})"
+        return f"t = {self.time:.6g} s: '{self.body}' is stepped as {kind} ({self.event})"
 
     def as_dict(self):
         """JSON-ready summary row: time, body, event kind."""

@@ -39,7 +39,7 @@ class ReferenceUpdate:
     @property
     def message(self):
         """One line for the run log."""
-        return (f"t = {self.time:.4f} s: '{self.body}' took its plastic deformation into its "
+        return (f"t = {self.time:.6g} s: '{self.body}' took its plastic deformation into its "
                 "rest shape")
 
     def as_dict(self):

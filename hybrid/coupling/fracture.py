@@ -89,7 +89,7 @@ class FractureEvent:
     @property
     def message(self):
         """One line for the run log."""
-        text = f"t = {self.time:.4f} s: body '{self.body}' cracked ({self.cracks} elements, " \
+        text = f"t = {self.time:.6g} s: body '{self.body}' cracked ({self.cracks} elements, " \
                f"{self.faces} faces)"
         if self.new_bodies:
             text += f", split off {', '.join(self.new_bodies)}"
