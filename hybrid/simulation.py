@@ -285,7 +285,7 @@ class Simulation:
         for message in self.warnings:
             log(f"warning: {message}")
         self.warnings, self.notes = [], []
-        bar = Progress(position.until, enabled=progress)
+        bar = Progress(position.until, enabled=progress, first_steps=self.steps)
         wall0 = clock.perf_counter() - position.wall
         if not hasattr(self, "peaks"):          # made by resume, without __init__
             self._watch()

@@ -1,5 +1,6 @@
 """The Simulation API: one step loop for the CLI, the tests and the benchmarks; a pure step."""
 import json
+import time
 import tomllib
 from pathlib import Path
 
@@ -404,3 +405,16 @@ def test_restitution_is_no_energy_changer_where_only_deformable_bodies_meet_plan
     sim = Simulation(parse_scene(tomllib.loads(rigid), "<test>", Path(".")))
     assert sim.run(progress=False, log=lambda m: None)["conservation"]["energy_changed_by"] == \
         ["restitution below 1"]
+
+
+def test_a_second_run_calls_rate_counts_only_its_own_steps():
+    """A script that runs in pieces (run(until=0.1), then run(until=0.2)) read hundreds of
+    thousands of steps/s at the second piece's first line: all the run's steps over the piece's
+    wall time. The rate is the piece's steps over its wall time."""
+    import io
+    from hybrid.app.run import Progress
+    stream = io.StringIO()
+    bar = Progress(0.2, stream=stream, first_steps=1_000_000)
+    time.sleep(0.01)
+    bar.update(0.1001, 1_000_001, force=True)       # one step in at least 10 ms
+    assert float(stream.getvalue().split()[-2]) <= 100.0

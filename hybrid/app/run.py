@@ -24,8 +24,9 @@ from .output_resume import ResumableWriter
 class Progress:
     """A one-line progress bar on stderr (simulated time, steps/s); quiet when disabled."""
 
-    def __init__(self, duration, enabled=True, stream=sys.stderr):
+    def __init__(self, duration, enabled=True, stream=sys.stderr, first_steps=0):
         self.duration, self.enabled, self.stream = duration, enabled, stream
+        self.first_steps = first_steps          # steps taken before this bar: not in its rate
         self.start = clock.perf_counter()
         self.last = -1.0
         self.tty = hasattr(stream, "isatty") and stream.isatty()
@@ -38,7 +39,7 @@ class Progress:
             return
         now = clock.perf_counter()
         frac = min(t / self.duration, 1.0) if self.duration > 0 else 1.0
-        rate = steps / max(now - self.start, 1e-9)
+        rate = (steps - self.first_steps) / max(now - self.start, 1e-9)
         if self.tty:
             if force or now - self.last > 0.2:
                 bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
