@@ -43,7 +43,7 @@ from fem.stress import element_stress
 from rigid import quaternion as quat
 from rigid.compose import append_bodies
 
-from .fragments import RigidPiece, fem_fragment, rigid_fragments
+from .fragments import RigidPiece, fem_fragment, held_regions, rigid_fragments
 
 
 @dataclass(frozen=True)
@@ -200,12 +200,12 @@ class _Piece:
 
 
 def _turns_rigid(fem_model, data, frag, node_origin):
-    """Whether a piece other than the largest becomes a rigid body for good: holding no anchor
-    or load node (anchors and loads go with the nodes they hold, and a rigid body has neither),
-    and ``fragment_model = "rigid"`` (``"auto"`` pieces are auto bodies, see
-    hybrid.coupling.auto)."""
+    """Whether a piece other than the largest becomes a rigid body for good: held by no anchor
+    (that pins it, hybrid.coupling.fragments.held_regions) and holding no load node (anchors and
+    loads go with the nodes they hold, and a rigid body has neither), and ``fragment_model =
+    "rigid"`` (``"auto"`` pieces are auto bodies, see hybrid.coupling.auto)."""
     nodes = node_origin[frag.node_index]
-    anchored = np.any(fem_model.node_anchor[nodes] >= 0)
+    anchored = bool(held_regions(fem_model, frag, node_origin))
     loaded = any(np.isin(nodes, held).any() for held in fem_model.load_nodes)
     return not anchored and not loaded and data.fragment_model == "rigid"
 

@@ -18,6 +18,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+# anchored nodes pin a piece when they spread across a plane by more than this share of its size
+PIN_TOL = 1e-6
+
 from fem.model import build_fem_model, rest_state
 from fem.plastic_flow import rest_frame_plastic_force
 from fem.split import Fragment
@@ -62,14 +65,40 @@ def load_shares(parent, node_origin, vertex_mass, node_index):
     return share
 
 
-def _fragment_regions(parent, frag, node_origin, load_share):
-    """(anchors, anchor labels, loads, load labels) of the parent's regions the piece holds."""
-    anchors, anchor_labels = [], []
+def held_regions(parent, frag, node_origin):
+    """The parent's anchors that hold the piece, ``[(anchor, fragment-local nodes (k,))]``: an
+    anchor that pinned the parent holds a piece only where it pins it, by three nodes or more not
+    all on one line. Held by one node or one edge of a grip (a chip in its layer, or the bar
+    itself by the last node a crack left it), the piece would turn about them as on a hinge,
+    which linear elements in a held body's fixed frame cannot follow (a tet held by an edge swung
+    0.2 m in one step at a contact's push, 100-fold strain), and one node dragged the bar at a
+    point: the piece has broken free of that grip, and is let go. A body its scene holds on a
+    line (a hinge) keeps that hold in its pieces."""
+    out = []
     for a, nodes in enumerate(parent.anchor_nodes):
         local = _region_nodes(nodes, node_origin, frag.node_index)
-        if local.size:
-            anchors.append((local, parent.anchor_velocity[a]))
-            anchor_labels.append(a)
+        if local.size and (_pins(frag.points[local], frag.points)
+                           or not _pins(parent.rest_points[nodes], parent.rest_points)):
+            out.append((a, local))
+    return out
+
+
+def _pins(held, points):
+    """Whether held points ``(k, 3)`` span a plane, not only a line or a point, in a body of
+    rest points ``points``."""
+    if len(held) < 3:
+        return False
+    spread = np.linalg.svd(held - held.mean(axis=0), compute_uv=False)
+    return spread[1] > PIN_TOL * np.ptp(points, axis=0).max()
+
+
+def _fragment_regions(parent, frag, node_origin, load_share):
+    """(anchors, anchor labels, loads, load labels) of the parent's regions the piece holds
+    (anchors only where they pin it, :func:`held_regions`)."""
+    anchors, anchor_labels = [], []
+    for a, local in held_regions(parent, frag, node_origin):
+        anchors.append((local, parent.anchor_velocity[a]))
+        anchor_labels.append(a)
     loads, load_labels = [], []
     for i, nodes in enumerate(parent.load_nodes):
         local = _region_nodes(nodes, node_origin, frag.node_index)
