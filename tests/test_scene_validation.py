@@ -741,3 +741,26 @@ def test_surface_pieces_that_cross_each_other_are_warned_of_and_nested_ones_are_
     with warnings.catch_warnings():
         warnings.simplefilter("error", geometry.MeshWarning)
         geometry.load_surface(tmp_path / "nested.obj")
+
+
+def test_a_needle_tet_in_a_deformable_bodys_file_is_refused_naming_it(tmp_path):
+    """A needle (a corner just above a triangle's long edge) beside a good mesh passed
+    `validate`; its body's matrix was not positive definite to CHOLMOD and the body, falling
+    freely, reached 2e8 m/s in two steps. Refused for a deformable body, naming the tet and its
+    quality (volume over the regular tet's on its longest edge, which the cube's tets far exceed);
+    a rigid body, which needs only the surface, takes the file."""
+    from fem.mesh import tet_quality
+    needle = np.array([[2.0, 0, 0], [3.0, 0, 0], [2.0, 1.0, 0], [2.5, 0.5, 1e-7]])
+    points = np.vstack([CUBE_POINTS, needle])
+    tets = np.vstack([CUBE_TETS, [[8, 9, 10, 11]]])
+    quality = tet_quality(points, tets)
+    regular = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    assert tet_quality(regular, np.array([[0, 1, 2, 3]]))[0] == pytest.approx(1.0, rel=1e-12)
+    assert quality[:-1].min() > 0.1 and quality[-1] < 1e-6
+    meshio.write(tmp_path / "needle.vtu", meshio.Mesh(points, [("tetra", tets)]))
+    with pytest.raises(geometry.MeshError, match=r"1 of 7 tets are too badly shaped.*tets 6; remesh"):
+        geometry.load_tet_mesh(tmp_path / "needle.vtu")
+    scene = write_scene(tmp_path, '[[bodies]]\nname = "b"\nmodel = "fem"\nyoung = 1e8\nmesh = "needle.vtu"\n')
+    assert any("field 'mesh'" in p and "too badly shaped" in p for p in problems_of(scene))
+    rigid = write_scene(tmp_path, '[[bodies]]\nname = "b"\nmesh = "needle.vtu"\n', "rigid.toml")
+    load_scene(rigid)

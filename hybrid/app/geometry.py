@@ -14,7 +14,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from fem.mesh import check_tets, index_list
+from fem.mesh import check_shapes, check_tets, index_list
 from rigid import trimesh
 
 from .scene.schema import LARGEST_LENGTH
@@ -98,13 +98,14 @@ def read_mesh(path):
     return mesh
 
 
-def tets_from_mesh(mesh, path):
+def tets_from_mesh(mesh, path, solved=True):
     """``(points, tets, order, flipped)`` from a meshio mesh: all its tetra (order 1) or tetra10
     (order 2) cells, in file order.
 
     Points no tet uses are dropped; tets with negative volume are reoriented and their indices
     returned in ``flipped``; MeshError if there are no tets, both orders are mixed, or tets have
-    zero volume (the message names them by index).
+    zero volume, or (``solved``: the tets of a deformable body) are too badly shaped to solve
+    (``fem.mesh.check_shapes``); the message names them by index.
     """
     blocks = {kind: [c.data for c in mesh.cells if c.type == kind] for kind in _TET_TYPES}
     present = [kind for kind in _TET_TYPES if blocks[kind]]
@@ -121,6 +122,8 @@ def tets_from_mesh(mesh, path):
     points, tets = mesh.points[used], remap[tets]
     try:
         tets, flipped = check_tets(points, tets)
+        if solved:
+            check_shapes(points, tets)
     except ValueError as error:
         raise MeshError(path, str(error)) from None
     return points, tets, order, flipped
@@ -135,7 +138,7 @@ def surface_from_mesh(mesh, path):
     the surface is not closed or not consistently oriented, or it encloses no volume.
     """
     if any(c.type in _TET_TYPES for c in mesh.cells):
-        points, tets, _, _ = tets_from_mesh(mesh, path)      # a closed surface needs no warning
+        points, tets, _, _ = tets_from_mesh(mesh, path, solved=False)   # (its surface only)
         triangles = trimesh.tet_boundary(tets[:, :4])
     else:
         points = mesh.points
