@@ -210,10 +210,10 @@ def resolve_contacts(bodies, contacts, h, gravity, settings, previous=None, warm
     scale_a = scale_b = ones
     gnorm = np.linalg.norm(gravity)
     if gnorm > 0:
-        # (contacts between particles and the static world gain nothing from it: left out)
-        rigid_side = ~particle[ia] & ((ib < 0) | ~particle[np.maximum(ib, 0)])
-        scale_a, scale_b = problem.sweep_stack(-np.asarray(gravity) / gnorm, rigid_side, target,
-                                               lam, v, w, settings.shock_iterations, contact_imp)
+        up = -np.asarray(gravity) / gnorm
+        scale_a, scale_b = problem.sweep_stack(up, _stacked(particle, ia, ib, contacts.normal @ up),
+                                               target, lam, v, w, settings.shock_iterations,
+                                               contact_imp)
     out.contact_impulse = finite(contact_imp)
     out.contact_lambda = lam
 
@@ -254,6 +254,20 @@ def _impacts(problem, on_particle, h, gravity, settings):
         np.minimum.at(first, ib0[soft & (ib >= 0)], tau[soft & (ib >= 0)])
         impact &= (tau < first[ia]) & ((ib < 0) | (tau < first[ib0]))
     return impact, tau, approach
+
+
+def _stacked(particle, ia, ib, up_normal):
+    """The contacts shock propagation sweeps (c,) bool: between rigid bodies or with the static
+    world, and of a deformable body's particle resting on a rigid body (above it: the normal,
+    towards side a, along ``up_normal`` = normal . up). A particle against the static world gains
+    nothing from it, and one under a rigid body is left to the contact pass. A 975 kg steel block
+    landing on a 1 kg box on the ground, its contacts with the box left to the contact pass, rose
+    above its release height (+847 J): 100 sweeps converge slowly at 1000:1."""
+    b_particle = (ib >= 0) & particle[np.maximum(ib, 0)]
+    b_rigid = (ib >= 0) & ~b_particle
+    rigid_pair = ~particle[ia] & ~b_particle
+    on_rigid = (particle[ia] & b_rigid & (up_normal > 0)) | (~particle[ia] & b_particle & (up_normal < 0))
+    return rigid_pair | on_rigid
 
 
 def _contact_target(problem, out, h, slop):
