@@ -348,3 +348,12 @@ def test_a_stop_signal_swallowed_in_a_callback_prints_no_traceback(monkeypatch):
     monkeypatch.setattr(cli, "main", command)
     assert entry.main([]) == 0
     assert told == [ValueError]
+
+
+def test_a_checkpoint_file_has_the_mode_of_the_runs_other_files(stopped_quick):
+    """checkpoint.npz was created 0600 (a temporary file's mode) where the run's other files
+    follow the umask (0644 with the usual 022): another user allowed to read the outputs could
+    not resume from it."""
+    out, _ = stopped_quick
+    mode = (out / "checkpoint.npz").stat().st_mode & 0o777
+    assert mode == (out / "bodies.csv").stat().st_mode & 0o777

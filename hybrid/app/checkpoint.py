@@ -20,7 +20,6 @@ import json
 import math
 import os
 import signal
-import tempfile
 import threading
 import time as clock
 import zipfile
@@ -33,6 +32,7 @@ import numpy as np
 
 from .codec import CodecError, decode, encode
 from .output_resume import CHECKPOINT, ResumeError, check_folder
+from .text_files import temporary_path
 
 FORMAT = "hybrid-checkpoint"
 VERSION = 1
@@ -95,9 +95,9 @@ def write(path, sim, position, recorder):
                 "content": tree}
     data = np.frombuffer(json.dumps(manifest).encode("utf-8"), dtype=np.uint8)
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = temporary_path(path)         # (created with the mode the other outputs get)
     try:
-        with os.fdopen(fd, "wb") as f:
+        with open(tmp, "wb") as f:
             np.savez(f, manifest=data, **arrays)
             f.flush()
             os.fsync(f.fileno())
