@@ -239,15 +239,19 @@ class ImpactWatch:
             touching.update(pair for pair in self.touching if pair[0] == name)
             return []
         c = near(model, state, j, CLOSE * spacing, (rigid, relevant))
+        speeds = approach(model, old, state, j, c)
+        # a partner meets the body from the step that ends within a step's approach of it (or
+        # the contacts' slop): looked for within CLOSE spacings, a steel block falling on a box
+        # was said to be struck 31 mm before it was, at 0.6 m/s where it struck at 1.0
+        closing = c.gap <= np.maximum(speeds, 0.0) * model.dt + model.settings.slop
         partners = {int(p): model.names[int(model.rigid_ids[p])] if p >= 0 else "plane"
-                    for p in np.unique(c.partner)}
+                    for p in np.unique(c.partner[closing])}
         touching.update((name, p) for p in partners.values())
         # resting contact (the common case) is not new: nothing more to do
         began = [p for p, p_name in partners.items() if (name, p_name) not in self.touching
                  and not same_body(model, j, p) and not just_parked(model, state, p)]
         if not began:
             return []
-        speeds = approach(model, old, state, j, c)
         out = []
         for partner in began:
             partner_name, on = partners[partner], c.partner == partner
