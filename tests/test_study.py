@@ -453,3 +453,25 @@ def test_a_setting_names_a_body_whose_name_has_dots():
     assert data["bodies"][0] == {"name": "ball", "density": 300.0}
     with pytest.raises(SettingError, match="no body 'bal'"):
         apply_setting(data, "bodies.bal.v2.density", 1.0)
+
+
+def test_a_run_that_ended_as_ctrl_c_came_is_tabled_ok(tmp_path, monkeypatch):
+    """A run whose worker wrote its `ok` summary as Ctrl-C came, before the study collected its
+    result, was tabled `interrupted` (a rerun then listed it ok): it is tabled from its files."""
+    from hybrid.app import study as study_module
+
+    def both_end_then_ctrl_c(todo, texts, total, workers, scheduler, progress):
+        for record, text in zip(todo, texts):
+            Path(record["folder"]).mkdir(parents=True)
+            Path(record["scene_file"]).write_text(text)
+            study_module.run_variant(record["scene_file"], record["folder"])   # not collected
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study_module, "_dispatch", both_end_then_ctrl_c)
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    with pytest.raises(KeyboardInterrupt):
+        sweep(scene, ["bodies.ball.restitution=0.2,0.8"], out=tmp_path / "out", workers=1)
+    table = list(csv.DictReader(open(tmp_path / "out" / "results.csv")))
+    assert [t["status"] for t in table] == ["ok", "ok"]
+    assert all(t["ball.z"] != "" for t in table)

@@ -148,8 +148,13 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
         _dispatch(todo, texts, len(records), workers, scheduler, progress)
     except (KeyboardInterrupt, Terminated) as stop:
         said = "stopped (SIGTERM)" if isinstance(stop, Terminated) else "interrupted (Ctrl-C)"
-        for record in todo:
-            if "status" not in record:
+        for record, text in zip(todo, texts):
+            folder, name = Path(record["folder"]), Path(record["scene_file"]).name
+            if "status" in record:
+                continue
+            if finished(folder, text, name):    # (it ended as the stop came, not yet collected)
+                record.update(status="ok", error=None, wall_s=read_summary(folder)["wall_time"])
+            else:
                 record.update(status="interrupted", error=f"{said} before it finished", wall_s=None)
         raise StudyInterrupted(records, stop) from None
     return records
