@@ -357,3 +357,22 @@ def test_a_checkpoint_file_has_the_mode_of_the_runs_other_files(stopped_quick):
     out, _ = stopped_quick
     mode = (out / "checkpoint.npz").stat().st_mode & 0o777
     assert mode == (out / "bodies.csv").stat().st_mode & 0o777
+
+
+def test_a_checkpoint_resumed_from_a_renamed_copy_of_its_scene_is_refused(capsys, tmp_path):
+    """The same content under another file name (a scene named after its file) resumed, and
+    wrote its frames' index under the new name beside the old one, which listed a third of the
+    frames. A copy naming the same scene resumes."""
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK.replace('name = "quick"\n', ""))
+    request = checkpoint.StopRequest()
+    request.set()
+    with pytest.raises(checkpoint.Stopped):
+        Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lambda m: None,
+                                        stop=request)
+    copy = tmp_path / "copy.toml"
+    copy.write_text(scene.read_text())
+    code, err = resume_code(capsys, copy, tmp_path / "run")
+    assert code == 2 and "checkpoint of scene 'quick'" in err and "resumed as 'copy'" in err
+    assert not (tmp_path / "run" / "copy.pvd").exists()
+    assert resume_code(capsys, scene, tmp_path / "run")[0] == 0

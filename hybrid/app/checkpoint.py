@@ -139,7 +139,7 @@ def read(path, scene):
     """The content of the checkpoint at ``path`` (see :func:`write`) for ``scene`` (the scene as
     loaded now), with the manifest under ``"manifest"``. Raises CheckpointError when it is
     missing, truncated or corrupted, of another format version, or of another scene file (its
-    content's SHA-256 differs)."""
+    content's SHA-256 differs) or name (the run's files are named after it)."""
     path = Path(path)
     manifest, arrays = _load(path)
     digest = scene_digest(scene)
@@ -148,6 +148,11 @@ def read(path, scene):
                               f"{manifest.get('scene_file')}), not of {scene.source_path}: the "
                               f"scene file's content differs (SHA-256 {digest[:12]}..., the "
                               f"checkpoint's {str(manifest.get('scene_sha256'))[:12]}...)")
+    if manifest.get("scene") != scene.name:        # (the same content in a file named otherwise)
+        raise CheckpointError(f"{path}: checkpoint of scene '{manifest.get('scene')}' (file "
+                              f"{manifest.get('scene_file')}), whose files it names after it, "
+                              f"resumed as '{scene.name}': resume with the scene file under its "
+                              f"name")
     try:
         content = decode(manifest["content"], arrays)
     except (CodecError, KeyError) as error:
