@@ -29,6 +29,12 @@ from .auto import Switch, settings, unit_strain
 from .fracture import fracture_data
 
 
+# a vertex within EDGE_TOL of a body's size of two hull facets meeting at more than EDGE_ANGLE
+# (rad) lies on a hull edge (hull_points)
+EDGE_TOL = 1e-3
+EDGE_ANGLE = np.radians(30.0)
+
+
 def hull_points(vertices):
     """``(on, off)``: the vertices ``(p, 3)`` on the convex hull of ``vertices`` (all of them for
     a flat set) and the others ``(q, 3)``. A body turned rigid meets planes and rigid bodies
@@ -40,11 +46,29 @@ def hull_points(vertices):
     did while deformable: an FEM deck resting across a support that turned rigid was carried by
     the support's dented edge nodes, which are off the hull, and sagged 2 mm when they went."""
     try:
-        on = np.zeros(len(vertices), bool)
-        on[ConvexHull(vertices).vertices] = True
+        hull = ConvexHull(vertices)
     except QhullError:
         return vertices, vertices[:0]
+    on = np.zeros(len(vertices), bool)
+    on[hull.vertices] = True
+    on |= _on_hull_edges(vertices, hull.equations)
     return vertices[on], vertices[~on]
+
+
+def _on_hull_edges(vertices, facets):
+    """Which ``vertices`` lie on an edge of their hull (within EDGE_TOL of its size of two of
+    its facets (``facets`` (f, 4): unit normal, offset) whose normals differ by more than
+    EDGE_ANGLE): a box's edge nodes between its corners. Box-like bodies stacked with an offset
+    rest on each other's edges, and their corners alone, on edges that nearly coincided with
+    the other's, met it with tilted normals: the upper one of two auto boxes turned rigid under
+    a third sank into the lower one at g / 8."""
+    size = np.ptp(vertices, axis=0).max()
+    near = np.abs(vertices @ facets[:, :3].T + facets[:, 3]) < EDGE_TOL * size     # (v, f)
+    out = np.zeros(len(vertices), bool)
+    for i in np.flatnonzero(near.sum(axis=1) >= 2):
+        normals = facets[near[i], :3]
+        out[i] = (normals @ normals.T).min() < np.cos(EDGE_ANGLE)
+    return out
 
 
 @dataclass(frozen=True)
