@@ -6,7 +6,6 @@ a chip 0.2 m in one step about that edge (linear elements in a held body's fixed
 turn), and the run stopped at 2e4 m/s; the bar itself, held by the last node of the moving grip,
 was dragged at a point. Pieces held by fewer than three nodes, or by nodes on one line, are let go.
 """
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
