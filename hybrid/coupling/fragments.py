@@ -18,9 +18,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-# anchored nodes pin a piece when they spread across a plane by more than this share of its size
-PIN_TOL = 1e-6
-
 from fem.model import build_fem_model, rest_state
 from fem.plastic_flow import rest_frame_plastic_force
 from fem.split import Fragment
@@ -44,6 +41,9 @@ class RigidPiece(NamedTuple):
 
 
 # --- FEM pieces ------------------------------------------------------------------------------
+
+# anchored nodes pin a piece when they spread across a plane by more than this share of its size
+PIN_TOL = 1e-6
 
 def _region_nodes(region_nodes, node_origin, node_index):
     """Fragment-local indices of the fragment nodes whose original node is in ``region_nodes``."""

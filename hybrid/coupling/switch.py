@@ -33,6 +33,7 @@ from .fracture import fracture_data
 # (rad) lies on a hull edge (hull_points)
 EDGE_TOL = 1e-3
 EDGE_ANGLE = np.radians(30.0)
+EDGE_BLOCK = 1024          # vertices measured against every facet at once
 
 
 def hull_points(vertices):
@@ -63,11 +64,13 @@ def _on_hull_edges(vertices, facets):
     the other's, met it with tilted normals: the upper one of two auto boxes turned rigid under
     a third sank into the lower one at g / 8."""
     size = np.ptp(vertices, axis=0).max()
-    near = np.abs(vertices @ facets[:, :3].T + facets[:, 3]) < EDGE_TOL * size     # (v, f)
     out = np.zeros(len(vertices), bool)
-    for i in np.flatnonzero(near.sum(axis=1) >= 2):
-        normals = facets[near[i], :3]
-        out[i] = (normals @ normals.T).min() < np.cos(EDGE_ANGLE)
+    for start in range(0, len(vertices), EDGE_BLOCK):          # (v, f) in blocks of vertices
+        block = vertices[start:start + EDGE_BLOCK]
+        near = np.abs(block @ facets[:, :3].T + facets[:, 3]) < EDGE_TOL * size
+        for i in np.flatnonzero(near.sum(axis=1) >= 2):
+            normals = facets[near[i], :3]
+            out[start + i] = (normals @ normals.T).min() < np.cos(EDGE_ANGLE)
     return out
 
 
