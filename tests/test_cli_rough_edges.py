@@ -13,13 +13,28 @@ def test_out_below_a_file_is_refused_naming_the_file(tmp_path, capsys):
     assert blocker.read_text() == "mine"
 
 
-def test_out_that_cannot_be_created_is_refused_before_the_run(capsys):
+@pytest.mark.parametrize("scene", ["default", "jelly"])
+def test_out_that_cannot_be_created_is_refused_before_the_run(scene, capsys):
     """A folder the system will not make (/proc takes no new entries) is bad input, said before
-    anything runs; it was an OSError traceback with exit code 1 after "running"."""
-    assert main(["run", "default", "--out", "/proc/hybrid-no-such-folder", "--quiet"]) == 2
+    anything runs or deformable bodies are built (a large mesh takes a minute)."""
+    assert main(["run", scene, "--out", "/proc/hybrid-no-such-folder", "--quiet"]) == 2
     captured = capsys.readouterr()
     assert "--out /proc/hybrid-no-such-folder: cannot create the folder" in captured.err
-    assert "Traceback" not in captured.err and "running" not in captured.out
+    assert "Traceback" not in captured.err
+    assert "running" not in captured.out and "building" not in captured.out
+
+
+def test_a_scene_refused_when_its_bodies_are_built_leaves_no_folder_behind(tmp_path, capsys):
+    """The run folder is made before the bodies are built; a problem found in building them
+    removes the folders the command made, and only those."""
+    scene = tmp_path / "anchor.toml"
+    scene.write_text('[[bodies]]\nname = "b"\nmodel = "fem"\nyoung = 1e6\n'
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n'
+                     'anchors = [ { box = [[5, 5, 5], [6, 6, 6]] } ]\n')
+    (tmp_path / "kept").mkdir()
+    assert main(["run", str(scene), "--out", str(tmp_path / "kept" / "a" / "b"), "--quiet"]) == 2
+    assert "contains no mesh node" in capsys.readouterr().err
+    assert (tmp_path / "kept").is_dir() and not any((tmp_path / "kept").iterdir())
 
 
 def test_an_unknown_writer_in_the_environment_is_bad_input_naming_the_variable(tmp_path, capsys,

@@ -83,14 +83,8 @@ def _run(args):
     from .geometry import MeshError
     from hybrid.coupling.stability import OutputFailure
     from hybrid.coupling.step import InstabilityError
-    if args.out is not None and not args.out.strip():
-        print(f"{path}: --out is empty; give a folder (default outputs/{scene.name})", file=sys.stderr)
-        return 2
-    out = Path(args.out) if args.out else Path("outputs") / scene.name
-    blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
-    if blocking is not None:
-        print(f"{path}: --out {out}: {blocking} is a file; give a folder (it is created if missing)",
-              file=sys.stderr)
+    out = _run_folder(path, args, scene)
+    if out is None:
         return 2
     from .checkpoint import CheckpointError, Stopped, stop_on_signals
     from .output_resume import CHECKPOINT, writer_from_environment
@@ -108,21 +102,25 @@ def _run(args):
         # the writer process starts while the scene is built (its first frame is then written there)
         from .writer_pool import start_early
         start_early()
+    created = _create_folder(out)       # before a build that can take a minute
+    if isinstance(created, str):
+        print(f"{path}: --out {out}: {created}", file=sys.stderr)
+        return 2
     deformable = sum(b.model != "rigid" for b in scene.bodies)
     if deformable and not args.resume:      # (a large mesh's factorisation can take a minute)
         print(f"building '{scene.name}': meshing and factorising {deformable} deformable "
               f"bod{'y' if deformable == 1 else 'ies'}", flush=True)
     try:
         sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
-    except SceneError as err:           # problems only the built bodies show
-        return _rejected(path, err)
-    except (MeshError, ValueError, CheckpointError) as err:
+    except (SceneError, MeshError, ValueError, CheckpointError) as err:
+        _remove_folders(created)        # nothing is left of a run that did not start
+        if isinstance(err, SceneError):     # problems only the built bodies show
+            return _rejected(path, err)
         print(f"{path}: {err}", file=sys.stderr)
         return 2
-    unwritable = _unwritable(out)
-    if unwritable is not None:
-        print(f"{path}: --out {out}: {unwritable}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:           # Ctrl-C while building: nothing is written
+        _remove_folders(created)
+        raise
     print(f"{'resuming' if args.resume else 'running'} '{scene.name}' ({len(scene.bodies)} bodies, "
           f"{scene.simulation.duration} s at dt = {scene.simulation.dt:g} s"
           f"{f', from t = {sim.time:.6g} s' if args.resume else ''}) -> {out}")
@@ -152,16 +150,44 @@ def _run(args):
     return 0
 
 
-def _unwritable(out):
-    """Why the run folder ``out`` cannot take the run's files (created here if missing), or None
-    when it can."""
+def _run_folder(path, args, scene):
+    """The run's folder (``--out``, or outputs/<scene name>), or None after saying on stderr why
+    it cannot be one."""
+    if args.out is not None and not args.out.strip():
+        print(f"{path}: --out is empty; give a folder (default outputs/{scene.name})", file=sys.stderr)
+        return None
+    out = Path(args.out) if args.out else Path("outputs") / scene.name
+    blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        print(f"{path}: --out {out}: {blocking} is a file; give a folder (it is created if missing)",
+              file=sys.stderr)
+        return None
+    return out
+
+
+def _create_folder(out):
+    """Create the run folder ``out`` and the folders above it that are missing: the list of those
+    created (deepest first, the order to remove them in), or why the folder cannot take the run's
+    files (then nothing is created)."""
+    missing = [p for p in (out, *out.parents) if not p.exists()]
     try:
         out.mkdir(parents=True, exist_ok=True)
+        if os.access(out, os.W_OK | os.X_OK):
+            return missing
+        why = "cannot write in this folder (no permission, or a read-only file system)"
     except OSError as err:
-        return f"cannot create the folder: {err.strerror or err}"
-    if not os.access(out, os.W_OK | os.X_OK):
-        return "cannot write in this folder (no permission, or a read-only file system)"
-    return None
+        why = f"cannot create the folder: {err.strerror or err}"
+    _remove_folders(missing)
+    return why
+
+
+def _remove_folders(folders):
+    """Remove the empty ``folders`` (deepest first) this command created."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:                 # not created after all, or something was written there
+            pass
 
 
 def _stopped(args, out, stopped):
