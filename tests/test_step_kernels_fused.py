@@ -293,3 +293,12 @@ def test_particle_impulses_match_add_at_over_both_sides(seed):
     np.add.at(reference, body_b[on_b] - nb, -increment[on_b])
     out = solve.particle_impulses(body_a, body_b, increment, nb, count)
     np.testing.assert_allclose(out, reference, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_bounding_box_in_one_pass_matches_numpy_min_and_max(seed):
+    from hybrid.app.impact_contacts import _bounds
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(int(rng.integers(1, 500)), 3)) * rng.uniform(0.01, 100, size=3)
+    low, high = _bounds(x)
+    assert np.array_equal(low, x.min(axis=0)) and np.array_equal(high, x.max(axis=0))

@@ -4,6 +4,7 @@ centres) against its faces, where a small body or a corner strikes between its n
 touches (a 4 mm steel ball on a plate of 4 cm elements stopped dead on one face, unwarned)."""
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from rigid import quaternion as quat
@@ -29,20 +30,43 @@ class Near:
     gap: np.ndarray
 
 
-def near(model, state, j, margin, fast=None):
+@dataclass(frozen=True)
+class RigidMotion:
+    """What the impact checks of one step use of the rigid bodies, worked out once for all the
+    deformable bodies: ``velocity`` (b, 3) m/s (reported, :func:`rigid.model.reported_velocity`)
+    and ``spin`` (b, 3) rad/s at the step's start, ``turn`` (b, 3, 3) their rotations at its end."""
+    velocity: np.ndarray
+    spin: np.ndarray
+    turn: np.ndarray
+
+    @classmethod
+    def of(cls, model, old, state):
+        """The motion of the step from coupled state ``old`` to ``state``."""
+        rm = model.rigid
+        if not rm.body_count:
+            return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        return cls(reported_velocity(rm, old.rigid, model.gravity), angular_velocity(rm, old.rigid),
+                   quat.to_matrix(state.rigid.orientation))
+
+
+def near(model, state, j, margin, fast=None, motion=None, reach=None):
     """:class:`Near` of FEM body ``j`` with rigid bodies and planes within ``margin`` m. The
     partners' points on its faces are looked for only on rigid bodies none of its nodes touch
     (found by its nodes, the contact is judged by them) and, with ``fast`` = ``(bounds, speed)``,
     only on those whose bound (b,) m/s on the speed they could have met it at in the step
     (:func:`strike_speeds`) reaches ``speed`` m/s (a body resting on a face, the common case, is
-    not looked for every step)."""
+    not looked for every step). ``motion`` (:class:`RigidMotion`) and ``reach``
+    (:func:`within_reach` of ``margin``), when the caller has them."""
     rm, rs, m = model.rigid, state.rigid, model.fem[j]
     k = len(m.surface_nodes)
-    R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
+    if motion is not None:
+        R = motion.turn
+    else:
+        R = quat.to_matrix(rs.orientation) if rm.body_count else np.zeros((0, 3, 3))
     c = detect_points(rm, rs.position, R, state.fem[j].x[m.surface_nodes], np.zeros(k),
                       np.zeros(rm.body_count), margin, np.zeros(k), np.zeros(k))
     # rigid bodies within reach of the body's bounding box and not met by its nodes
-    looked = within_reach(model, state, j, margin)
+    looked = within_reach(model, state, j, margin) if reach is None else reach.copy()
     looked[c.body_b[c.body_b >= 0]] = False
     if fast is not None and looked.any():
         looked &= fast[0] >= fast[1]
@@ -63,36 +87,49 @@ def near(model, state, j, margin, fast=None):
 
 def within_reach(model, state, j, margin):
     """Which rigid bodies (b,) are within ``margin`` m of FEM body ``j``'s bounding box."""
-    rs, x = state.rigid, state.fem[j].x
-    outside = np.maximum(0.0, np.maximum(x.min(axis=0) - rs.position, rs.position - x.max(axis=0)))
+    rs = state.rigid
+    low, high = _bounds(state.fem[j].x)
+    outside = np.maximum(0.0, np.maximum(low - rs.position, rs.position - high))
     return np.linalg.norm(outside, axis=1) <= model.rigid.body_radius + margin
 
 
-def strike_speeds(model, old, j):
+@nb.njit(cache=True)
+def _bounds(x):
+    """The corners ``(low, high)`` (3,) of the box bounding points ``x`` (n >= 1, 3), in one pass
+    (``x.min(axis=0)`` takes a strided pass per column)."""
+    low, high = x[0].copy(), x[0].copy()
+    for i in range(1, len(x)):
+        for a in range(3):
+            low[a] = min(low[a], x[i, a])
+            high[a] = max(high[a], x[i, a])
+    return low, high
+
+
+def strike_speeds(model, old, j, motion):
     """``(per rigid body (b,), against a plane)``: bounds (m/s) on the speed at which each could
     meet FEM body ``j`` in the step from the coupled state ``old`` (its speed and its spin times
-    its radius, plus the body's fastest node; a plane: that node alone)."""
-    rm = model.rigid
-    node = float(np.sqrt((old.fem[j].v ** 2).sum(axis=1).max())) if len(old.fem[j].v) else 0.0
+    its radius, plus the body's fastest node; a plane: that node alone); ``motion``: the
+    step's :class:`RigidMotion`."""
+    rm, v = model.rigid, old.fem[j].v
+    node = float(np.sqrt(np.einsum("ni,ni->n", v, v).max())) if len(v) else 0.0
     if not rm.body_count:
         return np.zeros(0), node
-    v = reported_velocity(rm, old.rigid, model.gravity)
-    w = angular_velocity(rm, old.rigid)
-    return np.linalg.norm(v, axis=1) + np.linalg.norm(w, axis=1) * rm.body_radius + node, node
+    spin = np.sqrt(np.einsum("bi,bi->b", motion.spin, motion.spin))
+    return np.sqrt(np.einsum("bi,bi->b", motion.velocity, motion.velocity)) + spin * rm.body_radius \
+        + node, node
 
 
-def approach(model, old, state, j, c):
+def approach(model, old, state, j, c, motion):
     """Speed of approach (c,) m/s of contacts ``c`` (:class:`Near`) at the step's start: the
-    body's velocity at the contact against the partner's there, along the normal."""
-    rm, rs = model.rigid, state.rigid
+    body's velocity at the contact against the partner's there, along the normal (``motion``:
+    the step's :class:`RigidMotion`)."""
+    rs = state.rigid
     count = len(c.gap)
     v_partner = np.zeros((count, 3))
-    if rm.body_count and count:
+    if model.rigid.body_count and count:
         rigid = c.partner >= 0
         b = c.partner[rigid]
-        v_rigid = reported_velocity(rm, old.rigid, model.gravity)
-        w_rigid = angular_velocity(rm, old.rigid)
-        v_partner[rigid] = v_rigid[b] + np.cross(w_rigid[b], c.point[rigid] - rs.position[b])
+        v_partner[rigid] = motion.velocity[b] + np.cross(motion.spin[b], c.point[rigid] - rs.position[b])
     v_surface = old.fem[j].v[model.fem[j].surface_nodes]
     v_body = np.einsum("ck,cki->ci", c.weights, v_surface[c.corners])
     return -np.einsum("ci,ci->c", v_body - v_partner, c.normal)

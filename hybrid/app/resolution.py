@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .impact_contacts import (across, approach, just_parked, near, partner_of, same_body,
-                              strike_speeds, within_reach)
+from .impact_contacts import (RigidMotion, across, approach, just_parked, near, partner_of,
+                              same_body, strike_speeds, within_reach)
 
 # an impact is examined when rho c v reaches this share of the body's yield or fracture stress
 STRENGTH_SHARE = 0.25
@@ -211,10 +211,10 @@ class ImpactWatch:
         for w in self.warnings:
             asked[w.body, w.kind] = min(w.need, asked.get((w.body, w.kind), np.inf))
         origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
-        new, touching = [], set()
-        for j, (m, s0, s1) in enumerate(zip(model.fem, old.fem, state.fem)):
+        new, touching, motion = [], set(), RigidMotion.of(model, old, state)
+        for j in range(len(model.fem)):
             scene_body = model.scene.bodies[origin[int(model.fem_ids[j])]]
-            for found in self._impacts(model, old, state, j, scene_body, touching):
+            for found in self._impacts(model, (old, state, motion), j, scene_body, touching):
                 key = (found.body, found.kind)
                 if found.need < 0.8 * asked.get(key, np.inf):
                     asked[key] = found.need
@@ -223,23 +223,26 @@ class ImpactWatch:
         self.touching = touching
         return new
 
-    def _impacts(self, model, old, state, j, body, touching):
-        """The warnings (either kind) of FEM body ``j`` (scene ``body``) in the step from ``old``
-        to ``state``, of contacts that began in that step; the names of its contact pairs are
-        added to ``touching``."""
+    def _impacts(self, model, step, j, body, touching):
+        """The warnings (either kind) of FEM body ``j`` (scene ``body``) in the ``step`` = ``(old,
+        state, motion)`` from coupled state ``old`` to ``state`` (``motion``: its
+        :class:`RigidMotion`), of contacts that began in that step; the names of its contact
+        pairs are added to ``touching``."""
+        old, state, motion = step
         m, s1 = model.fem[j], state.fem[j]
         name = model.names[model.fem_ids[j]]
         spacing = self._node_spacing(m)
         relevant = _relevant_speed(m, body)
-        rigid, plane = strike_speeds(model, old, j)
-        if max(plane, rigid[within_reach(model, state, j, CLOSE * spacing)].max(initial=0.0)) < relevant:
+        rigid, plane = strike_speeds(model, old, j, motion)
+        reach = within_reach(model, state, j, CLOSE * spacing)
+        if max(plane, rigid[reach].max(initial=0.0)) < relevant:
             # nothing within reach could meet the body fast enough to matter: no contact that
             # begins now is judged, so none is looked for (a slab resting under a box looked for
             # its contacts every step, 7% of the step); those it had are taken as kept
             touching.update(pair for pair in self.touching if pair[0] == name)
             return []
-        c = near(model, state, j, CLOSE * spacing, (rigid, relevant))
-        speeds = approach(model, old, state, j, c)
+        c = near(model, state, j, CLOSE * spacing, (rigid, relevant), motion, reach)
+        speeds = approach(model, old, state, j, c, motion)
         # a partner meets the body from the step that ends within a step's approach of it (or
         # the contacts' slop): looked for within CLOSE spacings, a steel block falling on a box
         # was said to be struck 31 mm before it was, at 0.6 m/s where it struck at 1.0
