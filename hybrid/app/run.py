@@ -165,6 +165,7 @@ class Recorder:
         self.energies, self.momenta, self.angular, self.carried = [], [], [], []
         self.kinetic = []       # the frames' kinetic energies (J), for the energy watchdog
         self.potentials = []    # and the loads' potential energies (J)
+        self.dissipated = []    # and the plastic work dissipated so far (J; None: not counted)
         self.frames = 0
         self.watched = None     # (Peaks, ImpactWatch) of the run's steps, kept in checkpoints
 
@@ -195,8 +196,10 @@ class Recorder:
         self.kinetic.append(observe.kinetic(model, state))
         self.carried.append(observe.momentum_scales(model, state))
         self.potentials.append(energy_watch.loads(model, state))
+        if self.dissipated is not None:
+            self.dissipated.append(observe.plastic_dissipation(model, state))
         self.frames += 1
-        energy_watch.check(model, state, self.energies, self.kinetic, self.potentials)
+        energy_watch.check(model, state, self.energies, self.kinetic, self.potentials, self.dissipated)
 
     def _expect(self, t):
         """Tell the writer the wall time left to ``until`` at the run's rate since its first frame."""
@@ -211,6 +214,7 @@ class Recorder:
         return {"energies": list(self.energies), "momenta": list(self.momenta),
                 "angular": list(self.angular), "carried": list(self.carried), "frames": self.frames,
                 "kinetic": list(self.kinetic), "potentials": list(self.potentials),
+                "dissipated": None if self.dissipated is None else list(self.dissipated),
                 "files": None if self.writer is None else self.writer.snapshot(),
                 "watched": None if self.watched is None else [w.snapshot() for w in self.watched]}
 
@@ -222,6 +226,8 @@ class Recorder:
         self.frames = snapshot["frames"]
         self.kinetic = list(snapshot.get("kinetic", [0.0] * len(self.energies)))
         self.potentials = list(snapshot.get("potentials", [0.0] * len(self.energies)))
+        kept = snapshot.get("dissipated")     # (a checkpoint that did not keep them: not counted)
+        self.dissipated = None if kept is None else list(kept)
         if self.watched is not None and snapshot.get("watched") is not None:
             for watcher, kept in zip(self.watched, snapshot["watched"]):
                 watcher.restore(kept)
