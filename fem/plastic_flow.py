@@ -403,14 +403,11 @@ def _flow(model, fields, dev, trace, flowed):
 
 
 def elastic_energy(model, state):
-    """Stored elastic energy (J) of a plastic body: ``1/2 sum w (eps - eps_p) : C : (eps - eps_p)``,
-    with the volumetric part of the elements that have flowed taken as their forces carry it
-    (:func:`committed_force`): ``1/2 K e e_bar`` for ``1/2 K e^2``, ``e`` the elastic strain's trace,
-    ``e_bar`` its patch average. Patch averaging is symmetric in the volume-weighted sum (each node
-    takes ``(sum_e V_e e_e)^2 / V_patch`` over the elements around it), so in a body that has
-    flowed throughout this is the energy whose gradient the forces are; with the pointwise ``K
-    e^2`` a bent steel beam's pressure locked in the plastic hinge counted 2.3x the energy its
-    unloading gave back."""
+    """Stored elastic energy (J) of a plastic body, ``1/2 sum w (eps - eps_p) : C : (eps - eps_p)``
+    with ``1/2 K e e_bar`` for ``1/2 K e^2`` in the elements that have flowed (``e`` the elastic
+    strain's trace, ``e_bar`` its patch average, :func:`committed_force`): patch averaging is
+    symmetric in the volume-weighted sum, so this is the energy whose gradient the forces are (a
+    bent steel beam's hinge pressure counted pointwise made it 2.3x too large)."""
     eps_e = quadrature_strain(model, state) - state.tet_plastic_strain
     sigma = elastic_stress(eps_e, 0.0, model.mu, model.lam)
     w = model.elements.tet_weights
