@@ -249,6 +249,8 @@ class Simulation:
             self.fem_time[name] = self.fem_time.get(name, 0.0) + h
         if model.fem:
             self.peaks.update(model, state)
+            self._said += self.peaks.said
+            self.peaks.said = []
             before = (model, start) if model.dt == self.model.dt else self._before
             self._said += [w.message for w in self.impacts.check(before, model, state)]
         self._stepped(model, state)
@@ -316,7 +318,7 @@ class Simulation:
             for line in ([] if saver.stopped is not None else
                          rigid_hints(self.model, self.peaks.strains, struck)
                          + frame_hints(self.model, self.peaks.strains, getattr(self, "spinning", {}),
-                                       self.peaks.turns)):
+                                       self.peaks.turns, self.peaks.inverted())):
                 log(line)
             recorder.close(result)
         if isinstance(failure, OutputFailure):

@@ -45,17 +45,20 @@ FLOATING_STRAIN = 0.05
 FLOATING_TURN = 0.32
 
 
-def frame_hints(model, strains, spinning=(), turns=None):
+def frame_hints(model, strains, spinning=(), turns=None, inverted=()):
     """Log lines suggesting ``frame = "corotated"`` for floating-frame bodies whose largest
     strain over every step (``strains``, as for :func:`hybrid.app.run.stepping`) passed FLOATING_STRAIN, or
     whose largest element turn in their frame (``turns``, rad, hybrid.app.peaks.Peaks.turns)
     passed FLOATING_TURN: linear elasticity in one best-fit frame (the world's for an anchored
     body) does not follow the large rotation of a part of the body; not for bodies named in
-    ``spinning`` (warned that their step turns them too far: the corotated frame would not help)."""
+    ``spinning`` (warned that their step turns them too far: the corotated frame would not help)
+    nor for those named in ``inverted`` (warned that elements of theirs turned inside out: no
+    frame holds that strain)."""
     turns, found = turns or {}, {}
     origin = model.fragment_of if model.fragment_of is not None else range(len(model.names))
     for body in model.scene.bodies:
-        if body.model not in ("fem", "auto") or body.frame != "floating" or body.name in spinning:
+        if body.model not in ("fem", "auto") or body.frame != "floating" or body.name in spinning \
+                or model.names[origin[model.names.index(body.name)]] in inverted:
             continue
         strain, turn = strains.get(body.name) or 0.0, turns.get(body.name, 0.0)
         if strain > FLOATING_STRAIN or turn > FLOATING_TURN:

@@ -11,6 +11,7 @@ reached; and per body (fragments by their own names) the largest elastic strain,
 import numba as nb
 import numpy as np
 
+from fem.mesh import tet_signed_volumes
 from fem.plasticity import elastic_stress
 from fem.stress import principal_stress_max
 from fem.rotations import element_rotations
@@ -19,6 +20,9 @@ QUANTITIES = ("von_mises", "principal_stress", "plastic_strain")
 # the symmetric strain's components (i, j), i <= j, in the rows of the strain operator
 _PAIRS = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
 _NO_PLASTIC = np.zeros((1, 6))
+# an element can only be turned inside out when its displacement gradient is of order one: its
+# corners' volumes are looked at in steps whose largest strain, turn or plastic strain passes this
+INVERSION_WATCH = 0.3
 
 
 class Peaks:
@@ -30,10 +34,14 @@ class Peaks:
     A body with a yield stress also has ``first_yield``: the first step that ended with an element
     flowing, its time and its largest element von Mises stress (the yield stress, to the return
     mapping's tolerance, for linear elements; at or below it for quadratic ones, whose element
-    stress is the mean of quadrature points that yield one by one; (0, 0) while none has)."""
+    stress is the mean of quadrature points that yield one by one; (0, 0) while none has). A body
+    some of whose elements were turned inside out has ``inverted_elements``: the most at once,
+    and when."""
 
     def __init__(self):
         self.bodies = {}
+        # warnings found in the last update, for the run log (the Simulation takes them)
+        self.said = []
         # per body stepped as FEM, by its own name: the largest element strain (elastic, Frobenius
         # norm) over every step, and the largest turn of an element in the body's frame (rad)
         self.strains, self.turns = {}, {}
@@ -50,8 +58,12 @@ class Peaks:
             e, vm, mean, turn = element_strains(m, s)
             _raise(peak, "von_mises", vm, state.time)
             own = model.names[int(k)]
-            self.strains[own] = max(self.strains.get(own, 0.0), largest_strain(m, vm, mean))
-            self.turns[own] = max(self.turns.get(own, 0.0), float(turn.max(initial=0.0)))
+            strain, turned = largest_strain(m, vm, mean), float(turn.max(initial=0.0))
+            self.strains[own] = max(self.strains.get(own, 0.0), strain)
+            self.turns[own] = max(self.turns.get(own, 0.0), turned)
+            flowed = float(s.tet_peeq.max(initial=0.0)) if s.tet_peeq is not None else 0.0
+            if max(strain, turned, flowed) > INVERSION_WATCH:
+                self._inverted(peak, name, m, s, strain, state.time)
             candidates = np.nonzero(mean + vm * (2.0 / 3.0) > peak["principal_stress"][0])[0]
             if len(candidates):
                 stress = elastic_stress(strain_tensors(e[candidates]), 0.0, m.mu, m.lam)
@@ -61,6 +73,28 @@ class Peaks:
                 # the first step that ends with an element flowing, and its largest von Mises
                 if peak.setdefault("first_yield", (0.0, 0.0))[1] == 0.0 and s.tet_yielded.any():
                     peak["first_yield"] = (float(vm.max(initial=0.0)), float(state.time))
+
+    def _inverted(self, peak, name, m, s, strain, time):
+        """Count the elements of body ``m`` (state ``s``; of scene body ``name``) turned inside
+        out (their corners' volume at or below zero) as the peak ``inverted_elements``; the first
+        time a body has any, say so in :attr:`said`."""
+        count = int(np.count_nonzero(tet_signed_volumes(s.x, m.elements.tet_nodes) <= 0.0))
+        if count == 0:
+            return
+        first = peak.setdefault("inverted_elements", (0.0, 0.0))[0] == 0.0
+        _raise(peak, "inverted_elements", np.array([float(count)]), time)
+        if first:
+            wave = float(np.sqrt(m.young / m.density))
+            self.said.append(
+                f"warning: t = {time:.6g} s: '{name}' has {count} of its {len(m.elements.tet_nodes)} "
+                f"elements turned inside out (largest strain {strain:.2g}): strained far beyond "
+                f"linear elasticity, it no longer keeps its shape, and bodies pressed into it may "
+                f"pass through it. Impacts near its wave speed sqrt(young / density) = {wave:.3g} m/s "
+                f"do this: make it stiffer or its impacts slower (docs/limits.md)")
+
+    def inverted(self):
+        """The scene bodies some of whose elements were turned inside out."""
+        return {name for name, peak in self.bodies.items() if peak.get("inverted_elements", (0.0,))[0] > 0}
 
     def as_dict(self):
         """The summary's ``peaks`` section: ``{body: {quantity: {"value": v, "time": t}}}``."""
