@@ -699,6 +699,17 @@ def test_a_scene_name_that_is_not_a_plain_name_is_refused(tmp_path, name):
     assert "[simulation]: field 'name' must be a plain name" in problem
 
 
+@pytest.mark.parametrize("name, size", [("x" * 201, 201), ("\u00e9" * 101, 202)])
+def test_a_scene_name_too_long_for_a_file_name_is_refused_counting_its_bytes(tmp_path, name, size):
+    """The name names <name>.pvd and its temporary copy: 300 letters passed validate and the run
+    ended in a traceback (file name too long), leaving an empty frames/ folder."""
+    text = "[simulation]\nname = " + json.dumps(name) + "\n" + BODY
+    problem = only_problem(write_scene(tmp_path, text))
+    assert "field 'name' must be at most 200 bytes long" in problem and f"got {size}" in problem
+    assert load_scene(write_scene(tmp_path, "[simulation]\nname = " + json.dumps("x" * 200) + "\n"
+                                  + BODY)).name == "x" * 200
+
+
 def test_a_body_name_with_a_line_break_is_refused(tmp_path):
     problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a\\nb"\nshape = { type = "sphere", radius = 0.1 }\n'))
     assert "field 'name' must have no control characters" in problem

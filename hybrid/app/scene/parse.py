@@ -83,10 +83,18 @@ def _parse_simulation(table, source, problems):
     values = read_table(table if isinstance(table, dict) else {}, SIMULATION, where, problems)
     if values["name"] is None:
         values["name"] = Path(source).stem
+        if len(values["name"].encode()) > NAME_BYTES:
+            problems.append(where.problem("name", f"is the file's name, {len(values['name'].encode())} "
+                                                  f"bytes, too long for the run's file names (at most "
+                                                  f"{NAME_BYTES}): give a shorter name here"))
     elif valid(values["name"]) and not _plain_name(values["name"]):
         problems.append(where.problem("name", f"must be a plain name (output goes to outputs/<name>/ "
                                               f"and <name>.pvd: no '/' or '\\', no leading '.', "
                                               f"no control characters), got {toml_text(values['name'])}"))
+    elif valid(values["name"]) and len(values["name"].encode()) > NAME_BYTES:
+        problems.append(where.problem("name", f"must be at most {NAME_BYTES} bytes long (it names the "
+                                              f"run's files, <name>.pvd and their temporary copies), "
+                                              f"got {len(values['name'].encode())}"))
     solver_table = values.pop("solver")
     solver_where = Where(source, "[simulation.solver]")
     solver_table = solver_table if isinstance(solver_table, dict) else {}
@@ -107,6 +115,11 @@ def _parse_plane(table, source, index, problems):
         length = math.hypot(*values["normal"])      # no squares: they underflow (1e-300) or overflow
         values["normal"] = tuple(c / length for c in values["normal"])
     return Plane(**values)
+
+
+# the longest scene name (bytes, UTF-8): it names the run's files, whose temporary copies add about
+# 40 bytes to it (hybrid.app.text_files.temporary_path), within a file system's 255
+NAME_BYTES = 200
 
 
 def _plain_name(name):

@@ -116,7 +116,7 @@ SOLVER = Section("simulation.solver", "[simulation.solver]", "Solver settings: t
 SIMULATION = Section("simulation", "[simulation]",
                      "Time stepping and global settings. The table is optional.", (
     Field("name", "string", None, "", "Scene name; output goes to `outputs/<name>/`: a plain "
-          "name (no `/` or `\\`, no leading `.`, no control characters).",
+          "name (no `/` or `\\`, no leading `.`, no control characters), at most 200 bytes long.",
           default_text="file name without extension"),
     _positive("duration", 2.0, "s", "Simulated time; a run takes the nearest whole number of "
               "steps of `dt` (the run log warns when that is not `duration` itself)."),
