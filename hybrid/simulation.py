@@ -22,7 +22,8 @@ from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.hints import frame_hints, rigid_hints
-from .app.run import Progress, Recorder, below_planes, forwarded, overlapping_bodies, summary
+from .app.run import (Progress, Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
+                      summary)
 from .app.scene import SceneError, load_scene
 from .app.scene.data import rechecked
 from .coupling.stability import OutputFailure, StepFailure
@@ -103,17 +104,6 @@ def _fast_spin(scene):
     return said
 
 
-def _ignored_motion(scene):
-    """Warnings for fixed bodies given a velocity or angular velocity, which they ignore."""
-    said = []
-    for b in scene.bodies:
-        given = [f for f in ("velocity", "angular_velocity") if b.fixed and np.any(getattr(b, f))]
-        if given:
-            said.append(f"body '{b.name}' is fixed: its {' and '.join(given)} "
-                        f"{'has' if len(given) == 1 else 'have'} no effect")
-    return said
-
-
 class Simulation:
     """A scene being simulated: ``Simulation(scene)`` builds its bodies (``scene``: a parsed
     scene, or a scene file's path or a built-in scene's name as :meth:`from_toml` takes; raises
@@ -153,7 +143,7 @@ class Simulation:
         self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
                           f"in its first step{'s' if name in self.model.rigid.names else ''}" for name, depth in below]
         self.spinning = _fast_spin(scene)
-        self.warnings += _ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
+        self.warnings += ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
         self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}
         # seconds each body was stepped as FEM, and seconds stepped (the summary's models section)
@@ -275,8 +265,9 @@ class Simulation:
         :class:`hybrid.app.checkpoint.Stopped`. Messages (warnings, events) go to ``log``.
         Returns the summary (a dict). On instability the frames so far and the summary are kept
         and the InstabilityError is raised again. ValueError for an ``until`` that is no time at
-        or after :attr:`time`, an ``out`` that is (or lies in) a file, or the folder this
-        simulation's last run wrote (a run into it again would replace that run's frames)."""
+        or after :attr:`time`, an ``out`` that is (or lies in) a file, the folder this simulation's
+        last run wrote (a run into it again would replace that run's frames) or one holding a
+        stopped run's checkpoint (it would be lost)."""
         out = self._checked_out(out)
         checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
@@ -343,6 +334,9 @@ class Simulation:
         if self.resumed is None and getattr(self, "_last_out", None) == out.resolve():
             raise ValueError(f"out {out}: this simulation's last run wrote there; a run from "
                              f"t = {self.time:.6g} s would replace its frames: give another folder")
+        if self.resumed is None and (out / "checkpoint.npz").exists():   # a stopped run's
+            raise ValueError(f"out {out} holds a run that did not finish (checkpoint.npz): "
+                             f"Simulation.resume continues it; delete the checkpoint to start again there")
         return out
 
     def _position(self, until):

@@ -298,6 +298,18 @@ def test_a_fresh_run_into_a_stopped_runs_folder_is_refused_and_keeps_its_checkpo
     assert code == 0, err
 
 
+def test_a_python_run_into_a_stopped_runs_folder_is_refused_and_keeps_its_checkpoint(capsys, stopped_quick):
+    """``Simulation.run(out=...)`` into a stopped run's folder removed its checkpoint without a
+    word, where ``hybrid run`` refuses; a resumed simulation still continues there."""
+    out, scene = stopped_quick
+    before = (out / "checkpoint.npz").read_bytes()
+    with pytest.raises(ValueError, match="holds a run that did not finish"):
+        Simulation.from_toml(scene).run(out=out, progress=False, log=lambda m: None)
+    assert (out / "checkpoint.npz").read_bytes() == before
+    assert Simulation.resume(scene, out).run(out=out, progress=False, log=lambda m: None)["status"] == "ok"
+    assert not (out / "checkpoint.npz").exists()
+
+
 def test_a_run_stopped_early_gives_no_rigid_hint(tmp_path):
     """A soft block stopped after its first step had not strained yet, and the log told it to be
     rigid; the hint waits for a run that ends."""

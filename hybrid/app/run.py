@@ -57,6 +57,17 @@ class Progress:
             self.stream.write("\n")
 
 
+def ignored_motion(scene):
+    """Warnings for fixed bodies given a velocity or angular velocity, which they ignore."""
+    said = []
+    for b in scene.bodies:
+        given = [f for f in ("velocity", "angular_velocity") if b.fixed and np.any(getattr(b, f))]
+        if given:
+            said.append(f"body '{b.name}' is fixed: its {' and '.join(given)} "
+                        f"{'has' if len(given) == 1 else 'have'} no effect")
+    return said
+
+
 def overlapping_bodies(model, state, tolerance=1e-4):
     """Pairs of bodies (names) that start interpenetrating by more than ``tolerance`` m: rigid
     bodies with each other, and deformable bodies' surface nodes inside rigid bodies."""
