@@ -96,6 +96,24 @@ position = [0.0, 0.0, %s]
     assert clear.warnings == []
 
 
+@pytest.mark.parametrize("shape, at, overlap", [
+    ('{ type = "box", size = [0.2, 0.2, 0.2] }', "0.5", True),          # one pose: vertex on vertex
+    ('{ type = "sphere", radius = 0.1 }', "0.5", True),
+    ('{ type = "box", size = [0.2, 0.2, 0.2] }', "0.7001", False)])    # face to face, apart
+def test_bodies_placed_at_one_pose_are_warned_of_as_overlapping(shape, at, overlap):
+    """Two bodies at the same pose meet only vertex to vertex, at no depth: they were not warned
+    of, and fell through each other; one whose centre lies inside itself and the other is."""
+    import tomllib
+    from pathlib import Path
+
+    from hybrid import Simulation
+    from hybrid.app.scene import parse_scene
+    sim = Simulation(parse_scene(tomllib.loads(
+        f'[[bodies]]\nname = "a"\nshape = {shape}\nposition = [0.0, 0.0, 0.5]\n'
+        f'[[bodies]]\nname = "b"\nshape = {shape}\nposition = [0.0, 0.0, {at}]\n'), "<test>", Path(".")))
+    assert sim.warnings == (["bodies 'a' and 'b' overlap at the start"] if overlap else [])
+
+
 def test_an_unexpected_error_in_a_step_ends_the_run_with_its_frames_and_summary(tmp_path, capsys,
                                                                                  monkeypatch):
     import json
