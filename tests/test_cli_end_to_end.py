@@ -239,10 +239,13 @@ def test_a_moving_anchor_run_does_not_quote_an_energy_drift(tmp_path):
     assert conservation["energy_relative_drift"] > 0.5          # the anchor's work, not an error
 
 
-def test_an_output_that_cannot_be_written_mid_run_is_said_so_not_unstable(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("writer", ["inline", "thread"])
+def test_an_output_that_cannot_be_written_mid_run_is_said_so_not_unstable(tmp_path, monkeypatch, capsys,
+                                                                          writer):
     """A full disk (or a folder made unwritable) during a run ended it as 'unstable: a step
     failed ... in hybrid.app.vtu.write_vtu', exit 3, as if the physics had diverged: it is the
-    output, exit 2, status failed, and the frames written before stay."""
+    output, exit 2, status failed, and the frames written before stay, counted as the summary's
+    frames (written off the stepping thread, the summary counted the frame that failed)."""
     from hybrid.app import output
     from hybrid.app.cli import main
     write = output.write_vtu
@@ -255,12 +258,13 @@ def test_an_output_that_cannot_be_written_mid_run_is_said_so_not_unstable(tmp_pa
         return write(path, *args, **kwargs)
 
     monkeypatch.setattr(output, "write_vtu", filling)
-    monkeypatch.setenv("HYBRID_WRITER", "inline")
+    monkeypatch.setenv("HYBRID_WRITER", writer)
     (tmp_path / "small.toml").write_text(SMALL_SCENE)
     code = main(["run", str(tmp_path / "small.toml"), "--out", str(tmp_path / "run"), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2, err
     assert "could not write the run's output" in err and "No space left on device" in err
     assert "unstable" not in err
-    assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "failed"
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["frames"] == 3
     assert len(list((tmp_path / "run" / "frames").glob("frame_*.vtu"))) == 3

@@ -19,6 +19,7 @@ from hybrid.coupling.stability import OutputFailure
 
 from . import energy_watch, observe
 from .output_resume import ResumableWriter
+from .run_files import FRAME_PATTERN
 
 
 class Progress:
@@ -253,6 +254,13 @@ class Recorder:
         if self.writer is not None and snapshot["files"] is not None:
             self.writer.resume(snapshot["files"])
 
+    def frames_on_disk(self):
+        """The frames counted that reached the disk: after a failed write (a full disk) the
+        count handed over is one or more ahead of the files."""
+        if self.writer is None or not self.writer.frames_dir.is_dir():
+            return self.frames
+        return min(self.frames, sum(1 for f in self.writer.frames_dir.iterdir() if FRAME_PATTERN.match(f.name)))
+
     def close(self, summary):
         """Write ``summary.json`` and close the tables (nothing without an output folder)."""
         if self.writer is not None:
@@ -352,7 +360,7 @@ def summary(scene, model, state, wall, recorder, failure, events, timings, fem_t
         "bodies": model.names,
         "simulated_time": state.time,
         "steps": state.steps,
-        "frames": recorder.frames,
+        "frames": recorder.frames_on_disk() if isinstance(failure, OutputFailure) else recorder.frames,
         "wall_time": wall,
         "steps_per_second": (state.steps - first_step) / wall if wall > 0 else None,
         "plastic_dissipation": observe.plastic_dissipation(model, state),
