@@ -710,6 +710,15 @@ def test_a_scene_name_too_long_for_a_file_name_is_refused_counting_its_bytes(tmp
                                   + BODY)).name == "x" * 200
 
 
+@pytest.mark.parametrize("text, expected", [
+    ('[simulation]\ngravity = [0, 0, -1e300]\n' + BODY, "field 'gravity' must be a list of 3 numbers in [-1e+08, 1e+08]"),
+    (BODY + 'model = "fem"\nyoung = 1e300\n', "field 'young' must be a number in (0, 1e+15]")])
+def test_gravity_and_stiffness_beyond_any_material_are_refused(tmp_path, text, expected):
+    """Gravity of 1e300 passed validate with numpy's overflow warnings, and young = 1e300 with
+    CHOLMOD's warning that the matrix was not positive definite (its entries overflowed)."""
+    assert expected in only_problem(write_scene(tmp_path, text))
+
+
 def test_a_body_name_with_a_line_break_is_refused(tmp_path):
     problem = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "a\\nb"\nshape = { type = "sphere", radius = 0.1 }\n'))
     assert "field 'name' must have no control characters" in problem

@@ -121,7 +121,8 @@ SIMULATION = Section("simulation", "[simulation]",
     _positive("duration", 2.0, "s", "Simulated time; a run takes the nearest whole number of "
               "steps of `dt` (the run log warns when that is not `duration` itself)."),
     _positive("dt", 0.001, "s", "Time step."),
-    Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame)."),
+    Field("gravity", "vector", (0.0, 0.0, -9.81), "m/s^2", "Gravitational acceleration (world frame).",
+          low=-1e8, high=1e8),
     _positive("output_fps", 60.0, "1/s", "Frames written per simulated second, each at the first "
               "step at or after its time; the first at the start and one at the end."),
     Field("resolve_impacts", "boolean", False, "", "Take a step in which an impact on a "
@@ -264,7 +265,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
                    "take none: a rigid ball on a stiff, coarsely meshed one rebounds far less than "
                    "this ([limits.md](limits.md))."),
     Field("fixed", "boolean", False, "", "Immovable (infinite mass). Rigid bodies only: a deformable body is held by `[[bodies.anchors]]`."),
-    _positive("young", None, "Pa", "Young's modulus.", fem=True, default_text="required for FEM"),
+    Field("young", "number", None, "Pa", "Young's modulus (at most 1e15 Pa, a thousand times "
+          "diamond's).", low=0.0, low_open=True, high=1e15, fem=True, default_text="required for FEM"),
     Field("poisson", "number", 0.3, "", "Poisson's ratio.", low=-1.0, high=0.5, low_open=True,
           high_open=True, fem=True),
     Field("damping", "table", None, "", "Rayleigh damping, see `damping = { ... }`.", table="bodies.damping",
