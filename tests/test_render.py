@@ -189,6 +189,23 @@ def test_render_refuses_a_size_it_cannot_draw(tmp_path, capfd):
     assert (run_dir / "render" / "frame_0000.png").read_bytes() == b"earlier"
 
 
+@pytest.mark.parametrize("summary", ["missing", "stopped"])
+def test_an_unfinished_run_is_rendered_with_a_note_saying_so(tmp_path, capfd, summary):
+    """A killed run (no summary.json) or a stopped one rendered as if finished, without a word."""
+    import json
+    from hybrid.app.cli import main
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    if summary == "missing":
+        (run_dir / "summary.json").unlink()
+    else:
+        (run_dir / "summary.json").write_text(json.dumps({"status": "stopped"}))
+    assert main(["render", str(run_dir), "--size", "64", "48"]) == 0
+    err = capfd.readouterr().err
+    said = "no summary.json" if summary == "missing" else "ended with status 'stopped'"
+    assert f"note: {run_dir}: its run" in err and said in err and "rendering the 2 frames" in err
+
+
 @pytest.mark.parametrize("damage", ["index", "render folder"])
 def test_a_damaged_index_or_a_file_where_the_render_goes_is_an_exit_2_error(tmp_path, capfd, damage):
     from hybrid.app.cli import main

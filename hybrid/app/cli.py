@@ -219,6 +219,19 @@ def _seconds(text):
     return value
 
 
+def _unfinished(run_dir):
+    """Why the run in ``run_dir`` did not finish (no summary: it runs still, or was stopped or
+    killed; or the summary's status), or None when it did."""
+    import json
+    try:
+        status = json.loads((run_dir / "summary.json").read_text()).get("status")
+    except FileNotFoundError:
+        return "its run has no summary.json: it is still running, or was stopped or killed"
+    except (OSError, ValueError, AttributeError):
+        return "its summary.json cannot be read"
+    return None if status in ("ok", None) else f"its run ended with status '{status}'"
+
+
 def _render(args):
     from xml.etree.ElementTree import ParseError
     from .run_files import read_run
@@ -236,8 +249,13 @@ def _render(args):
     if not frames:
         print(f"{run_dir}: no frames to render", file=sys.stderr)
         return 2
+    unfinished = _unfinished(run_dir)
+    if unfinished:
+        print(f"note: {run_dir}: {unfinished}; rendering the {len(frames)} frames written "
+              f"(to t = {times[-1]:.6g} s)", file=sys.stderr)
 
     tty = sys.stderr.isatty()
+    end = "\n" if tty else ""          # ends the progress line a terminal rewrites
 
     def progress(done, total):
         # on a terminal one line rewritten; in a log one line per tenth of the frames
@@ -250,15 +268,15 @@ def _render(args):
         result = render_run(run_dir, size=tuple(args.size), field=args.field, progress=progress,
                             colour_range=args.range)
     except RuntimeError as err:
-        print(f"\n{err}", file=sys.stderr)
+        print(f"{end}{err}", file=sys.stderr)
         return 4
     except ValueError as err:
-        print(f"\n{run_dir}: {err}", file=sys.stderr)
+        print(f"{end}{run_dir}: {err}", file=sys.stderr)
         return 2
     except OSError as err:              # its render folder a file, or not writable
-        print(f"\n{run_dir}: cannot write the render ({err})", file=sys.stderr)
+        print(f"{end}{run_dir}: cannot write the render ({err})", file=sys.stderr)
         return 2
-    print(f"\nwrote {len(result['pngs'])} PNG frames and {result['movie']}")
+    print(f"{end}wrote {len(result['pngs'])} PNG frames and {result['movie']}")
     return 0
 
 
