@@ -266,6 +266,9 @@ def test_an_empty_mesh_file_is_said_to_be_empty(tmp_path):
     (tmp_path / "comments.obj").write_text("# nothing but a comment\n")
     message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "comments.obj"\n'))
     assert message.endswith("the file holds no points"), message
+    meshio.write(tmp_path / "none.vtu", meshio.Mesh(np.zeros((0, 3)), [("tetra", np.zeros((0, 4), int))]))
+    message = only_problem(write_scene(tmp_path, '[[bodies]]\nname = "m"\nmesh = "none.vtu"\n'))
+    assert message.endswith("the file holds no points or cells"), message
 
 
 def test_open_mesh_reports_its_boundary_edges(tmp_path):

@@ -80,6 +80,8 @@ def read_mesh(path):
         lines = [line.strip() for line in (str(error), printed.getvalue()) if line.strip()]
         lines = [line for line in lines if line not in ("0", "1")]
         detail = lines[0].splitlines()[0] if lines else "unknown format or corrupt file"
+        if detail == "need at least one array to concatenate":     # (meshio, of an empty mesh)
+            raise MeshError(path, "the file holds no points or cells") from None
         raise MeshError(path, f"cannot read mesh ({detail})") from None
     points = np.asarray(mesh.points, dtype=float)
     if points.size == 0:
