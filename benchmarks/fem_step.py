@@ -305,6 +305,8 @@ def _stage_names():
     from hybrid.coupling import solve as coupling_solve
     from hybrid.coupling import step as coupling_step
     from rigid import step as rigid_step
+    from hybrid.app.peaks import Peaks
+    from hybrid.app.resolution import ImpactWatch
     return (("back-substitution", fem_solver.Factorisation, "solve"),
             ("predict (with it)", coupling_step.fem_dyn, "predict"),
             ("surface nodes", coupling_step.SurfaceNodes, "of"),
@@ -317,7 +319,10 @@ def _stage_names():
             ("resting watch", coupling_step.held, "watch"),
             ("finiteness check", coupling_step, "check_finite"),
             ("events", coupling_step, "between_steps"),
-            ("coupled_step", coupling_step, "coupled_step"))
+            ("coupled_step", coupling_step, "coupled_step"),
+            # what Simulation.step adds to the coupled step: the run's watches
+            ("run's peaks (Simulation.step)", Peaks, "update"),
+            ("run's impact check (Simulation.step)", ImpactWatch, "check"))
 
 
 def stage_us(sim, steps):

@@ -705,3 +705,20 @@ def test_an_anchored_beam_let_go_straight_turns_rigid_only_once_its_anchors_hold
     sag = {name: float(np.mean(s.body("beam").points[tip, 2] - m.rest_points[tip, 2]))
            for name, s in runs.items()}
     assert abs(sag["auto"] - sag["fem"]) < 0.025 * abs(sag["fem"])
+
+
+@pytest.mark.parametrize("extra, why", [
+    ('[[bodies.loads]]\nbox = [[-1, -1, -1], [1, 1, 1]]\nforce = [0.0, 0.0, 1.0]\n', "carries loads"),
+    ('[[bodies.anchors]]\nbox = [[-1, -1, -1], [1, 1, -0.049]]\nvelocity = [0.0, 0.0, 0.01]\n',
+     "anchors move"),
+    ('damping = { mass = 1.0 }\n', "mass damping")])
+def test_an_auto_body_that_can_never_be_rigid_is_warned_of(sim, extra, why):
+    """A free auto body with loads or mass damping, or one whose anchors move, is never made
+    rigid (hybrid.coupling.auto.may_be_rigid): it ran as FEM with the checks' cost, unsaid."""
+    s = sim('[[bodies]]\nname = "b"\nmodel = "auto"\nyoung = 1e6\n'
+            'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n' + extra)
+    said = [w for w in s.warnings if "never makes it rigid" in w]
+    assert len(said) == 1 and why in said[0] and "'b'" in said[0]
+    plain = sim('[[bodies]]\nname = "b"\nmodel = "auto"\nyoung = 1e6\n'
+                'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    assert not any("never makes it rigid" in w for w in plain.warnings)

@@ -212,7 +212,9 @@ def material_warnings(model):
     """Warnings for FEM or auto bodies of a model just built whose strength cannot act as meant:
     a yield or fracture strain past LARGE_MATERIAL_STRAIN (never reached in the strains linear
     elasticity holds for), or a strength below the stress its own weight makes across its height
-    along gravity, ``density |g| h`` (it yields or cracks as it rests)."""
+    along gravity, ``density |g| h`` (it yields or cracks as it rests); and auto bodies that can
+    never be made rigid (hybrid.coupling.auto.may_be_rigid)."""
+    from hybrid.coupling.auto import may_be_rigid
     said, g, fem = [], float(np.linalg.norm(model.gravity)), _fem_models(model)
     for k, body in enumerate(model.scene.bodies):
         m = fem.get(k)
@@ -233,6 +235,13 @@ def material_warnings(model):
                 said.append(f"body '{body.name}': {field} {stress:.3g} Pa is below the stress its "
                             f"own weight makes across its height (density g h = {weight:.3g} Pa): "
                             f"it {done} under its own weight wherever it rests or hangs")
+        if body.model == "auto" and not may_be_rigid(m):
+            why = ("its anchors move" if m.has_anchors else "it carries loads (a rigid body carries no "
+                   "applied force)" if np.any(m.load_force) else "it has mass damping, which would "
+                   "slow its rigid motion too")
+            said.append(f"body '{body.name}': model = \"auto\" never makes it rigid, as {why}: it is "
+                        f"stepped as FEM throughout, with the auto checks' cost (docs/auto.md); "
+                        f"model = \"fem\" says so")
     return said
 
 

@@ -212,8 +212,10 @@ def _parse_auto(table, values, given, where, problems):
     low, high = out["rigidify_strain"], out["elastify_strain"]
     if valid(low, high) and high <= low:
         default = "" if "elastify_strain" in table else " (the default)"
+        low_default = "" if "rigidify_strain" in table else ", the default"
         problems.append(where.nested("auto").problem(
-            "elastify_strain", f"must exceed rigidify_strain ({toml_text(low)}), got {toml_text(high)}{default}"))
+            "elastify_strain", f"must exceed rigidify_strain ({toml_text(low)}{low_default}), got "
+                               f"{toml_text(high)}{default}"))
         return Auto()
     return Auto(**out) if all(valid(v) for v in out.values()) else Auto()
 
