@@ -486,9 +486,10 @@ def report(rows, args):
     if staged:
         print("\nstages of the coupled step (us, medians, wall; each step after reading "
               f"{COLD_BYTES // 2 ** 20} MB of other memory; predict includes the back-substitution)")
-        print(f"{'stage':>20} " + " ".join(f"{str(r['tets']) + ' ' + r['support']:>16}" for r in staged))
+        width = max(len(label) for label in staged[0]["stages"])
+        print(f"{'stage':>{width}} " + " ".join(f"{str(r['tets']) + ' ' + r['support']:>16}" for r in staged))
         for label in staged[0]["stages"]:
-            print(f"{label:>20} " + " ".join(f"{r['stages'][label]:>16.0f}" for r in staged))
+            print(f"{label:>{width}} " + " ".join(f"{r['stages'][label]:>16.0f}" for r in staged))
     print()
     for line in goals(rows):
         print(line)
