@@ -14,7 +14,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .model import POINT_FEM_ONLY, POINT_RING, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_SPHERE
+from .model import POINT_FEM_ONLY, POINT_RING, SHAPE_BOX, SHAPE_CAPSULE, SHAPE_GRID, SHAPE_SPHERE
 from .sdf_kernels import box_sdf, shape_sdf
 
 
@@ -221,10 +221,12 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_s
                 if point_kind[k] == POINT_FEM_ONLY:
                     continue
                 px, py, pz = _point_world(Ra, xa, point_local, k)
-                if kind == SHAPE_BOX:
-                    # a box lies inside its bounding sphere, so its distance from a point is at
-                    # least the distance beyond that sphere: points farther than the reach from
-                    # it (with their radii, and a micrometre for round-off) touch nothing
+                if kind == SHAPE_BOX or kind == SHAPE_GRID:
+                    # a box or a mesh lies inside its bounding sphere (its contact points' about
+                    # its centre, which hold its corners or its hull's vertices), so its distance
+                    # from a point is at least the distance beyond that sphere: points farther than
+                    # the reach from it (with their radii, and a micrometre for round-off) touch
+                    # nothing (a mesh's 1,154 vertices were each looked up in its neighbours' grids)
                     dx, dy, dz = px - xb[0], py - xb[1], pz - xb[2]
                     far = body_radius[b] + reach + point_radius[k] + point_ring[k] + 1e-6
                     if dx * dx + dy * dy + dz * dz > far * far:
