@@ -222,11 +222,9 @@ def _pair_contacts(pairs, position, rotation, sweep, fixed, body_radius, point_s
                     continue
                 px, py, pz = _point_world(Ra, xa, point_local, k)
                 if kind == SHAPE_BOX or kind == SHAPE_GRID:
-                    # a box or a mesh lies inside its bounding sphere (its contact points' about
-                    # its centre, which hold its corners or its hull's vertices), so its distance
-                    # from a point is at least the distance beyond that sphere: points farther than
-                    # the reach from it (with their radii, and a micrometre for round-off) touch
-                    # nothing (a mesh's 1,154 vertices were each looked up in its neighbours' grids)
+                    # a box or a mesh lies inside its bounding sphere (about its centre, through its
+                    # corners or hull vertices): points farther than the reach from that sphere
+                    # (with their radii, and a micrometre for round-off) touch nothing
                     dx, dy, dz = px - xb[0], py - xb[1], pz - xb[2]
                     far = body_radius[b] + reach + point_radius[k] + point_ring[k] + 1e-6
                     if dx * dx + dy * dy + dz * dz > far * far:
