@@ -69,8 +69,10 @@ class _Body:
     point_axis: np.ndarray = None      # their axis, shape frame
 
 
-def _geometry(desc):
-    """Surface, signed-distance kind and contact points of one body, in its shape frame."""
+def _geometry(desc, grids=None):
+    """Surface, signed-distance kind and contact points of one body, in its shape frame.
+    ``grids``: distance grids built so far, by surface and cell, shared by bodies of one mesh (a
+    dict this fills)."""
     if desc.shape is not None:
         vertices, triangles = make_shape(desc.shape)
         kind = desc.shape["type"]
@@ -103,7 +105,12 @@ def _geometry(desc):
         return _cylinder_rings(_Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius), r)
     else:
         cell = None if desc.grid_cells is None else float(np.ptp(vertices, axis=0).max()) / desc.grid_cells
-        grid = SignedDistanceGrid.build(vertices, triangles, cell_size=cell)
+        key = (vertices.tobytes(), triangles.tobytes(), cell)
+        grid = None if grids is None else grids.get(key)
+        if grid is None:        # (200 bodies of one mesh file took 30 s to build, a grid each)
+            grid = SignedDistanceGrid.build(vertices, triangles, cell_size=cell)
+            if grids is not None:
+                grids[key] = grid
     body = _Body(vertices, triangles, SHAPE_CODES[kind], params, points, radius, grid)
     if desc.fem_contact_points is not None:
         more = np.asarray(desc.fem_contact_points, float).reshape(-1, 3)
@@ -135,7 +142,8 @@ def _cylinder_rings(body, r):
 
 def build_rigid(bodies, planes):
     """RigidModel and initial RigidState from lists of RigidBodyDesc and PlaneDesc."""
-    geo = [_geometry(d) for d in bodies]
+    grids = {}
+    geo = [_geometry(d, grids) for d in bodies]
     b = len(bodies)
     mass, inertia, axes, com = _principal_frames(bodies, geo)
     fixed = np.array([d.fixed for d in bodies], dtype=bool)
@@ -224,9 +232,14 @@ def _contact_points(geo, axes, local_points):
 
 def _grids(geo):
     """RigidModel's grid_index and flat grid_* fields for the bodies whose distance is a grid."""
-    grids = [g.grid for g in geo if g.grid is not None]
+    grids, index_of = [], {}            # a grid shared by several bodies is stored once
     grid_index = np.full(len(geo), -1, dtype=np.int64)
-    grid_index[[i for i, g in enumerate(geo) if g.grid is not None]] = np.arange(len(grids))
+    for i, g in enumerate(geo):
+        if g.grid is not None:
+            if id(g.grid) not in index_of:
+                index_of[id(g.grid)] = len(grids)
+                grids.append(g.grid)
+            grid_index[i] = index_of[id(g.grid)]
     if not grids:
         return dict(grid_index=grid_index, grid_values=np.zeros(1), grid_start=np.zeros(1, np.int64),
                     grid_shape=np.ones((1, 3), np.int64), grid_origin=np.zeros((1, 3)),

@@ -7,6 +7,7 @@ Conventions (as in :mod:`rigid.trimesh`): vertices ``(n, 3)`` float64 in m, tria
 tets ``(t, 4)`` or ``(t, 10)`` int64, surfaces oriented outward, tets with positive volume.
 """
 import contextlib
+import functools
 import io
 import warnings
 from pathlib import Path
@@ -173,10 +174,40 @@ def load_surface(path):
 
     Reads any format meshio reads; see :func:`surface_from_mesh` for which cells are used.
     Raises MeshError naming the file when the file is missing or unreadable, or the surface unusable.
+    A file read before (unchanged since: same size and modification time) is not read again,
+    and its warnings are given again (200 bodies of one file read it 400 times, 20 s of a build).
     """
-    mesh = read_mesh(path)
-    _large(mesh.points, path)
-    return surface_from_mesh(mesh, Path(path))
+    try:
+        stat = Path(path).stat()
+        key = (str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
+    except OSError:                     # (read_mesh says what is wrong with it)
+        key = None
+    if key is None:
+        return _read_surface(path)[:2]
+    vertices, triangles, said = _cached_surface(*key, str(path))
+    for message in said:
+        warnings.warn(message, MeshWarning, stacklevel=2)
+    return vertices.copy(), triangles.copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_surface(_resolved, _modified, _size, path):
+    """:func:`_read_surface` of ``path``, kept by its resolved path, modification time and size."""
+    return _read_surface(path)
+
+
+def _read_surface(path):
+    """``(vertices, triangles, warnings' messages)`` of the surface file ``path``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeshWarning)
+        mesh = read_mesh(path)
+        _large(mesh.points, path)
+        vertices, triangles = surface_from_mesh(mesh, Path(path))
+    said = tuple(str(w.message) for w in caught if issubclass(w.category, MeshWarning))
+    for w in caught:
+        if not issubclass(w.category, MeshWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return vertices, triangles, said
 
 
 # a mesh spanning more than this (m) is said to be large: its units may be millimetres

@@ -303,9 +303,11 @@ def _check_mesh(written, resolved, model, where, problems):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", geometry.MeshWarning)
-            mesh = geometry.read_mesh(resolved)
             if model in FEM_MODELS:
+                mesh = geometry.read_mesh(resolved)
                 geometry.tets_from_mesh(mesh, resolved)
-            geometry.surface_from_mesh(mesh, resolved)
+                geometry.surface_from_mesh(mesh, resolved)
+            else:                       # (read once for the bodies of one file)
+                geometry.load_surface(resolved)
     except geometry.MeshError as error:
         problems.append(where.problem("mesh", f"= \"{written}\" (resolved to {resolved}): {error.reason}"))
