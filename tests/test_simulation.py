@@ -312,6 +312,28 @@ def test_a_body_reports_its_mass_and_the_progress_of_a_log_ends_once():
     assert sum(line.startswith("100.0%") for line in lines) == 1
 
 
+def test_the_progress_rate_and_time_left_follow_the_recent_steps(monkeypatch):
+    """A rigid pile that slows as it lands showed its fast start's rate to the end (57.9 steps/s
+    at 10%, 18.1 at the end), and no time left: both come from the last 5-10 s of wall time."""
+    import io
+    from hybrid.app import run
+    now = [0.0]
+    monkeypatch.setattr(run.clock, "perf_counter", lambda: now[0])
+    stream = io.StringIO()
+    bar = run.Progress(100.0, stream=stream)
+    steps = 0
+    for second in range(1, 61):          # 100 steps (1 simulated s) per wall s, then 10 (0.1 s)
+        now[0] = float(second)
+        steps += 100 if second <= 30 else 10
+        t = second if second <= 30 else 30 + 0.1 * (second - 30)
+        bar.update(t, steps, force=True)
+    last = stream.getvalue().splitlines()[-1]
+    rate, left = last.split("steps/s")[0].split()[-1], last.split("steps/s")[1].split()[0]
+    assert float(rate) == pytest.approx(10.0)
+    minutes, seconds = (int(v) for v in left.split(":"))
+    assert 60 * minutes + seconds == pytest.approx((100.0 - 33.0) / 0.1, abs=1)
+
+
 def test_what_is_no_scene_is_refused_saying_what_a_simulation_is_built_from():
     """None or a dict raised an AttributeError from deep inside; TOML text given as a path was
     echoed whole as an unknown built-in scene's name."""
