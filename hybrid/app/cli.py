@@ -118,7 +118,7 @@ def _run(args):
             return _rejected(path, err)
         print(f"{path}: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:           # Ctrl-C while building: nothing is written
+    except BaseException:               # Ctrl-C or SIGTERM while building: nothing is written
         _remove_folders(created)
         raise
     print(f"{'resuming' if args.resume else 'running'} '{scene.name}' ({len(scene.bodies)} bodies, "
