@@ -67,7 +67,6 @@ CHOLMOD), so e.g. ``--sizes 50000 --steps 15 --warmup 100 --naive-steps 1 --back
 --frames floating --no-plastic`` (20 warm-up steps are not enough there: the bottom face is not held yet).
 """
 import argparse
-import csv
 import math
 import os
 import time
