@@ -311,7 +311,7 @@ class Simulation:
                          + frame_hints(self.model, self.peaks.strains, getattr(self, "spinning", {}),
                                        self.peaks.turns, self.peaks.inverted())):
                 log(line)
-            recorder.close(result)
+            failure = recorder.close(result) or failure
         if isinstance(failure, OutputFailure):
             raise failure               # (its checkpoint kept: resumed once there is room)
         if saver.stopped is not None:

@@ -268,3 +268,25 @@ def test_an_output_that_cannot_be_written_mid_run_is_said_so_not_unstable(tmp_pa
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "failed" and summary["frames"] == 3
     assert len(list((tmp_path / "run" / "frames").glob("frame_*.vtu"))) == 3
+
+
+def test_a_write_that_fails_as_the_files_close_is_an_output_failure_with_its_summary(tmp_path, monkeypatch,
+                                                                                      capsys):
+    """Written off the stepping thread, the last frames' failed write can be found only as the
+    files close, after the steps: it escaped as an OSError traceback (exit 1) with no summary."""
+    from hybrid.app import output
+    from hybrid.app.cli import main
+    close = output.RunWriter.close
+
+    def full(self, summary=None):
+        close(self, None)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(output.RunWriter, "close", full)
+    (tmp_path / "small.toml").write_text(SMALL_SCENE)
+    code = main(["run", str(tmp_path / "small.toml"), "--out", str(tmp_path / "run"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "could not write the run's output" in err and "Traceback" not in err, err
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == "failed" and "No space left" in summary["error"]
+    assert summary["frames"] == len(list((tmp_path / "run" / "frames").glob("frame_*.vtu")))

@@ -261,11 +261,17 @@ class RunWriter:
             else:
                 self.flush()
             if summary is not None:
-                self._start()
-                text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
-                _atomic_write_text(self.out_dir / SUMMARY_JSON, text)
+                self.write_summary(summary)
         finally:
             self._end()
+
+    def write_summary(self, summary: Mapping[str, Any]) -> None:
+        """Write ``summary.json`` (atomically), also once closed by a failed write (the run's
+        folder then holds the frames written before it)."""
+        if not (self._closed and self._started):
+            self._start()
+        text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
+        _atomic_write_text(self.out_dir / SUMMARY_JSON, text)
 
     # -- the writer: here, on a thread, or in a process ----------------------------------
     def _submit(self, job: tuple) -> None:

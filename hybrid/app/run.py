@@ -8,6 +8,7 @@ import logging
 import math
 import sys
 import time as clock
+import contextlib
 from contextlib import contextmanager
 
 import numpy as np
@@ -279,9 +280,20 @@ class Recorder:
         return min(self.frames, sum(1 for f in self.writer.frames_dir.iterdir() if FRAME_PATTERN.match(f.name)))
 
     def close(self, summary):
-        """Write ``summary.json`` and close the tables (nothing without an output folder)."""
-        if self.writer is not None:
+        """Write ``summary.json`` and close the tables (nothing without an output folder). A write
+        that failed after the last step (found as the files close) is an OutputFailure, returned
+        with the summary written as the failed run's; else None."""
+        if self.writer is None:
+            return None
+        try:
             self.writer.close(summary)
+        except OSError as error:
+            failure = OutputFailure(summary["simulated_time"], error)
+            summary.update(status="failed", error=str(failure), frames=self.frames_on_disk())
+            with contextlib.suppress(OSError):      # (a full disk may take no summary either)
+                self.writer.write_summary(summary)
+            return failure
+        return None
 
     def conservation(self, model):
         """The summary's conservation section: drifts of energy and momenta over the frames."""
