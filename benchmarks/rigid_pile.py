@@ -17,7 +17,6 @@ ratio); writes outputs/bench/rigid_pile.csv.
 """
 import argparse
 import cProfile
-import csv
 import io
 import math
 import os

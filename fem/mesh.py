@@ -5,7 +5,6 @@ Conventions: points ``(n, 3)`` float64 in metres; linear tets ``(t, 4)`` int64, 
 vertices, then the midside nodes of edges 01, 12, 02, 03, 13, 23.
 """
 import numpy as np
-import skfem
 
 from rigid.trimesh import is_closed
 

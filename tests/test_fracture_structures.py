@@ -7,7 +7,7 @@ import pytest
 
 from fem.split import tet_slot_faces
 from hybrid.app.build import build
-from hybrid.coupling.events import apply_fracture, between_steps, fragment_of
+from hybrid.coupling.events import apply_fracture, fragment_of
 from hybrid.app.observe import region_rows, totals
 from hybrid.app.scene import parse_scene
 from hybrid.coupling.step import step

@@ -8,7 +8,6 @@ Hypothesis profiles: "ci" (default, 300 examples, derandomised) and "bench"
 (``HYPOTHESIS_PROFILE=bench``, 3000 random examples; ``python benchmarks/scene_fuzz.py`` runs it).
 The plain tests at the end are the crashes the fuzzing found, one per root cause."""
 import datetime
-import io
 import json
 import math
 import os

@@ -12,7 +12,6 @@ import os
 import signal
 import subprocess
 import sys
-from typing import Sequence
 
 INSTALL_HINT = ("install an off-screen OpenGL library: "
                 "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri (or libosmesa6)")
