@@ -44,8 +44,8 @@ def run_variant(scene_file, out_dir):
     from ..simulation import Simulation
     start = clock.perf_counter()
     try:
-        summary = Simulation.from_toml(scene_file).run(out=out_dir, progress=False,
-                                                       log=lambda message: None)
+        summary = _run_to_make(Simulation, scene_file, out_dir).run(out=out_dir, progress=False,
+                                                                   log=lambda message: None)
         status, error = summary["status"], summary["error"]
         return {"status": status, "error": error, "wall_s": summary["wall_time"]}
     except InstabilityError as failure:     # (or its output could not be written: failed)
@@ -58,6 +58,21 @@ def run_variant(scene_file, out_dir):
         except OSError:                 # the folder unseen from here: the error itself is what counts
             pass
     return {"status": status, "error": error, "wall_s": clock.perf_counter() - start}
+
+
+def _run_to_make(Simulation, scene_file, out_dir):
+    """The variant's run: continued from the checkpoint a stopped study left in ``out_dir`` (the
+    run then ends in the files it would have written unstopped), else from the start; a
+    checkpoint that cannot be continued (of an older scene text, or its folder damaged) is
+    removed first (a run folder holding one is refused, ``Simulation.run``)."""
+    from .checkpoint import CheckpointError
+    saved = Path(out_dir, "checkpoint.npz")
+    if saved.exists():
+        try:
+            return Simulation.resume(scene_file, out_dir)
+        except CheckpointError:
+            saved.unlink(missing_ok=True)
+    return Simulation.from_toml(scene_file)
 
 
 def finished(run_dir, scene_text, scene_name):
