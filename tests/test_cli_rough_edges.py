@@ -348,3 +348,18 @@ def test_a_run_of_a_vanishingly_small_step_ends_with_its_summary(tmp_path, capsy
                      'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nposition = [0, 0, 0.05]\n')
     assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--quiet"]) == 0, capsys.readouterr().err
     assert (tmp_path / "out" / "summary.json").exists()
+
+
+def test_a_deformable_body_spun_past_the_limits_is_refused_naming_its_angular_velocity(tmp_path, capsys):
+    """A deformable bar given only an angular velocity whose nodes start at 2e4 m/s was refused
+    naming field 'velocity', which it does not have: the field is the one that gives the speed."""
+    scene = tmp_path / "spun.toml"
+    scene.write_text('[simulation]\nduration = 0.002\ngravity = [0, 0, 0]\n[[bodies]]\nname = "bar"\n'
+                     'model = "fem"\nyoung = 7e10\nshape = { type = "box", size = [0.2, 0.02, 0.02], '
+                     'resolution = 0.02 }\nangular_velocity = [0, 0, 2e5]\n')
+    assert main(["validate", str(scene)]) == 2
+    assert "field 'angular_velocity' starts it at a node speed of 2" in capsys.readouterr().err
+    scene.write_text(scene.read_text().replace("angular_velocity = [0, 0, 2e5]",
+                                               "velocity = [2e4, 0, 0]"))
+    assert main(["validate", str(scene)]) == 2
+    assert "field 'velocity' starts it at a speed of 2e+04 m/s" in capsys.readouterr().err

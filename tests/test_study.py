@@ -101,6 +101,7 @@ def test_a_rerun_keeps_finished_runs_and_reruns_the_interrupted_one(study):
     ("simulation.dt=0.01,-1", "dt"),
     ("planes.3.friction=0.1", "planes"),
     ("restitution=0.1", "restitution"),
+    ("bodies.ball.velocity=0;0;-5,[0,0,-1e5]", "field 'velocity' starts it at a speed of 1e+05 m/s"),
 ])
 def test_a_bad_set_is_an_exit_2_error_naming_the_key_and_nothing_runs(tmp_path, capsys, setting, named):
     scene = tmp_path / "drop.toml"
@@ -475,3 +476,32 @@ def test_a_run_that_ended_as_ctrl_c_came_is_tabled_ok(tmp_path, monkeypatch):
     table = list(csv.DictReader(open(tmp_path / "out" / "results.csv")))
     assert [t["status"] for t in table] == ["ok", "ok"]
     assert all(t["ball.z"] != "" for t in table)
+
+
+@pytest.mark.parametrize("scene_changed", [False, True])
+def test_a_run_a_stop_left_a_checkpoint_goes_on_from_it_in_a_rerun(tmp_path, scene_changed):
+    """A study run stopped after its first 10 s of wall time leaves a checkpoint, and every rerun
+    of the study failed it ("holds a run that did not finish"): a rerun continues it to the files
+    an unstopped run writes, or, its checkpoint being of another scene text, runs it anew."""
+    from hybrid import Simulation
+    from hybrid.app import checkpoint
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    setting = ["bodies.ball.restitution=0.5"]
+    whole = sweep(scene, setting, out=tmp_path / "whole", workers=1)[0]
+    folder = tmp_path / "out" / "runs" / whole["id"]
+    folder.mkdir(parents=True)
+    variant = folder / "drop.toml"
+    text = (Path(whole["folder"]) / "drop.toml").read_text()
+    variant.write_text(text.replace("0.3]", "0.4]") if scene_changed else text)
+    request = checkpoint.StopRequest()
+    request.set()
+    with pytest.raises(checkpoint.Stopped):
+        Simulation.from_toml(variant).run(out=folder, progress=False, log=lambda m: None, stop=request)
+    assert (folder / "checkpoint.npz").is_file()
+    again = sweep(scene, setting, out=tmp_path / "out", workers=1)[0]
+    assert again["status"] == "ok", again["error"]
+    assert not (folder / "checkpoint.npz").exists()
+    assert (folder / "bodies.csv").read_bytes() == (Path(whole["folder"]) / "bodies.csv").read_bytes()
+    assert json.loads((folder / "summary.json").read_text())["steps"] == \
+        json.loads((Path(whole["folder"]) / "summary.json").read_text())["steps"]

@@ -97,7 +97,8 @@ def beyond_limits(model, state):
     """``(body name, scene field, quantity, unit, value, limit)`` for each body whose state already
     passes a limit of :func:`check_finite` (a scene that starts there would stop as unstable at
     its first step): speed (``velocity``), rim speed (``angular_velocity``), distance from the
-    origin (``position``)."""
+    origin (``position``); a deformable body's node speed is its ``velocity``'s, or its
+    ``angular_velocity``'s when its centre moves within the limit."""
     rm, rs, found = model.rigid, state.rigid, []
     if rm.body_count:
         rim = _scaled_norms(angular_velocity(rm, rs)) * rm.body_radius
@@ -112,7 +113,11 @@ def beyond_limits(model, state):
         speed, distance = largest_norms(s.v, s.x)
         name = model.names[model.fem_ids[j]]
         if speed > MAX_SPEED:
-            found.append((name, "velocity", "node speed", "m/s", speed, MAX_SPEED))
+            # the nodes' speed from the body's spin (its centre's speed within the limit)
+            mass = model.fem[j].node_mass
+            centre = _scaled_norms((mass @ s.v / mass.sum())[None])[0]
+            field = "velocity" if not centre <= MAX_SPEED else "angular_velocity"
+            found.append((name, field, "node speed", "m/s", speed, MAX_SPEED))
         if distance > MAX_DISTANCE:
             found.append((name, "position", "node distance from the origin", "m", distance, MAX_DISTANCE))
     return found

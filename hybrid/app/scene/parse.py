@@ -182,6 +182,7 @@ def _parse_body(table, source, index, base_dir, problems):
     if has_mesh and valid(values["mesh"]) and valid(model):
         _check_mesh(table["mesh"], values["mesh"], model, where, problems)
 
+    _check_start_speed(values, where, problems)
     damping = values.pop("damping")
     values["damping"] = Damping()
     if fem_model and isinstance(damping, dict):
@@ -199,6 +200,20 @@ def _parse_body(table, source, index, base_dir, problems):
                     source, f"[bodies.{key}]{named} (bodies[{index}].{key}[{i}])"), problems))
                 for i, entry in enumerate(entries))
     return Body(**values)
+
+
+def _check_start_speed(values, where, problems):
+    """A body whose ``velocity`` starts it faster than the check after every step allows
+    (hybrid.coupling.stability.MAX_SPEED), told from the scene alone, so that a study refuses
+    the variant before anything runs (the build checks the rest: rim and node speeds from the
+    body's mesh, hybrid.app.deformable.beyond)."""
+    from hybrid.coupling.stability import MAX_SPEED
+    v = values["velocity"]
+    speed = math.hypot(*v) if valid(v) else 0.0
+    if speed > MAX_SPEED:
+        problems.append(where.problem("velocity", f"starts it at a speed of {speed:.3g} m/s: a run "
+                                                  f"stops as unstable beyond {MAX_SPEED:.0e} m/s "
+                                                  f"(allowed: up to {MAX_SPEED:.0e} m/s)"))
 
 
 def _parse_auto(table, values, given, where, problems):
