@@ -440,3 +440,22 @@ def test_a_second_run_calls_rate_counts_only_its_own_steps():
     time.sleep(0.01)
     bar.update(0.1001, 1_000_001, force=True)       # one step in at least 10 ms
     assert float(stream.getvalue().split()[-2]) <= 100.0
+
+
+def test_numpy_vectors_in_a_scene_changed_in_python_place_the_body_as_tuples_do():
+    """A body's position set to a numpy array failed deep inside the scene's check ("the truth
+    value of an array with more than one element is ambiguous"): arrays are vectors as tuples
+    are, and the body starts where they say (free fall from there: z = z0 - g t^2 / 2 exactly
+    for a rigid body)."""
+    from dataclasses import replace
+    scene = parse_scene(tomllib.loads('[simulation]\ndt = 0.001\nduration = 0.01\n[[bodies]]\nname = "b"\n'
+                                      'shape = { type = "sphere", radius = 0.1 }\n'), "drop.toml", Path("."))
+    moved = replace(scene, bodies=(replace(scene.bodies[0], position=np.array([1.0, 2.0, 10.0]),
+                                           velocity=np.array([0.5, 0.0, 0.0])),),
+                    simulation=replace(scene.simulation, gravity=np.array([0.0, 0.0, -9.81])))
+    sim = Simulation(moved)
+    for _ in range(10):
+        sim.step()
+    t = sim.time
+    np.testing.assert_allclose(sim.body("b").position, [1.0 + 0.5 * t, 2.0, 10.0 - 9.81 * t * t / 2],
+                               rtol=0, atol=1e-12)

@@ -43,8 +43,9 @@ def rechecked(scene):
 def _table(record):
     """A record's fields other than those at their defaults (a field given is judged against the
     body's model and shape: a rigid body may not name a deformable body's field)."""
-    return {f.name: _value(getattr(record, f.name)) for f in fields(record)
-            if getattr(record, f.name) is not None and getattr(record, f.name) != _default(f)}
+    values = {f.name: _value(getattr(record, f.name)) for f in fields(record)}
+    return {f.name: values[f.name] for f in fields(record)
+            if values[f.name] is not None and values[f.name] != _value(_default(f))}
 
 
 def _default(f):
