@@ -259,8 +259,8 @@ class Simulation:
         tenth of the duration or five minutes of wall time, whichever comes first; 0: only when
         stopped); the last one is removed when the run ends well. A simulation made by
         :meth:`resume` continues its run instead (``until`` is then the stopped run's).
-        ``stop``: a :class:`hybrid.app.checkpoint.StopRequest`; once set (by a signal, see
-        :func:`hybrid.app.checkpoint.stop_on_signals`) the run finishes its step, writes a
+        ``stop``: a :class:`hybrid.app.checkpoint.StopRequest` or a ``threading.Event``; once set
+        (from code, or by a signal: :func:`hybrid.app.checkpoint.stop_on_signals`) the run finishes its step, writes a
         checkpoint and the summary (status ``stopped``) and raises
         :class:`hybrid.app.checkpoint.Stopped`. Messages (warnings, events) go to ``log``.
         Returns the summary (a dict). On instability the frames so far and the summary are kept
@@ -268,7 +268,7 @@ class Simulation:
         or after :attr:`time`, an ``out`` that is (or lies in) a file, the folder this simulation's
         last run wrote (a run into it again would replace that run's frames) or one holding a
         stopped run's checkpoint (it would be lost)."""
-        out = self._checked_out(out)
+        stop, out = checkpoint.stop_request(stop), self._checked_out(out)
         checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
         if out is not None:             # a run refused above wrote nothing there

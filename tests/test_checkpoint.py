@@ -388,3 +388,23 @@ def test_a_checkpoint_resumed_from_a_renamed_copy_of_its_scene_is_refused(capsys
     assert code == 2 and "checkpoint of scene 'quick'" in err and "resumed as 'copy'" in err
     assert not (tmp_path / "run" / "copy.pvd").exists()
     assert resume_code(capsys, scene, tmp_path / "run")[0] == 0
+
+
+def test_a_threading_event_stops_a_run_and_what_is_no_stop_is_refused_before_it(tmp_path):
+    """``stop=threading.Event()`` ran one step and failed as "unstable" ('Event' object has no
+    attribute 'signal'): an event is a stop request as a StopRequest is; anything else is refused
+    before the run writes a thing."""
+    import threading
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK)
+    for wrong in (True, "yes", 1):
+        with pytest.raises(TypeError, match="stop must be"):
+            Simulation.from_toml(scene).run(out=tmp_path / "wrong", progress=False, stop=wrong)
+    assert not (tmp_path / "wrong").exists()
+    event = threading.Event()
+    event.set()
+    with pytest.raises(checkpoint.Stopped) as stopped:
+        Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lambda m: None,
+                                        stop=event)
+    assert stopped.value.exit_code == 130 and stopped.value.checkpoint.is_file()
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "stopped"

@@ -189,6 +189,35 @@ class StopRequest:
             self.signal = int(signum)
 
 
+_SIGINT = int(signal.SIGINT)
+
+
+class EventStop(StopRequest):
+    """A :class:`StopRequest` read from an event (``threading.Event`` or anything with
+    ``is_set()`` and ``set()``): once it is set the run stops as on SIGINT."""
+
+    def __init__(self, event):
+        self.event = event
+
+    def set(self, signum=signal.SIGINT):
+        self.event.set()
+
+    @property
+    def signal(self):       # (named as the module's signal is: read as StopRequest.signal)
+        return _SIGINT if self.event.is_set() else None
+
+
+def stop_request(stop):
+    """``stop`` as a run reads it: None, a :class:`StopRequest`, or an event (:class:`EventStop`);
+    TypeError for anything else (a run given one failed at its first step, reported unstable)."""
+    if stop is None or isinstance(stop, StopRequest):
+        return stop
+    if callable(getattr(stop, "is_set", None)) and callable(getattr(stop, "set", None)):
+        return EventStop(stop)
+    raise TypeError(f"stop must be a hybrid.app.checkpoint.StopRequest or a threading.Event, "
+                    f"not {type(stop).__name__}")
+
+
 @contextmanager
 def stop_on_signals(signals=(signal.SIGINT, signal.SIGTERM)):
     """While in the block, the first SIGINT or SIGTERM sets the yielded :class:`StopRequest`
