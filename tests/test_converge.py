@@ -63,6 +63,23 @@ def test_richardson_distrusts_runs_that_swing_about_the_limit_and_trusts_round_o
     assert estimate.method == RICHARDSON and np.array_equal(estimate.reference, same[-1])
 
 
+def test_runs_settled_far_below_the_tolerance_are_converged_and_the_finest_gets_an_error():
+    """A body resting on the ground through a ladder, its runs some tens of nanometres apart in
+    the contact solver's noise (no steady order), left every finest run without an error, so that
+    the cheapest run under the tolerance (a coarser mesh at a finer step) was never recommended.
+    Runs that agree to a hundredth of the tolerance have converged; a real trend is still
+    extrapolated, and noise as large as the tolerance is still no convergence."""
+    resting = [np.array([[0.2, 0.0, 0.05 + e]]) for e in (0.0, 2.8e-8, 1.1e-8, 2.5e-8)]
+    assert richardson(resting).method == FINEST
+    settled = 0.01 * 0.01 * 0.02          # a hundredth of tol 0.01 of a 2 cm scale: 2 um
+    estimate = richardson(resting, settled=settled)
+    assert estimate.method == RICHARDSON and np.array_equal(estimate.reference, resting[-1])
+    trend = [np.array([[1.0 + 1e-7 / 2 ** k]]) for k in range(4)]
+    np.testing.assert_allclose(richardson(trend, settled=1e-6).reference, 1.0, rtol=0, atol=1e-13)
+    noisy = [np.array([[0.05 + e]]) for e in (0.0, 2.8e-4, 1.1e-4, 2.5e-4)]
+    assert richardson(noisy, settled=settled).method == FINEST
+
+
 def test_pareto_keeps_the_runs_nothing_beats_in_both_cost_and_error():
     assert pareto([(1, 0.5), (2, 0.1), (3, 0.2), (4, 0.01), (1, 0.6)]) == [0, 1, 3]
 

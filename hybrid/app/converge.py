@@ -11,7 +11,9 @@ p = log2(|Q1 - Q2| / |Q2 - Q3|) and the extrapolated answer Q* = Q3 + (Q3 - Q2) 
 a run's error is its distance from Q* (RMS over the common frames for time series). With both
 ladders, Q** = Q*_dt + Q*_mesh - Q_finest. Where the differences do not shrink steadily (contact
 events, fracture: p below 0.5 or above 6, or successive orders disagreeing), no extrapolation is
-trusted: the error is the difference from the finest run, and the table says so.
+trusted: the error is the difference from the finest run, and the table says so. A quantity
+whose finest three runs agree to a hundredth of the tolerance (a body resting through the run)
+has converged: the finest run is its reference.
 """
 import math
 from dataclasses import dataclass
@@ -29,6 +31,9 @@ RICHARDSON, FINEST = "richardson", "finest-difference"
 # scene's chaotic pile-up read orders 3.4 and 5.0 and recommended a step at 0.3% error that a
 # fourth level showed 36% off
 DT_ORDER_MOST = 2.5
+# a quantity whose finest three runs agree to this share of the tolerance (times its scale) has
+# converged as far as the recommendation can tell: its error cannot decide it
+SETTLED = 0.01
 
 
 @dataclass(frozen=True)
@@ -48,7 +53,7 @@ def observed_orders(levels, ratio=2.0):
     return tuple(math.log(a / b, ratio) if a > 0 and b > 0 else None for a, b in zip(d, d[1:])), d
 
 
-def richardson(levels, ratio=2.0, highest=6.0):
+def richardson(levels, ratio=2.0, highest=6.0, settled=0.0):
     """Extrapolate ``levels`` (arrays of one shape, coarse to fine, each step refined by
     ``ratio``) from the finest three. The order is trusted when every difference shrinks, the
     finest three approach the limit from one side (the coarsest of them is as far from the finest
@@ -56,7 +61,10 @@ def richardson(levels, ratio=2.0, highest=6.0):
     differences too), the finest order is between 0.5 and ``highest`` (what the ladder's methods
     can give, with a margin) and, with four or more levels, the last two orders agree within 0.6;
     otherwise the reference is the finest level (method ``finest-difference``). Runs that agree to 1e-9 of the largest value have converged (to
-    1e-12, a cantilever's tip agreeing to 3e-12 read as an erratic order)."""
+    1e-12, a cantilever's tip agreeing to 3e-12 read as an erratic order), as have the finest
+    three where they differ by no more than ``settled`` (a distance: a body resting on the
+    ground, its runs 28 nm apart in the contact solver's noise, read as erratic, left the finest
+    runs without an error and the cheapest run under the tolerance unrecommended)."""
     finest = levels[-1]
     if len(levels) < 3:
         return Estimate(finest, (), FINEST)
@@ -69,7 +77,9 @@ def richardson(levels, ratio=2.0, highest=6.0):
     steady = one_sided and all(a > b for a, b in zip(d, d[1:]))
     agree = len(orders) < 2 or (orders[-2] is not None and abs(orders[-2] - p) <= 0.6)
     if p is None or not (0.5 <= p <= highest) or not steady or not agree:
-        return Estimate(finest, orders, FINEST)
+        # no order to trust; runs settled far below what is asked have converged all the same
+        settle = max(d[-2], d[-1], qty.distance(levels[-3], finest)) <= settled
+        return Estimate(finest, orders, RICHARDSON if settle else FINEST)
     return Estimate(finest + (finest - levels[-2]) / (ratio ** p - 1.0), orders, RICHARDSON)
 
 
@@ -151,10 +161,11 @@ def _mesh_settings(scene, levels, meshes):
     return out
 
 
-def estimate_group(runs, names, ratio=2.0):
+def estimate_group(runs, names, ratio=2.0, tol=0.0):
     """Errors of one group's runs (``[(rung, RunQuantities or None)]``; None: the run failed) for
     each quantity in ``names``. Returns ``{name: (errors by rung, local orders by rung, method,
-    scale)}``."""
+    scale)}``. A quantity whose finest runs agree to within :data:`SETTLED` of ``tol`` (the
+    recommendation's relative error) is taken as converged (:func:`richardson`)."""
     ok = {(r.i, r.j): q for r, q in runs if q is not None}
     I = max(r.i for r, _ in runs)
     J = max(r.j for r, _ in runs)
@@ -167,8 +178,9 @@ def estimate_group(runs, names, ratio=2.0):
         mesh_axis = [at[(I, j)] for j in range(J + 1) if (I, j) in at]
         complete = len(dt_axis) == I + 1 and len(mesh_axis) == J + 1
         # an axis of one level needs no estimate; one of two cannot give an order
-        est = [richardson(axis, ratio, highest) for axis, highest in ((dt_axis, DT_ORDER_MOST),
-                                                                     (mesh_axis, 6.0))
+        size = _scale(name, at.get((I, J)), ok) or 0.0
+        est = [richardson(axis, ratio, highest, SETTLED * tol * size)
+               for axis, highest in ((dt_axis, DT_ORDER_MOST), (mesh_axis, 6.0))
                if len(axis) > 1] if complete else []
         reference, method = at.get((I, J)), FINEST
         if est and all(e.method == RICHARDSON for e in est):
@@ -268,7 +280,7 @@ def _rows(scene, rungs, records, names, tol, refine_levels):
     for rung, record in zip(rungs, records):
         q = qty.RunQuantities(record["folder"], scene) if record["status"] == "ok" else None
         groups.setdefault(rung.group, []).append((rung, q))
-    estimates = {g: estimate_group(runs, names) for g, runs in groups.items()}
+    estimates = {g: estimate_group(runs, names, tol=tol) for g, runs in groups.items()}
     rows = []
     for rung, record in zip(rungs, records):
         summary_time = float(rung.settings.get("simulation.duration", scene.simulation.duration))
