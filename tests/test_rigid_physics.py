@@ -297,6 +297,23 @@ def test_a_body_starting_inside_the_ground_is_warned_of_with_its_depth(sim, mode
     assert any("'crate' starts 0.05 m inside a plane" in w for w in buried.warnings)
 
 
+def test_a_rigid_body_buried_deeper_than_its_size_is_refused_and_one_less_deep_rests_on_top(sim):
+    """A 0.1 m box started 0.55 m under the ground was warned of and pushed out, and its run
+    stopped as unstable: the energy watch allows a body's weight times its size, and the push-out
+    gave it its weight times 0.55 m. Deeper than its size (the diameter of its bounding sphere,
+    0.346 m for a 0.2 m box) a rigid body is refused naming its position; 0.3 m deep it comes out,
+    a run ends ok, and it rests on the ground at rest (z = its half height, within the contact
+    slop, speed round-off)."""
+    from hybrid import SceneError
+    with pytest.raises(SceneError, match=r"field 'position' starts it 0.55 m inside a plane, deeper "
+                                         r"than its 0.346 m size"):
+        sim(BURIED.format(name="crate", model="rigid", z=-0.45).replace("young = 1e6", ""))
+    deep = sim(BURIED.format(name="crate", model="rigid", z=-0.2).replace("young = 1e6", ""))
+    assert deep.run(until=0.5, progress=False, log=lambda m: None)["status"] == "ok"
+    assert deep.body("crate").position[2] == pytest.approx(0.1, abs=1e-3)
+    assert np.linalg.norm(deep.body("crate").velocity) < 1e-6
+
+
 def _cylinder_scene(orientation, position, plane_normal=(0.0, 0.0, 1.0)):
     return f"""
 [simulation]

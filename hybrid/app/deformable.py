@@ -386,11 +386,19 @@ def deep_starts(scene, model, below):
     """Problems (scene file messages) of the deformable bodies that start more than DEEP_START of
     their size inside a plane (``below``: run.below_planes, ``(name, depth m)``): the recovery
     pushes their nodes out in one step, and the strain that makes throws them (a soft cube started
-    half in the ground was strained by 0.6 and gained 33 J in 0.017 s)."""
+    half in the ground was strained by 0.6 and gained 33 J in 0.017 s); and of the rigid bodies
+    that start deeper than their size (their bounding sphere's diameter), wholly under it: pushed
+    out, a box buried 0.5 m under the ground gained its weight times that depth, which the run's
+    energy watch took for a divergence (it allows a body's weight times its size)."""
     index = {b.name: i for i, b in enumerate(scene.bodies)}
     size = {model.names[k]: float(np.ptp(m.rest_points, axis=0).max()) for k, m in zip(model.fem_ids, model.fem)}
+    rigid = {model.names[k]: 2.0 * float(r) for k, r in zip(model.rigid_ids, model.rigid.body_radius)}
     return [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field 'position' "
             f"starts it {depth:.3g} m inside a plane ({100 * depth / size[name]:.2g}% of its "
             f"{size[name]:.3g} m size, at most {100 * DEEP_START:g}% for a deformable body, whose nodes "
             f"are pushed out in one step): place it on or above the plane"
-            for name, depth in below if name in size and depth > DEEP_START * size[name]]
+            for name, depth in below if name in size and depth > DEEP_START * size[name]] + \
+        [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field 'position' "
+         f"starts it {depth:.3g} m inside a plane, deeper than its {rigid[name]:.3g} m size (at most "
+         f"that for a rigid body, which is pushed out in its first steps): place it on or above the plane"
+         for name, depth in below if name in rigid and depth > rigid[name]]

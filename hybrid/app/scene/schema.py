@@ -249,7 +249,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     _positive("density", 1000.0, "kg/m^3", "Mass density."),
     Field("position", "vector", (0.0, 0.0, 0.0), "m", "Position of the body origin (world frame). "
           "A body starting inside a plane is warned of and pushed out; a deformable one may start "
-          "at most 1% of its size inside (its nodes are pushed out in one step). At most 1e6 m "
+          "at most 1% of its size inside (its nodes are pushed out in one step), a rigid one at "
+          "most its size (its bounding sphere's diameter). At most 1e6 m "
           "from the origin (docs/limits.md)."),
     Field("orientation", "quaternion", (1.0, 0.0, 0.0, 0.0), "", "Unit quaternion `[w, x, y, z]`; "
           "renormalised if its norm is within 1e-3 of 1 (`[0.7071, 0.7071, 0, 0]` is a quarter "
