@@ -104,6 +104,14 @@ def _fast_spin(scene):
     return said
 
 
+def _loaded(scene):
+    """A scene file's path or a built-in scene's name loaded, or a parsed scene (perhaps changed in
+    Python) checked again (:func:`hybrid.app.scene.data.rechecked`)."""
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene_path(scene))
+    return rechecked(scene)
+
+
 class Simulation:
     """A scene being simulated: ``Simulation(scene)`` builds its bodies (``scene``: a parsed
     scene, or a scene file's path or a built-in scene's name as :meth:`from_toml` takes; raises
@@ -123,11 +131,7 @@ class Simulation:
     """
 
     def __init__(self, scene):
-        if isinstance(scene, (str, os.PathLike)):       # a scene file or a built-in scene's name
-            scene = load_scene(scene_path(scene))
-        else:                                           # perhaps changed in Python: checked again
-            scene = rechecked(scene)
-        self.scene = scene
+        self.scene = scene = _loaded(scene)
         try:
             with geometry.caught_mesh_warnings() as repaired:
                 self.model, self.state = build(scene)
@@ -160,14 +164,15 @@ class Simulation:
 
     @classmethod
     def resume(cls, path, out):
-        """The scene file ``path`` (or built-in scene name) as the checkpoint in folder ``out``
+        """The scene file ``path`` (or built-in scene name, or a parsed Scene as ``Simulation``
+        takes: a run of a scene changed in Python resumes with that scene) as the checkpoint in folder ``out``
         left it (``out/checkpoint.npz``, see :mod:`hybrid.app.checkpoint`); :meth:`run` with that
         ``out`` then continues the run there, ending as the run would have without the stop.
         Raises SceneError for a scene file with problems and
         :class:`hybrid.app.checkpoint.CheckpointError` for a checkpoint that is missing, of
         another scene, truncated or corrupted, of another format version, or whose run folder
         has lost or damaged a frame or table it counts."""
-        return checkpoint.restore(cls.__new__(cls), load_scene(scene_path(path)), out)
+        return checkpoint.restore(cls.__new__(cls), _loaded(path), out)
 
     @property
     def time(self):

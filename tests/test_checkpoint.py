@@ -408,3 +408,30 @@ def test_a_threading_event_stops_a_run_and_what_is_no_stop_is_refused_before_it(
                                         stop=event)
     assert stopped.value.exit_code == 130 and stopped.value.checkpoint.is_file()
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "stopped"
+
+
+def test_a_run_of_a_scene_changed_in_python_resumes_with_that_scene_only(tmp_path):
+    """A run of a scene changed in Python (a ball thrown sideways) and stopped was resumed from
+    its file: the run went on with the changed values (kept in the checkpoint) but its summary
+    showed the file's, and the scene object itself could not be given (a pathlib TypeError).
+    The file alone is refused; the changed scene resumes to the files an unstopped run writes."""
+    from dataclasses import replace
+    from hybrid.app.scene import load_scene
+    scene_file = tmp_path / "quick.toml"
+    scene_file.write_text(QUICK)
+    base = load_scene(scene_file)
+    thrown = replace(base, bodies=(replace(base.bodies[0], velocity=(1.5, 0.0, 0.0)),))
+    Simulation(thrown).run(out=tmp_path / "whole", progress=False, log=lambda m: None)
+    request = checkpoint.StopRequest()
+    request.set()
+    with pytest.raises(checkpoint.Stopped):
+        Simulation(thrown).run(out=tmp_path / "run", progress=False, log=lambda m: None, stop=request)
+    with pytest.raises(checkpoint.CheckpointError, match="values of a scene changed in Python"):
+        Simulation.resume(scene_file, tmp_path / "run")
+    resumed = Simulation.resume(thrown, tmp_path / "run")
+    resumed.run(out=tmp_path / "run", progress=False, log=lambda m: None)
+    assert (tmp_path / "run" / "bodies.csv").read_bytes() == (tmp_path / "whole" / "bodies.csv").read_bytes()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["scene"]["bodies"][0]["velocity"] == [1.5, 0.0, 0.0]
+    # the ball flew sideways at 1.5 m/s through the run (in the air all along: no friction)
+    assert resumed.body("ball").position[0] == pytest.approx(1.5 * 0.05, rel=1e-9)

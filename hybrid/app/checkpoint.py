@@ -20,6 +20,7 @@ import json
 import math
 import os
 import signal
+import tomllib
 import threading
 import time as clock
 import zipfile
@@ -64,11 +65,19 @@ class Position:
 
 
 def scene_digest(scene):
-    """SHA-256 (hex) of the scene file's content (of its parsed tables when there is no file)."""
+    """SHA-256 (hex) of the scene file's content, with the scene's tables when they are not the
+    file's (a scene changed in Python: resumed from its file alone, a run continued with the
+    changed values and its summary showed the file's); of its tables when there is no file."""
     path = Path(str(scene.source_path))
-    if path.is_file():
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    return hashlib.sha256(json.dumps(scene.raw, sort_keys=True, default=str).encode()).hexdigest()
+    tables = json.dumps(scene.raw, sort_keys=True, default=str).encode()
+    if not path.is_file():
+        return hashlib.sha256(tables).hexdigest()
+    content = path.read_bytes()
+    try:
+        as_file = tomllib.loads(content.removeprefix(b"\xef\xbb\xbf").decode("utf-8")) == scene.raw
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError):
+        as_file = False
+    return hashlib.sha256(content if as_file else content + tables).hexdigest()
 
 
 def _version():
@@ -146,7 +155,9 @@ def read(path, scene):
     if manifest.get("scene_sha256") != digest:
         raise CheckpointError(f"{path}: checkpoint of scene '{manifest.get('scene')}' (file "
                               f"{manifest.get('scene_file')}), not of {scene.source_path}: the "
-                              f"scene file's content differs (SHA-256 {digest[:12]}..., the "
+                              f"scene file's content differs, or the values of a scene changed "
+                              f"in Python (resume such a run with that scene: "
+                              f"Simulation.resume(scene, out)) (SHA-256 {digest[:12]}..., the "
                               f"checkpoint's {str(manifest.get('scene_sha256'))[:12]}...)")
     if manifest.get("scene") != scene.name:        # (the same content in a file named otherwise)
         raise CheckpointError(f"{path}: checkpoint of scene '{manifest.get('scene')}' (file "
