@@ -21,7 +21,7 @@ from .app.build import build
 from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
-from .app.hints import frame_hints, rigid_hints
+from .app.hints import frame_hints, rigid_hints, spin_warnings
 from .app.run import (Progress, Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
                       summary)
 from .app.scene import SceneError, load_scene
@@ -83,27 +83,6 @@ def _uneven_duration(duration, dt):
             f"steps and ends at {n * dt:.6g} s (make duration a whole number of steps)"]
 
 
-# the most a free deformable body stepped by backward Euler may turn in one step (rad): its step
-# in the spinning frame treats the centrifugal force explicitly and diverges from about 1 rad
-# (a steel disk at 2000 rad/s: stable at dt = 0.3 and 0.4 ms, 430 times its energy at 0.7 ms)
-SPIN_PER_STEP = 0.5
-
-
-def _fast_spin(scene):
-    """Warnings ``{body name: message}`` for free backward-Euler deformable bodies that start
-    turning more than SPIN_PER_STEP rad in a step."""
-    dt, said = scene.simulation.dt, {}
-    for b in scene.bodies:
-        w = math.hypot(*b.angular_velocity)          # (no overflow for absurd spins)
-        if b.model != "rigid" and not b.anchors and not b.fixed and b.integrator == "backward_euler" \
-                and w * dt > SPIN_PER_STEP:
-            said[b.name] = (f"body '{b.name}' spins at {w:.4g} rad/s, {w * dt:.2g} rad per step of "
-                        f"{dt:.3g} s: a free deformable body's step with backward Euler holds up "
-                        f"to about {SPIN_PER_STEP} rad per step and diverges from about 1; give "
-                        f"dt = {SPIN_PER_STEP / w:.2g} s or less, or integrator = \"newmark\"")
-    return said
-
-
 def _loaded(scene):
     """A scene file's path or a built-in scene's name loaded, or a parsed scene (perhaps changed in
     Python) checked again (:func:`hybrid.app.scene.data.rechecked`)."""
@@ -146,7 +125,7 @@ class Simulation:
             raise SceneError(problems)
         self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
                           f"in its first step{'s' if name in self.model.rigid.names else ''}" for name, depth in below]
-        self.spinning = _fast_spin(scene)
+        self.spinning = spin_warnings(scene, self.model, self.state)
         self.warnings += ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
         self.notes = mesh_notes(self.model)
         self.events, self.timings = [], {}

@@ -373,3 +373,43 @@ def test_a_fast_spinning_free_disk_is_warned_of_large_turns_per_step_and_resolve
     u = (s.x - s.c) @ s.R - X
     stretch = np.mean((u[rim, 0] * X[rim, 0] + u[rim, 1] * X[rim, 1]) / r0[rim])
     assert stretch == pytest.approx(0.7 * 7800.0 * 2000.0 ** 2 * 0.1 ** 3 / (4 * 2e11), rel=0.02)
+
+
+BAR = """
+[simulation]
+duration = 0.5
+dt = {dt}
+gravity = [0.0, 0.0, 0.0]
+
+[[bodies]]
+name = "bar"
+model = "fem"
+integrator = "newmark"
+shape = {{ type = "box", size = [0.2, {wy}, {wz}], resolution = 0.01 }}
+density = 2700.0
+young = 7e10
+poisson = 0.33
+angular_velocity = [0.0, 0.0, {w}]
+"""
+
+
+def test_a_body_spun_about_an_axis_other_than_its_largest_is_warned_of_at_a_tenth_of_a_radian_per_step(sim):
+    """A 20 x 2 x 3 cm bar spun about z, its intermediate axis, at 0.2 rad per step tumbles, and
+    its step in the spinning frame gained energy until the run stopped at 1 s under either rule,
+    without a warning (only backward Euler past 0.5 rad per step was warned of). The run warns
+    about any axis but the largest past 0.1 rad per step; the same bar turned so that z is its
+    largest axis (20 x 3 x 2 cm) holds 0.5 rad per step under Newmark: no warning, its kinetic
+    energy and angular momentum kept (no gain over 0.5 s)."""
+    tumbling = sim(BAR.format(dt=1e-3, wy=0.02, wz=0.03, w=200.0))
+    assert any("0.2 rad per step" in w and "axis other than its axis of largest inertia" in w
+               and "dt = 0.0005 s or less" in w for w in tumbling.warnings), tumbling.warnings
+    assert not any("rad per step" in w for w in sim(BAR.format(dt=2.5e-4, wy=0.02, wz=0.03, w=200.0)).warnings)
+    steady = sim(BAR.format(dt=1e-3, wy=0.03, wz=0.02, w=500.0))
+    assert not any("rad per step" in w for w in steady.warnings)
+    m = steady.model.fem[0]
+    L0 = angular_momentum(m, steady.state.fem[0])
+    E0 = kinetic_energy(m, steady.state.fem[0]) + elastic_energy(m, steady.state.fem[0])
+    assert steady.run(progress=False, log=lambda line: None)["status"] == "ok"
+    s = steady.state.fem[0]
+    np.testing.assert_allclose(angular_momentum(m, s), L0, rtol=1e-9, atol=1e-9 * np.linalg.norm(L0))
+    assert kinetic_energy(m, s) + elastic_energy(m, s) <= E0 * (1 + 1e-6)

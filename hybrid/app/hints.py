@@ -4,9 +4,23 @@ After a run, :class:`hybrid.simulation.Simulation` logs a note for each body who
 (``hybrid.app.peaks.Peaks``) says it would be better modelled otherwise: rigid, when an FEM or
 auto body never strained enough to need FEM (:func:`rigid_hints`); corotated, when a
 floating-frame body strained or turned parts of itself beyond what linear elasticity in one frame
-follows (:func:`frame_hints`).
+follows (:func:`frame_hints`). Before a run, it warns of free deformable bodies that start
+spinning faster than their step in the spinning frame holds (:func:`spin_warnings`).
 """
 import math
+
+import numpy as np
+
+# the most a free deformable body stepped by backward Euler may turn in one step (rad) about its
+# axis of largest inertia: its step in the spinning frame treats the centrifugal force explicitly
+# and diverges from about 1 rad (a steel disk at 2000 rad/s: stable at dt = 0.3 and 0.4 ms, 430
+# times its energy at 0.7 ms); Newmark held the disk at 2 rad per step
+SPIN_PER_STEP = 0.5
+# the most under either rule about another axis, where the body wobbles or tumbles and the
+# frame's turn at the step's start spin gains energy: a 20 x 2 x 3 cm bar spun about its
+# intermediate axis diverged at 0.2 rad per step (ran 2 s at 0.1), a square one about a
+# transverse axis (two equal moments) at 0.4 (ran at 0.3)
+TUMBLE_PER_STEP = 0.1
 
 
 def rigid_hints(model, strains, struck=()):
@@ -82,3 +96,43 @@ def frame_hints(model, strains, spinning=(), turns=None, inverted=()):
                      "whose linear elasticity holds for small strains and small rotations of "
                      "its parts; frame = \"corotated\" follows large rotations (docs/fem.md)")
     return lines
+
+
+def spin_warnings(scene, model, state):
+    """Warnings ``{body name: message}`` for free deformable bodies that start turning more in a
+    step than their step in the spinning frame holds: SPIN_PER_STEP under backward Euler about
+    an axis of largest inertia (one moment larger than the others by 1%, or all three equal),
+    TUMBLE_PER_STEP under either rule about any other axis."""
+    dt, said = scene.simulation.dt, {}
+    bodies = {b.name: b for b in scene.bodies}
+    for k, m, s in zip(model.fem_ids, model.fem, state.fem):
+        b = bodies.get(model.names[k])
+        w = math.hypot(*b.angular_velocity) if b is not None else 0.0    # (no overflow)
+        if b is None or b.anchors or not w * dt > TUMBLE_PER_STEP or not math.isfinite(w):
+            continue
+        steady = _about_largest_axis(m.node_mass, s.x, np.asarray(b.angular_velocity, float) / w)
+        limit = SPIN_PER_STEP if steady else TUMBLE_PER_STEP
+        if w * dt <= limit or (steady and b.integrator != "backward_euler"):
+            continue
+        how = ("a free deformable body's step with backward Euler holds up to about "
+               f"{SPIN_PER_STEP} rad per step and diverges from about 1; give dt = "
+               f"{SPIN_PER_STEP / w:.2g} s or less, or integrator = \"newmark\"") if steady else (
+            "it spins about an axis other than its axis of largest inertia, so it wobbles or "
+            "tumbles, and a free deformable body's step then gains energy and diverges from about "
+            f"0.2 rad per step (about its intermediate axis; 0.4 about one of two equal moments) "
+            f"under either integrator; give dt = {TUMBLE_PER_STEP / w:.2g} s or less")
+        said[b.name] = f"body '{b.name}' spins at {w:.4g} rad/s, {w * dt:.2g} rad per step of {dt:.3g} s: {how}"
+    return said
+
+
+def _about_largest_axis(mass, x, axis):
+    """Whether the unit ``axis`` (3,) is an axis of largest inertia of node masses ``mass`` (n,)
+    at ``x`` (n, 3) that spin about it steadily: the largest principal moment exceeds the middle
+    one by 1% and the axis is within 8 degrees of its direction, or all three moments agree to 1%
+    (a cube's, a sphere's)."""
+    y = x - mass @ x / mass.sum()
+    inertia = np.eye(3) * (mass @ np.einsum("ij,ij->i", y, y)) - np.einsum("i,ij,ik->jk", mass, y, y)
+    moments, axes = np.linalg.eigh(inertia)
+    if moments[0] >= 0.99 * moments[2]:
+        return True
+    return moments[2] > 1.01 * moments[1] and abs(axes[:, 2] @ axis) > 0.99
