@@ -60,7 +60,7 @@ class FemModel:
         plasticity pass runs and the state carries no plastic strain).
     plastic_update_strain: equivalent plastic strain (-) accumulated in some quadrature point since
         the last reference-shape update at which the next update is due (``fem.reference``).
-    max_plastic_strain: cap (-) on the equivalent plastic strain ``sqrt(2/3) |eps_p|``, or None.
+    max_plastic_strain: cap (-) on the accumulated equivalent plastic strain (``tet_peeq``), or None.
     reference_peeq: ``(t, q)`` accumulated equivalent plastic strain at the last reference-shape
         update (-), zeros when built; None for elastic bodies.
     reference_updates: number of reference-shape updates that led to this model.

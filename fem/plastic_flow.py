@@ -388,12 +388,12 @@ def _flow(model, fields, dev, trace, flowed):
     sigma_trial = np.take(dev, flowed, axis=1)
     sigma_trial *= 2.0 * model.mu
     sigma_trial[::4] += (model.lam + 2.0 * model.mu / 3.0) * np.take(trace, flowed)
-    new, sigma_new, _, _ = return_map(_tensors(sigma_trial), old, model.mu, model.yield_stress,
-                                      model.max_plastic_strain)
+    peeq = fields["tet_peeq"].copy()        # (the cap bounds it: the room it leaves)
+    room = None if model.max_plastic_strain is None else model.max_plastic_strain - peeq.ravel()[flowed]
+    new, sigma_new, _, _ = return_map(_tensors(sigma_trial), old, model.mu, model.yield_stress, room)
     d_eps_p = new - old
     eps_p = eps_p.copy()
     eps_p.reshape(t * q, 3, 3)[flowed] = new
-    peeq = fields["tet_peeq"].copy()
     peeq.reshape(t * q)[flowed] += equivalent_plastic_strain(d_eps_p)
     weights = np.take(point_gradients(model).weight, flowed)
     fields.update(tet_plastic_strain=eps_p, tet_peeq=peeq,

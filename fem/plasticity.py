@@ -108,21 +108,21 @@ def equivalent_plastic_strain(eps_p):
     return _SQRT_2_3 * frobenius_norm(eps_p)
 
 
-def clamp_plastic_strain(eps_p, max_plastic_strain):
-    """Scale each ``eps_p`` (..., 3, 3) so its equivalent plastic strain is at most the cap.
+def capped_increment(d_eps_p, room):
+    """Plastic strain increments ``d_eps_p`` (..., 3, 3) scaled, their direction kept, so that
+    their equivalent plastic strain is at most ``room`` (...; scalar or broadcastable): what the
+    cap leaves an element, ``max_plastic_strain`` less its accumulated equivalent plastic strain
+    (none below 0: an element at the cap flows no more). Increments within it are returned
+    unchanged (bitwise)."""
+    d_eps_p = np.asarray(d_eps_p, dtype=float)
+    room = np.maximum(np.asarray(room, dtype=float), 0.0)
+    step = equivalent_plastic_strain(d_eps_p)
+    over = step > room
+    scale = np.where(over, room / np.where(over, step, 1.0), 1.0)
+    return np.where(over[..., None, None], d_eps_p * scale[..., None, None], d_eps_p)
 
-    Tensors already within the cap are returned unchanged (bitwise); the others keep their direction
-    (and so stay deviatoric). ``max_plastic_strain`` is a scalar or broadcastable to ``(...)``.
-    """
-    eps_p = np.asarray(eps_p, dtype=float)
-    cap = np.asarray(max_plastic_strain, dtype=float)
-    equivalent = equivalent_plastic_strain(eps_p)
-    over = equivalent > cap
-    scale = np.where(over, cap / np.where(over, equivalent, 1.0), 1.0)
-    return np.where(over[..., None, None], eps_p * scale[..., None, None], eps_p)
 
-
-def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
+def return_map(sigma_trial, eps_p, mu, Y, room=None):
     """Perfect-plastic radial return of trial stresses onto the von Mises surface.
 
     The flow is computed at the yielded elements only (without a gather when all of them yield, as
@@ -138,10 +138,11 @@ def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
         Shear modulus.
     Y : float or (...) Pa
         Yield stress (scalar or one per element).
-    max_plastic_strain : float or (...), optional
-        Cap on ``equivalent_plastic_strain``; a yielded element whose plastic strain would exceed it
-        is scaled back onto the cap (``clamp_plastic_strain``) and its stress recomputed from the
-        clamped plastic strain, so it may then lie outside the yield surface.
+    room : float or (...), optional
+        The equivalent plastic strain each element may still flow (``max_plastic_strain`` less
+        its accumulated equivalent plastic strain): a larger increment is scaled down to it
+        (``capped_increment``) and the stress recomputed from it, so it may then lie outside the
+        yield surface (further flow is elastic).
 
     Returns
     -------
@@ -170,7 +171,7 @@ def return_map(sigma_trial, eps_p, mu, Y, max_plastic_strain=None):
         return eps_p.copy(), sigma_trial.copy(), np.zeros(lead), yielded
     # flow computed at the yielded elements only: all of them (no gather) or an index subset
     at = Ellipsis if yielded.all() else np.nonzero(yielded)
-    new, sigma, gamma = _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, max_plastic_strain, at)
+    new, sigma, gamma = _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, room, at)
     if at is Ellipsis:
         return new, sigma, gamma, yielded
     eps_p_new, sigma_new, gamma_all = eps_p.copy(), sigma_trial.copy(), np.zeros(lead)
@@ -184,7 +185,7 @@ def _taken_at(value, lead, at):
     return value if value.ndim == 0 else np.broadcast_to(value, lead)[at]
 
 
-def _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, max_plastic_strain, at):
+def _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, room, at):
     """The flow of :func:`return_map` at the yielded elements ``at`` (an index or Ellipsis):
     ``(eps_p_new, sigma_new, gamma)`` there, from the trial stress, the old plastic strain and the
     trial deviator ``s`` with its norm (all elements)."""
@@ -196,10 +197,9 @@ def _radial_return(sigma_trial, eps_p, s, s_norm, mu, Y, max_plastic_strain, at)
     # wherever f > 0)
     old = eps_p[at]
     d_eps_p = (gamma / s_norm)[..., None, None] * s
+    if room is not None:
+        d_eps_p = capped_increment(d_eps_p, _taken_at(room, lead, at))
     new = old + d_eps_p
-    if max_plastic_strain is not None:
-        new = clamp_plastic_strain(new, _taken_at(max_plastic_strain, lead, at))
-        d_eps_p = new - old
     mu_per_tensor = mu if mu.ndim == 0 else mu[..., None, None]
     return new, sigma_trial[at] - 2.0 * mu_per_tensor * d_eps_p, gamma
 

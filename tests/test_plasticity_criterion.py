@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from fem.plasticity import (
-    clamp_plastic_strain, deviatoric, elastic_stress, equivalent_plastic_strain, isotropic_stress,
+    capped_increment, deviatoric, elastic_stress, equivalent_plastic_strain, isotropic_stress,
     plastic_dissipation_increment, plastic_element_forces, plastic_nodal_forces, return_map,
     tet_shape_gradients, von_mises, yield_function,
 )
@@ -174,26 +174,31 @@ def test_plastic_dissipation_is_gamma_times_yield_stress_and_positive():
     assert dissipated == pytest.approx(expected, rel=1e-10)
 
 
-def test_plastic_strain_cap_bounds_equivalent_plastic_strain_and_keeps_direction():
+def test_plastic_strain_cap_bounds_the_increments_by_the_room_left_and_keeps_their_direction():
+    """The cap bounds the accumulated equivalent plastic strain (the frames' ``plastic_strain``):
+    an increment is scaled to the room the cap leaves, its direction kept; an element at the cap
+    (no room) flows no more."""
     rng = np.random.default_rng(5)
-    eps_p = random_deviatoric(rng, 300, 1e-2)
-    cap = 0.5 * np.median(equivalent_plastic_strain(eps_p))
-    clamped = clamp_plastic_strain(eps_p, cap)
-    assert np.all(equivalent_plastic_strain(clamped) <= cap * (1 + 1e-12))
-    over = equivalent_plastic_strain(eps_p) > cap
-    assert 0 < over.sum() < len(eps_p)
-    np.testing.assert_allclose(equivalent_plastic_strain(clamped[over]), cap, rtol=1e-12)
-    np.testing.assert_allclose(clamped[over] * equivalent_plastic_strain(eps_p[over])[:, None, None],
-                               eps_p[over] * cap, rtol=1e-10)
-    assert np.array_equal(clamped[~over], eps_p[~over])
+    d_eps_p = random_deviatoric(rng, 300, 1e-2)
+    room = 0.5 * np.median(equivalent_plastic_strain(d_eps_p)) * np.ones(300)
+    room[:20] = -1e-3                       # past the cap already: no flow
+    capped = capped_increment(d_eps_p, room)
+    assert np.all(equivalent_plastic_strain(capped) <= np.maximum(room, 0.0) * (1 + 1e-12))
+    assert np.all(capped[:20] == 0.0)
+    over = equivalent_plastic_strain(d_eps_p) > np.maximum(room, 0.0)
+    assert 20 < over.sum() < len(d_eps_p)
+    np.testing.assert_allclose(equivalent_plastic_strain(capped[over][20:]), room[over][20:], rtol=1e-12)
+    np.testing.assert_allclose(capped[over][20:] * equivalent_plastic_strain(d_eps_p[over][20:])[:, None, None],
+                               d_eps_p[over][20:] * room[over][20:, None, None], rtol=1e-10)
+    assert np.array_equal(capped[~over], d_eps_p[~over])
     # uniaxial plastic flow e diag(1, -1/2, -1/2) has equivalent plastic strain |e|
     assert equivalent_plastic_strain(0.02 * np.diag([1, -0.5, -0.5])) == pytest.approx(0.02)
 
-    # through the return map: the cap holds and the stress is C : (eps - eps_p_capped)
+    # through the return map: the increment stays within the room and the stress is
+    # C : (eps - eps_p_new)
     eps, eps_p0, sigma_trial = trial_state(rng, 300, Y)
-    eps_p_new, sigma_new, gamma, yielded = return_map(sigma_trial, eps_p0, MU, Y,
-                                                      max_plastic_strain=1e-3)
-    assert np.all(equivalent_plastic_strain(eps_p_new[yielded]) <= 1e-3 * (1 + 1e-12))
+    eps_p_new, sigma_new, gamma, yielded = return_map(sigma_trial, eps_p0, MU, Y, room=1e-3)
+    assert np.all(equivalent_plastic_strain(eps_p_new - eps_p0) <= 1e-3 * (1 + 1e-12))
     np.testing.assert_allclose(sigma_new, elastic_stress(eps, eps_p_new, MU, LAM),
                                rtol=0, atol=1e-9 * Y)
 

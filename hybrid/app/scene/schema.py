@@ -295,8 +295,8 @@ BODY = Section("bodies", "[[bodies]]", "Rigid or deformable bodies.", (
     _positive("plastic_update_strain", 0.02, "", "Equivalent plastic strain, accumulated in some "
               "element since the last update, at which the plastic deformation is baked into the rest "
               "shape (one refactorisation of this body); needs `yield_stress`.", fem=True),
-    _positive("max_plastic_strain", None, "", "Cap on the equivalent plastic strain of an element "
-              "(further flow is elastic); needs `yield_stress`.", fem=True, default_text="none (no cap)"),
+    _positive("max_plastic_strain", None, "", "Cap on the accumulated equivalent plastic strain of an element "
+              "(the frames' `plastic_strain`; further flow is elastic); needs `yield_stress`.", fem=True, default_text="none (no cap)"),
     _positive("fracture_stress", None, "Pa", "Tensile strength: an element whose smoothed largest "
               "principal stress exceeds it cracks. Absent: the body never breaks. Warned of as "
               "`yield_stress` is.", fem=True,
