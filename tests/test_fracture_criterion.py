@@ -326,3 +326,30 @@ def test_max_cracks_limits_the_faces_opened_in_one_step():
     cut, found = find_crack(fracture, points, tets, sigma)
     assert found.element.size == 3
     assert 1 <= cut.shape[0] <= 3
+
+
+def test_a_waiting_crack_grows_across_the_bar_check_after_check_where_its_front_is_most_stressed():
+    """A crack inside a finely meshed bar waits to open until it reaches the surface, and the
+    stress peaks at its front: every check took the most overstressed elements up to max_cracks,
+    found their faces already waiting, chose nothing new, and the bar never broke while its load
+    rose to 2.7 times its strength. The elements on the plane whose faces wait are passed over:
+    each check adds faces of the plane until the crack crosses the bar and splits it in two."""
+    points, tets = bar_mesh((6, 4, 4), (4.0, 2.0, 2.0))
+    centroid = points[tets].mean(axis=1)
+    # tension along x, highest at the middle of the section at x = 2 (a crack's front there)
+    peak = 1.0 + 0.5 * np.exp(-np.sum((centroid - [2.0, 1.0, 1.0]) ** 2, axis=1))
+    sigma = peak[:, None, None] * uniaxial(2 * STRENGTH, [1, 0, 0])
+    fracture = fracture_model(tets, tet_signed_volumes(points, tets), STRENGTH, max_cracks=4)
+    pending, checks = np.zeros(0, np.int64), 0
+    while True:
+        cut, _ = find_crack(fracture, points, tets, sigma, pending=pending)
+        checks += 1
+        assert len(cut) > len(pending), f"check {checks} chose nothing new with {len(pending)} faces waiting"
+        new_points, new_tets, _ = split_mesh(points, tets, fracture.faces.face_vertices[cut])
+        if components(new_tets, new_points.shape[0])[1] == 2:
+            break
+        pending = cut
+        assert checks < 50
+    # the crack it made is the plane at x = 2 (faces of one plane, the one the seed chose)
+    opened = fracture.faces.face_vertices[cut]
+    assert np.allclose(points[opened, 0], points[opened, 0].mean(), atol=0.7)
