@@ -223,10 +223,11 @@ def planar_crack(points: np.ndarray, tets: np.ndarray, candidates: CrackCandidat
     `tolerance` times the seed's mean edge length of that plane. One plane per call keeps a
     uniformly stressed body from opening many parallel cracks at once (it breaks where it is
     weakest, then unloads); the rest are re-examined at the next check. `max_cracks` then
-    keeps the most overstressed of the plane's elements whose crack face is not one of the
-    `pending` faces (chosen before, waiting to open): the stress peaks at a waiting crack's
-    front, and counting the elements there, whose faces it has already, a crack inside a finely
-    meshed bar chose nothing new at every check while the load rose to 2.7 times its strength.
+    keeps the most overstressed of the plane's elements, of those whose crack face is not one of
+    the `pending` faces (chosen before, waiting to open) when they are given: `find_crack` gives
+    them when the plane's elements would only choose waiting faces (the stress peaks at a
+    waiting crack's front; a crack inside a finely meshed bar chose nothing new at every check
+    while the load rose to 2.7 times its strength).
     """
     points = np.asarray(points, dtype=float)
     faces = tet_faces(tets) if faces is None else faces
@@ -322,10 +323,20 @@ def find_crack(fracture: FractureModel, points: np.ndarray, tets: np.ndarray,
     if found.element.size == 0:
         return np.zeros(0, dtype=np.int64), found
     pending = np.zeros(0, dtype=np.int64) if pending is None else np.asarray(pending)
-    found = planar_crack(points, tets, found, fracture.faces, max_cracks=fracture.max_cracks,
-                         pending=pending)
-    chosen = crack_faces(points, tets, found.element, found.normal, fracture.faces).face
-    chosen = np.unique(chosen[chosen >= 0])
+    plane = planar_crack(points, tets, found, fracture.faces, max_cracks=fracture.max_cracks)
+    chosen = _chosen_faces(points, tets, plane, fracture.faces)
     if np.all(np.isin(chosen, pending)):
-        return np.zeros(0, dtype=np.int64), found
-    return np.union1d(pending, chosen), found
+        # every face chosen waits already (the stress peaks at a waiting crack's front): the
+        # crack grows into the plane's elements beyond it, if any are overstressed
+        plane = planar_crack(points, tets, found, fracture.faces, max_cracks=fracture.max_cracks,
+                             pending=pending)
+        chosen = _chosen_faces(points, tets, plane, fracture.faces)
+        if np.all(np.isin(chosen, pending)):
+            return np.zeros(0, dtype=np.int64), plane
+    return np.union1d(pending, chosen), plane
+
+
+def _chosen_faces(points, tets, found, faces):
+    """The faces (sorted face ids) the candidates ``found`` open (:func:`crack_faces`)."""
+    chosen = crack_faces(points, tets, found.element, found.normal, faces).face
+    return np.unique(chosen[chosen >= 0])
