@@ -25,6 +25,7 @@ from .app.hints import frame_hints, rigid_hints, spin_warnings
 from .app.run import (Progress, Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
                       summary)
 from .app.scene import SceneError, load_scene
+from .app.scene.schema import MAX_STEPS
 from .app.scene.data import rechecked
 from .coupling.stability import OutputFailure, StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
@@ -334,9 +335,11 @@ class Simulation:
         if until is None:
             until = sim.duration
         elif isinstance(until, bool) or not isinstance(until, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(until) or until < self.time - 0.5 * sim.dt:
+                or not math.isfinite(until) or until < self.time - 0.5 * sim.dt \
+                or (until - self.time) / sim.dt > MAX_STEPS:
             raise ValueError(f"until must be a time (s) at or after the simulation's time "
-                             f"{self.time:.6g} s, got {until!r}")
+                             f"{self.time:.6g} s and at most {MAX_STEPS:.0e} steps of dt = "
+                             f"{sim.dt:g} s later, got {until!r}")
         until = float(until)
         end_step = self.steps + _nearest_whole((until - self.time) / sim.dt)
         return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,

@@ -128,7 +128,8 @@ def test_run_refuses_times_and_folders_it_cannot_honour(tmp_path):
     earlier time raised deep errors or did nothing and reported ok); out must be a folder, and
     not the one this simulation's last run wrote (its frames were silently replaced)."""
     sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
-    for until in (float("nan"), float("inf"), "0.3", -1.0, True):
+    # (1e307 overflowed counting its steps; 1e30, 1e33 steps, ran for ever)
+    for until in (float("nan"), float("inf"), "0.3", -1.0, True, 1e307, 1e30):
         with pytest.raises(ValueError, match="until must be a time"):
             sim.run(until=until, progress=False, log=lambda m: None)
     (tmp_path / "file").write_text("x")
