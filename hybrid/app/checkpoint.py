@@ -211,10 +211,12 @@ class EventStop(StopRequest):
         self.event = event
 
     def set(self, signum=signal.SIGINT):
+        """Set the event: the run stops as on SIGINT (whatever ``signum``)."""
         self.event.set()
 
     @property
-    def signal(self):       # (named as the module's signal is: read as StopRequest.signal)
+    def signal(self):
+        """SIGINT's number once the event is set, else None (read as ``StopRequest.signal``)."""
         return _SIGINT if self.event.is_set() else None
 
 
