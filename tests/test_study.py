@@ -505,3 +505,16 @@ def test_a_run_a_stop_left_a_checkpoint_goes_on_from_it_in_a_rerun(tmp_path, sce
     assert (folder / "bodies.csv").read_bytes() == (Path(whole["folder"]) / "bodies.csv").read_bytes()
     assert json.loads((folder / "summary.json").read_text())["steps"] == \
         json.loads((Path(whole["folder"]) / "summary.json").read_text())["steps"]
+
+
+def test_every_bad_set_key_is_named_not_only_the_first(tmp_path, capsys):
+    """A sweep with two keys that lead nowhere named only the first, though every problem of
+    the input is listed elsewhere: both are named, once each, and nothing runs."""
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    code = main(["sweep", str(scene), "--set", "bodies.nobody.restitution=0.1,0.2",
+                 "--set", "planes.3.friction=0.1,0.2", "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "no body 'nobody'" in err and "planes.3.friction" in err, err
+    assert err.count("no body 'nobody'") == 1 and "nothing was run" in err
+    assert not (tmp_path / "out" / "runs").exists()

@@ -232,18 +232,23 @@ def _plain(value):
 
 def make_variants(scene_path, rows):
     """Variants of the scene file ``scene_path``, one per ``{key: value}`` in ``rows``; each is
-    validated. Raises SettingError for a key that leads nowhere, SceneError (problems prefixed
-    with the variant's settings) for values the scene loader rejects."""
+    validated. Raises SettingError for the keys that lead nowhere (each named), SceneError
+    (problems prefixed with the variant's settings) for values the scene loader rejects."""
     scene_path = Path(scene_path)
     try:
         base = tomllib.loads(scene_path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
         raise SceneError([f"{scene_path}: cannot read scene file ({error})"]) from None
-    variants, problems = [], []
+    variants, problems, bad_keys = [], [], {}
     for settings in rows:
         data = copy.deepcopy(base)
         for key, value in settings.items():
-            apply_setting(data, key, value)
+            try:
+                apply_setting(data, key, value)
+            except SettingError as error:   # every key that leads nowhere is told, once
+                bad_keys.setdefault(str(error), None)
+        if bad_keys:
+            continue
         _absolute_meshes(data, scene_path.parent)
         digest = hashlib.sha1(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:6]
         # named by what it is, not where it stands: a study run again with one more value keeps
@@ -256,6 +261,8 @@ def make_variants(scene_path, rows):
             where = ", ".join(f"{k}={_plain(v)}" for k, v in settings.items()) or "the scene"
             problems += [f"--set {where}: {p}" for p in error.problems]
         variants.append(Variant(variant_id, dict(settings), data, scene_path.name))
+    if bad_keys:
+        raise SettingError("; ".join(bad_keys))
     if problems:
         raise SceneError(problems)
     return variants
