@@ -315,9 +315,9 @@ def plastic_force(model, state, tet_R=None):
 def plastic_update(model, state):
     """Return-map the end-of-step state onto the yield surface; returns the new state.
 
-    Updates ``tet_plastic_strain``, ``tet_peeq``, ``tet_yielded``, ``plastic_dissipation`` (only
-    points outside the yield surface flow), ``node_plastic_force`` and, for anchored bodies in the
-    floating frame, ``node_reaction``.
+    Updates ``tet_plastic_strain``, ``tet_peeq``, ``tet_yielded``, ``plastic_dissipation`` (points
+    outside the yield surface flow; none at ``max_plastic_strain``: further flow is elastic there),
+    ``node_plastic_force`` and, for anchored bodies in the floating frame, ``node_reaction``.
 
     ``node_plastic_force`` is the rest-frame force the next step applies: that of the new plastic
     strain plus the force of this step's increment at the points of elements that flowed in the
@@ -346,6 +346,7 @@ def plastic_update(model, state):
     # yield test on the deviator alone: von_mises(C : eps_e) = sqrt(3/2) 2 mu |dev eps_e|
     dev_norm2 = np.einsum("ck,ck->k", dev, dev)
     yielded = (dev_norm2 > (2.0 / 3.0) * (model.yield_stress / (2.0 * model.mu)) ** 2).reshape(t, q)
+    yielded &= model.max_plastic_strain is None or fields["tet_peeq"] < (1 - 1e-12) * model.max_plastic_strain
     fields["tet_yielded"] = yielded.any(axis=1)
     flowed = np.flatnonzero(yielded)
     d_eps_p = _flow(model, fields, dev, trace, flowed) if len(flowed) else np.zeros((0, 3, 3))
@@ -380,9 +381,8 @@ def _flow(model, fields, dev, trace, flowed):
     ``(9, t q)`` and trace ``(t q,)``; updates ``fields`` and returns the increments (k, 3, 3)."""
     eps_p = fields["tet_plastic_strain"]
     t, q = eps_p.shape[:2]
-    # return map at the yielded points only (Bridson's radial return, fem.plasticity.return_map);
-    # their tensors are gathered component-major, (9, k), and passed on as (k, 3, 3) views
-    # (_tensors), so that its whole-array operations run along the contiguous point axis too
+    # return map at the yielded points only (Bridson's radial return, fem.plasticity.return_map), their
+    # tensors gathered component-major (9, k) as (k, 3, 3) views (_tensors): contiguous along points
     old = _tensors(np.take(eps_p.reshape(t * q, 9), flowed, axis=0).T.copy())
     # trial stress C : eps_e = 2 mu dev + (lam + 2 mu / 3) tr I
     sigma_trial = np.take(dev, flowed, axis=1)

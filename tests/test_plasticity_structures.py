@@ -491,7 +491,8 @@ velocity = [2.5e-3, 0.0, 0.0]
 def test_a_bar_pulled_past_its_plastic_strain_cap_flows_to_it_and_then_stretches_elastically(sim):
     """max_plastic_strain 0.001 on a bar pulled to a strain of 0.005: the frames' plastic strain
     (accumulated) read 0.0012 (20% past the cap: the tensor was held to the cap but turned
-    further, and each turn was counted). It flows to the cap and no further; the rest of the
+    further, and each turn was counted), and every element read as yielding. It flows to the cap
+    and no further (none yields there); the rest of the
     stretch is elastic, so the pull ends at E A (0.005 - 0.001) (the anchored ends' held
     contraction stiffens it by a few percent) and the plastic work is Y A L 0.001."""
     bar = sim(CAPPED_BAR)
@@ -499,6 +500,7 @@ def test_a_bar_pulled_past_its_plastic_strain_cap_flows_to_it_and_then_stretches
     s = bar.state.fem[0]
     assert s.tet_peeq.max() == pytest.approx(1e-3, rel=1e-12)
     assert s.tet_peeq.min() == pytest.approx(1e-3, rel=1e-12)
+    assert not s.tet_yielded.any()          # at the cap, stretching elastically: none flows
     area, length = 1e-4, 0.1
     force = -s.node_reaction[bar.model.fem[0].node_anchor == 0, 0].sum()
     assert force == pytest.approx(70e9 * area * (0.005 - 0.001), rel=0.03)
