@@ -3,8 +3,9 @@
 Either integration rule on world coordinates moves a spinning body's nodes along chords, which
 stretches it and feeds energy into the spin (the trapezoidal rule then diverges; backward Euler
 gained 80% in 3 s on a rubber block at w h = 0.3). :func:`predict_spin_frame` steps the
-deformation in the frame that moves with the centre of mass and turns at the body's angular
-velocity over the step; ``fem.dynamics.predict`` uses it for every body without prescribed nodes.
+deformation in the frame that moves with the centre of mass and turns over the step as a rigid
+body of the same inertia and angular momentum would; ``fem.dynamics.predict`` uses it for every
+body without prescribed nodes.
 """
 from typing import NamedTuple
 
@@ -25,18 +26,44 @@ def _rotation(phi):
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
+def _free_turn(inertia, L, h):
+    """Rotation matrix ``(3, 3)`` by which a rigid body of ``inertia`` (3, 3) kg m^2 (world axes)
+    with angular momentum ``L`` (3,) turns in ``h`` seconds free of torque, so that a body tumbling
+    about an axis other than a principal one wobbles as a rigid body does.
+
+    With principal moments ``I1 <= I2 <= I3`` the energy splits as ``|L|^2 / (2 I2) + a Pi1^2 / 2
+    - b Pi3^2 / 2`` (``Pi`` the components of L along the axes, ``a = 1/I1 - 1/I2``, ``b = 1/I2 -
+    1/I3``): the first part's flow is a turn about L by ``h |L| / I2``, which commutes with the
+    others, and those are turns about the first and third axes, taken by Strang splitting. Each turn
+    keeps L and its own energy. A spin about a principal axis is turned exactly, and two equal
+    moments (a square bar, a disk), whose axes the eigensolver picks at random in their plane, only
+    drop a term: the tilt a splitting over those axes adds does not build up from step to step."""
+    moments, axes = np.linalg.eigh(inertia)
+    a, b = 1.0 / moments[0] - 1.0 / moments[1], 1.0 / moments[1] - 1.0 / moments[2]
+    turn = np.eye(3)
+    for axis, rate in ((0, 0.5 * h * a), (2, -h * b), (0, 0.5 * h * a)):
+        e = turn @ axes[:, axis]
+        turn = _rotation(rate * (e @ L) * e) @ turn
+    return _rotation(h * L / moments[1]) @ turn
+
+
 def predict_spin_frame(model, state, dt, gravity, allowance):
     """Step of a free body in the frame that spins with it.
 
     Either rule on world coordinates moves nodes along chords: a spinning body is stretched by
     about ``(w h)^2 / 2`` per step, and the stretch feeds energy back into the spin (without
     numerical damping, the trapezoidal rule diverges). So the step is taken in the frame that
-    translates with the centre of mass and turns at the body's angular velocity ``w = I^-1 L`` over
-    the step: there the rigid motion is at rest, the integrator acts on the deformation only, and
-    the frame's motion is exact. The frame adds its inertial forces: centrifugal
-    ``-m w x (w x y)`` (explicit, at the mid-step positions: it is what stretches a spinning body)
-    and Coriolis ``-2 m w x u`` (as rotations of the relative velocities by ``-w h`` before and
-    after the solve, which do no work). The centre of mass takes the net force exactly; mass damping
+    translates with the centre of mass and turns as a rigid body of the body's inertia and angular
+    momentum does over the step (:func:`_free_turn`, its spin ``w = I^-1 L`` at the start and
+    ``w_end`` at the end): there the rigid motion is at rest, the integrator acts on the deformation
+    only, and the frame's motion is that of the rigid body, wobble and all (a frame turning at the
+    starting spin throughout left a tumbling bar's rigid turn to the integrator, which gained
+    energy from 0.2 rad per step). The frame adds its inertial forces at the mid-step spin
+    ``w_mid``: centrifugal ``-m w_mid x (w_mid x y)`` (explicit, at the mid-step positions: it is
+    what stretches a spinning body), the frame's Euler force, which takes out the centrifugal
+    force's torque (the torque that turns a rigid body is the frame's turn already), and Coriolis
+    ``-2 m w_mid x u`` (as rotations of the relative velocities by ``-w_mid h`` before and after
+    the solve, which do no work). The centre of mass takes the net force exactly; mass damping
     slows translation and spin as it slows the deformation. With no spin this is the world-frame
     step, the translation split off. Newmark stays second order (tests/test_fem_free_body.py).
     ``allowance``: the step's :attr:`StepData.allowance`.
@@ -45,19 +72,21 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
     a_M = system_coefficients(model, dt)[0]
     force, K, R, A, solve, iterations = internal_forces_and_solver(model, dt, state)
     f = _spin_frame(model, state)
-    coriolis = _rotation(-h * f.w)                          # Coriolis over half the step
+    turn = _free_turn(f.inertia, f.L, h)                    # the frame's turn: a rigid body's
+    w_end = np.linalg.solve(f.inertia, f.L @ turn)          # and its end spin (frame axes)
+    w_mid = 0.5 * (f.w + w_end)
+    coriolis = _rotation(-h * w_mid)                        # Coriolis over half the step
     u = (state.v - f.V - f.y @ skew(f.w).T) @ coriolis.T   # velocities relative to the spinning frame
-    turn = _rotation(h * f.w)                               # the frame's turn over the step
     external = gravity_force(model, gravity) + model.node_load
     net = external.sum(axis=0)
     torque = inertia_and_moment(np.ones(len(f.m)), f.y, external)[1]
     load = external - np.outer(f.m / f.total, net)          # the net force moves the centre
-    rhs, u_new, y_new = _relative_step(model, dt, f, u, force + (1.0 - theta) * load + theta * load @ turn,
-                                       K, R, solve)
+    applied = force + (1.0 - theta) * load + theta * load @ turn
+    rhs, u_new, y_new = _relative_step(model, dt, f._replace(w=w_mid), u, applied, K, R, solve)
     u_new = u_new @ coriolis.T                              # and over the other half
     slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
     V_new = slow * f.V + h * net / (f.total * a_M)
-    u_new, y_new, w_new = _end_spin(model, h, (slow * f.L + h * torque) @ turn, f.w, u_new, y_new)
+    u_new, y_new, w_new = _end_spin(model, h, (slow * f.L + h * torque) @ turn, w_end, u_new, y_new)
     x_new = f.c + h * ((1.0 - theta) * f.V + theta * V_new) + y_new @ turn.T
     v_new = V_new + (u_new + y_new @ skew(w_new).T) @ turn.T
     return StepData(v=v_new, x_base=x_new - theta * h * v_new, x_rate=theta * h, rhs=rhs,
@@ -91,13 +120,20 @@ def _spin_frame(model, state):
 
 
 def _relative_step(model, dt, frame, u, applied, K, R, solve):
-    """The deformation's step in the spinning ``frame`` from relative velocities ``u`` (n, 3) m/s
-    under the ``applied`` forces (internal and external, n, 3) N: ``(rhs, u_new, y_new)``, the
-    system's right-hand side and the end-of-step relative velocities and offsets (m/s, m)."""
+    """The deformation's step in the spinning ``frame`` (its mid-step spin ``frame.w``) from
+    relative velocities ``u`` (n, 3) m/s under the ``applied`` forces (internal and external,
+    n, 3) N: ``(rhs, u_new, y_new)``, the system's right-hand side and the end-of-step relative
+    velocities and offsets (m/s, m)."""
     h, theta = dt, implicitness(model)
     y, W = frame.y, skew(frame.w)
     y_mid = y + 0.5 * h * u                                 # centrifugal force at mid-step
-    rhs = right_hand_side(model, dt, u, applied - mass_times(model, y_mid @ (W @ W).T), K, R)
+    inertial = -(y_mid @ (W @ W).T)
+    # and the frame's Euler force, -dw/dt x y: the frame turns as a rigid body does, whose spin
+    # changes by Euler's equations, I dw/dt = the centrifugal torque (so a body spinning about a
+    # principal axis feels none): taken at mid-step, the force field less its rigid turn
+    inertia_mid, torque = mass_moments(model, y_mid, inertial)
+    inertial -= y_mid @ skew(np.linalg.solve(inertia_mid, torque)).T
+    rhs = right_hand_side(model, dt, u, applied + mass_times(model, inertial), K, R)
     u_new = solve(rhs).reshape(-1, 3) @ R.T
     y_new = y + h * ((1.0 - theta) * u + theta * u_new)
     if theta != 0.5:
@@ -110,8 +146,9 @@ def _relative_step(model, dt, frame, u, applied, K, R, solve):
 
 
 def _end_spin(model, h, L_new, w, u_new, y_new):
-    """The end spin from the angular momentum balance, ``L_new`` (3,) in the frame's end axes:
-    ``(u_new, y_new, w_new)`` with the relative motion's spin taken out of it. The body's spin
+    """The end spin from the angular momentum balance, ``L_new`` (3,) in the frame's end axes, where
+    the frame itself ends spinning at ``w`` (3,): ``(u_new, y_new, w_new)`` with the relative
+    motion's spin taken out of it. The body's spin
     slows as it stretches, and wobble (spin off a principal axis) keeps L exactly. The linear
     force of a frame carries a small torque (second order in the strain); the balance takes it
     out as a rigid turn over the step (trapezoidal rule), so the positions keep second order too."""

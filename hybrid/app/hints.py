@@ -11,16 +11,13 @@ import math
 
 import numpy as np
 
-# the most a free deformable body stepped by backward Euler may turn in one step (rad) about its
-# axis of largest inertia: its step in the spinning frame treats the centrifugal force explicitly
-# and diverges from about 1 rad (a steel disk at 2000 rad/s: stable at dt = 0.3 and 0.4 ms, 430
-# times its energy at 0.7 ms); Newmark held the disk at 2 rad per step
+# the most a free deformable body may turn in one step (rad) under backward Euler, and under
+# Newmark about any axis but its axis of largest inertia: its step in the spinning frame treats
+# the centrifugal force explicitly and diverges from about 1 rad (a steel disk at 2000 rad/s
+# under backward Euler: stable at dt = 0.3 and 0.4 ms, 430 times its energy at 0.7 ms; a
+# 20 x 2 x 3 cm bar tumbling about its intermediate axis kept its energy to 1e-4 at 0.5 rad per
+# step and 1.5% at 0.8 under either rule); Newmark held the disk about its largest axis at 2
 SPIN_PER_STEP = 0.5
-# the most under either rule about another axis, where the body wobbles or tumbles and the
-# frame's turn at the step's start spin gains energy: a 20 x 2 x 3 cm bar spun about its
-# intermediate axis diverged at 0.2 rad per step (ran 2 s at 0.1), a square one about a
-# transverse axis (two equal moments) at 0.4 (ran at 0.3)
-TUMBLE_PER_STEP = 0.1
 
 
 def rigid_hints(model, strains, struck=()):
@@ -99,28 +96,26 @@ def frame_hints(model, strains, spinning=(), turns=None, inverted=()):
 
 
 def spin_warnings(scene, model, state):
-    """Warnings ``{body name: message}`` for free deformable bodies that start turning more in a
-    step than their step in the spinning frame holds: SPIN_PER_STEP under backward Euler about
-    an axis of largest inertia (one moment larger than the others by 1%, or all three equal),
-    TUMBLE_PER_STEP under either rule about any other axis."""
+    """Warnings ``{body name: message}`` for free deformable bodies that start turning more than
+    SPIN_PER_STEP in a step: under backward Euler, and under Newmark about any axis but one of
+    largest inertia (one moment larger than the others by 1%, or all three equal)."""
     dt, said = scene.simulation.dt, {}
     bodies = {b.name: b for b in scene.bodies}
     for k, m, s in zip(model.fem_ids, model.fem, state.fem):
         b = bodies.get(model.names[k])
         w = math.hypot(*b.angular_velocity) if b is not None else 0.0    # (no overflow)
-        if b is None or b.anchors or not w * dt > TUMBLE_PER_STEP or not math.isfinite(w):
+        if b is None or b.anchors or not w * dt > SPIN_PER_STEP or not math.isfinite(w):
             continue
         steady = _about_largest_axis(m.node_mass, s.x, np.asarray(b.angular_velocity, float) / w)
-        limit = SPIN_PER_STEP if steady else TUMBLE_PER_STEP
-        if w * dt <= limit or (steady and b.integrator != "backward_euler"):
+        if steady and b.integrator != "backward_euler":
             continue
         how = ("a free deformable body's step with backward Euler holds up to about "
                f"{SPIN_PER_STEP} rad per step and diverges from about 1; give dt = "
                f"{SPIN_PER_STEP / w:.2g} s or less, or integrator = \"newmark\"") if steady else (
             "it spins about an axis other than its axis of largest inertia, so it wobbles or "
-            "tumbles, and a free deformable body's step then gains energy and diverges from about "
-            f"0.2 rad per step (about its intermediate axis; 0.4 about one of two equal moments) "
-            f"under either integrator; give dt = {TUMBLE_PER_STEP / w:.2g} s or less")
+            f"tumbles, and a free deformable body's step then holds up to about {SPIN_PER_STEP} "
+            "rad per step and diverges from about 1 under either integrator; give dt = "
+            f"{SPIN_PER_STEP / w:.2g} s or less")
         said[b.name] = f"body '{b.name}' spins at {w:.4g} rad/s, {w * dt:.2g} rad per step of {dt:.3g} s: {how}"
     return said
 
