@@ -237,14 +237,14 @@ def test_a_damaged_frame_is_named_with_exit_code_2_and_no_parser_noise(tmp_path,
     assert "Traceback" not in err and "vtkXMLParser" not in err
 
 
-def write_block_and_cube_run(run_dir, stresses=(1.0e6, 2.0e6)):
-    """A deformable two-tet block (von Mises ``stresses`` in the two frames) beside a rigid cube,
-    with the ``deformable`` cell flags a simulation writes."""
+def write_block_and_cube_run(run_dir, stresses=(1.0e6, 2.0e6), field="von_mises"):
+    """A deformable two-tet block (``field``, von Mises by default, ``stresses`` in the two frames)
+    beside a rigid cube, with the ``deformable`` cell flags a simulation writes."""
     summary = {"scene": {"name": "mixed", "planes": [], "simulation": {"output_fps": 20}}}
     with RunWriter(run_dir, "mixed") as writer:
         for time, stress in zip((0.0, 0.05), stresses):
             block = FramePiece(0, TET_POINTS, [("tetra", TETS)],
-                               cell_data={"von_mises": np.array([stress, stress]), "deformable": np.int8(1)})
+                               cell_data={field: np.array([stress, stress]), "deformable": np.int8(1)})
             cube = FramePiece(1, CUBE_POINTS + [2.0, 0.0, 0.5], [("triangle", CUBE_TRIANGLES)])
             writer.write_frame(time, [block, cube], [])
         writer.close(summary)
@@ -261,6 +261,21 @@ def test_field_scale_comes_from_deformable_cells_and_rigid_bodies_are_grey(tmp_p
     grey = (np.abs(image - np.round(255 * np.array(render.RIGID_GREY) * 0.9)).max(axis=-1) < 60) \
         & (np.ptp(image, axis=-1) < 8) & (image.sum(axis=-1) > 200)
     assert grey[:, WIDTH // 2:].sum() > 200        # the cube, right of the block, drawn grey
+
+
+def test_a_field_with_one_value_throughout_the_run_is_rendered_with_a_note_saying_why(tmp_path, capfd):
+    """Coloured by plastic_strain, a run in which nothing yielded was drawn in one colour against
+    a made-up scale, without a word; a field that varies gets no note."""
+    from hybrid.app.cli import main
+    run_dir = tmp_path / "mixed"
+    write_block_and_cube_run(run_dir, stresses=(0.0, 0.0), field="plastic_strain")
+    assert main(["render", str(run_dir), "--size", "64", "48", "--field", "plastic_strain"]) == 0
+    err = capfd.readouterr().err
+    assert (f"note: {run_dir}: field 'plastic_strain' is 0 in every deformable element of every frame"
+            in err and "yield_stress" in err), err
+    varying = tmp_path / "varying"
+    write_block_and_cube_run(varying, stresses=(1.0e6, 2.0e6))
+    assert render_run(varying, size=(64, 48), field="von_mises")["note"] is None
 
 
 def test_percentile_scale_ignores_a_few_extreme_elements(tmp_path):

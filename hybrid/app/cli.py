@@ -276,6 +276,9 @@ def _render(args):
     except OSError as err:              # its render folder a file, or not writable
         print(f"{end}{run_dir}: cannot write the render ({err})", file=sys.stderr)
         return 2
+    if result.get("note"):
+        print(f"{end}note: {run_dir}: {result['note']}", file=sys.stderr)
+        end = ""
     print(f"{end}wrote {len(result['pngs'])} PNG frames and {result['movie']}")
     return 0
 

@@ -84,7 +84,8 @@ def _read_points_and_range(path: Path, field: str | None):
 def scene_bounds(frame_paths: Sequence[Path], field: str | None = None, colour_range: str = "run"):
     """Union (lo, hi) of all frames' points; the colour range of ``field`` over all frames
     (``colour_range`` "run": its smallest to largest value; "percentile": its 2nd to 98th
-    percentile, so a few extreme elements do not wash out every frame) and its association."""
+    percentile, so a few extreme elements do not wash out every frame), its association, and
+    its one value when it has the same in every cell of every frame (else None)."""
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     values, association = [], "cell"
@@ -98,8 +99,10 @@ def scene_bounds(frame_paths: Sequence[Path], field: str | None = None, colour_r
             association = found[1]
     if not np.all(np.isfinite(lo)):
         lo, hi = -np.ones(3) * 0.5, np.ones(3) * 0.5
-    clim = _limits(np.concatenate(values), colour_range) if values else None
-    return lo, hi, clim, association
+    values = np.concatenate(values) if values else None
+    clim = _limits(values, colour_range) if values is not None else None
+    constant = float(values[0]) if values is not None and len(values) and np.all(values == values[0]) else None
+    return lo, hi, clim, association, constant
 
 
 def _limits(values, colour_range):
@@ -240,6 +243,10 @@ BAR_WIDTH = 0.05    # the colour bar's width, a fraction of the image's (pyvista
 BAR_ROOM = 40 + 9 * 0.62 * BAR_FONT
 
 
+# why a field may have one value throughout a run (render_run's note)
+UNIFORM_WHY = {"plastic_strain": " (no element yielded: only bodies with a yield_stress flow)"}
+
+
 def _scalar_bar(field, width):
     """Colour bar arguments: vertical at the right edge, placed so that its labels stay inside an
     image ``width`` pixels wide (at 0.86 of the width, 640 px cut "-1.31e+06" to "-1.31e+0")."""
@@ -279,7 +286,8 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
         "percentile" (2nd to 98th percentile over the run) or "frame" (each frame's own range).
         Only deformable bodies carry a field; rigid bodies are drawn grey.
 
-    Returns ``{"pngs": [paths], "movie": path, "fps": fps, "backend": message}``. Raises
+    Returns ``{"pngs": [paths], "movie": path, "fps": fps, "backend": message, "note": text}``,
+    the note (else None) saying that ``field`` has one value throughout the run. Raises
     RuntimeError with the packages to install when off-screen OpenGL is unavailable.
     """
     run_dir = Path(run_dir)
@@ -295,7 +303,7 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
 
     if colour_range not in COLOUR_RANGES:
         raise ValueError(f"colour range {colour_range!r}: one of {', '.join(COLOUR_RANGES)}")
-    lo, hi, clim, association = scene_bounds(frame_paths, field, colour_range)
+    lo, hi, clim, association, constant = scene_bounds(frame_paths, field, colour_range)
     if field is not None and clim is None:
         raise ValueError(f"no frame of {run_dir} has a field named {field!r}")
     backend = use_backend()
@@ -319,7 +327,10 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
         if movie is not None:
             movie.close()
         plotter.close()
-    return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": backend}
+    note = None if constant is None else (
+        f"field {field!r} is {constant:g} in every deformable element of every frame, so the "
+        "bodies are drawn in one colour" + UNIFORM_WHY.get(field, ""))
+    return {"pngs": pngs, "movie": movie.path, "fps": fps, "backend": backend, "note": note}
 
 
 def _set_stage(plotter, lo, hi, planes, aspect, room=1.0):
