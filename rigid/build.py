@@ -20,7 +20,9 @@ class RigidBodyDesc:
     (rad/s) is world-frame. point_masses: ``(points (n, 3) m, masses (n,) kg)`` in the shape frame,
     whose mass, centre and inertia the body takes instead of its solid's (a deformable body
     turned rigid keeps the momentum and energy of its lumped node masses exactly); None: the
-    solid of ``density``. contact_points: ``(p, 3)`` shape-frame points of a mesh body that meet
+    solid of ``density``. mass_properties: ``(mass kg, centre (3,) m, inertia (3, 3) kg m^2 about
+    it)`` taken as they are (a deformable body with a consistent mass matrix turned rigid keeps the
+    momentum and energy of that matrix), instead of point_masses'. contact_points: ``(p, 3)`` shape-frame points of a mesh body that meet
     planes and other bodies' surfaces (None: all its vertices); fem_contact_points: ``(q, 3)``
     more points that meet only FEM surfaces (None: none). grid_cells: cells across the largest extent of a mesh body's
     signed-distance grid (None: the grid's default; fewer build faster, for bodies made during a
@@ -39,6 +41,7 @@ class RigidBodyDesc:
     restitution: float = 0.0
     fixed: bool = False
     point_masses: tuple = None
+    mass_properties: tuple = None
     grid_cells: int = None
     contact_points: np.ndarray = None
     fem_contact_points: np.ndarray = None
@@ -178,7 +181,9 @@ def _principal_frames(bodies, geo):
     mass, inertia = np.zeros(b), np.zeros((b, 3))
     axes, com = np.zeros((b, 3, 3)), np.zeros((b, 3))
     for i, (d, g) in enumerate(zip(bodies, geo)):
-        if d.point_masses is None:
+        if d.mass_properties is not None:
+            mass[i], com[i], I = d.mass_properties
+        elif d.point_masses is None:
             props = mass_properties(g.vertices, g.triangles, d.density)
             mass[i], com[i], I = props.mass, props.com, props.inertia
         else:
@@ -190,7 +195,7 @@ def _principal_frames(bodies, geo):
             inertia[i], axes[i] = np.linalg.eigh(I)
             if np.linalg.det(axes[i]) < 0:
                 axes[i][:, 2] *= -1
-        if d.point_masses is None and not (mass[i] > 0 and np.isfinite(inertia[i]).all()
+        if d.point_masses is None and d.mass_properties is None and not (mass[i] > 0 and np.isfinite(inertia[i]).all()
                                            and np.all(inertia[i] > 1e-12 * inertia[i].max())):
             # a box 1e8 m long and 1 m thick: its moment about the long axis, a difference of
             # terms 1e16 times larger, came out 0, and the first step divided by it

@@ -4,8 +4,8 @@
     model, state, events = elastify(model, state, indices)   # rigid auto bodies -> FEM bodies
 
 A body turned rigid keeps its deformed shape (its sag under load stays in it): its surface is the
-FEM surface where the nodes are, its mass, centre of mass and inertia those of its lumped node
-masses there, so its linear and angular momentum carry over exactly (and its kinetic energy, for
+FEM surface where the nodes are, its mass, centre of mass and inertia those of its own mass
+matrix (lumped or consistent) there, so its linear and angular momentum carry over exactly (and its kinetic energy, for
 a velocity field that was rigid); an anchored body becomes a fixed one. Its FEM model and state
 are kept, parked in ``HybridModel.parked`` (the model keeps its factorisation): turned back, it
 resumes from that deformed shape carried along by the rigid motion since, with the rigid velocity
@@ -117,10 +117,13 @@ def _rigid_bodies(model, state, bodies):
         scene_body = model.scene.bodies[k]
         vertices, triangles, _ = compact(s.x, m.surface)
         hull, others = hull_points(vertices)
+        weights = fem_dyn.mass_weights(m)
+        centre = weights @ s.x / weights.sum()
+        inertia = fem_dyn.mass_moments(m, s.x - centre, s.v)[0]      # (with its own mass matrix)
         descs.append(RigidBodyDesc(name=model.names[k], vertices=vertices, triangles=triangles,
                                    density=m.density, friction=scene_body.friction,
                                    restitution=scene_body.restitution, fixed=m.has_anchors,
-                                   point_masses=(s.x, m.node_mass),
+                                   mass_properties=(weights.sum(), centre, inertia),
                                    contact_points=hull, fem_contact_points=others))
     rm, rs = build_rigid(descs, [])
     last_dt = state.rigid.last_dt
