@@ -735,3 +735,19 @@ def test_an_auto_body_that_can_never_be_rigid_is_warned_of(sim, extra, why):
     plain = sim('[[bodies]]\nname = "b"\nmodel = "auto"\nyoung = 1e6\n'
                 'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
     assert not any("never makes it rigid" in w for w in plain.warnings)
+
+
+def test_a_rigidify_strain_above_a_tenth_of_the_elastify_strain_is_warned_of_with_the_value_used(sim):
+    """rigidify_strain is used at most at a tenth of the elastify strain (which a yield_stress
+    may lower further); 5e-4 was taken as 1e-4 without a word. Within the tenth, or the default
+    lowered by a body's yield strain (as docs/auto.md says it is): no warning."""
+    body = ('[[bodies]]\nname = "b"\nmodel = "auto"\nyoung = 1e6\n'
+            'shape = { type = "box", size = [0.1, 0.1, 0.1] }\n')
+    said = [w for w in sim(body + "auto = { rigidify_strain = 5e-4 }\n").warnings if "rigidify_strain" in w]
+    assert len(said) == 1 and "0.0005 is used as 0.0001" in said[0], said
+    # a yield strain of 2e-4 makes it deformable at 1e-4, and a rigidify_strain of 5e-5 is lowered
+    plastic = [w for w in sim(body + "yield_stress = 200.0\nauto = { rigidify_strain = 5e-5 }\n").warnings
+               if "rigidify_strain" in w]
+    assert len(plastic) == 1 and "5e-05 is used as 1e-05" in plastic[0], plastic
+    assert not any("rigidify_strain" in w for w in sim(body + "yield_stress = 200.0\n").warnings)
+    assert not any("rigidify_strain" in w for w in sim(body + "auto = { rigidify_strain = 1e-4 }\n").warnings)

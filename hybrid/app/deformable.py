@@ -213,8 +213,9 @@ def material_warnings(model):
     a yield or fracture strain past LARGE_MATERIAL_STRAIN (never reached in the strains linear
     elasticity holds for), or a strength below the stress its own weight makes across its height
     along gravity, ``density |g| h`` (it yields or cracks as it rests); and auto bodies that can
-    never be made rigid (hybrid.coupling.auto.may_be_rigid)."""
-    from hybrid.coupling.auto import may_be_rigid
+    never be made rigid (hybrid.coupling.auto.may_be_rigid) or whose rigidify_strain, given in
+    the scene, is not used as given (above a tenth of their elastify strain)."""
+    from hybrid.coupling.auto import elastify_threshold, may_be_rigid
     said, g, fem = [], float(np.linalg.norm(model.gravity)), _fem_models(model)
     for k, body in enumerate(model.scene.bodies):
         m = fem.get(k)
@@ -242,6 +243,13 @@ def material_warnings(model):
             said.append(f"body '{body.name}': model = \"auto\" never makes it rigid, as {why}: it is "
                         f"stepped as FEM throughout, with the auto checks' cost (docs/auto.md); "
                         f"model = \"fem\" says so")
+        elastify = elastify_threshold(body) if body.model == "auto" else None
+        chosen = body.auto.rigidify_strain != type(body.auto)().rigidify_strain   # (not the default)
+        if elastify is not None and chosen and body.auto.rigidify_strain > 0.1 * elastify:
+            said.append(f"body '{body.name}': auto rigidify_strain {body.auto.rigidify_strain:.3g} is used as "
+                        f"{0.1 * elastify:.3g}, a tenth of the strain at which it turns deformable "
+                        f"({elastify:.3g}: elastify_strain, at most half its yield and fracture "
+                        f"strains), so that a body never sits between the two (docs/auto.md)")
     return said
 
 
