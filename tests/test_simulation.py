@@ -460,3 +460,21 @@ def test_numpy_vectors_in_a_scene_changed_in_python_place_the_body_as_tuples_do(
     t = sim.time
     np.testing.assert_allclose(sim.body("b").position, [1.0 + 0.5 * t, 2.0, 10.0 - 9.81 * t * t / 2],
                                rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dt, steps, expected", [(5e-4, 135, 0.0675), (1e-4, 200, 0.02), (1 / 240, 480, 2.0)])
+def test_simulated_time_stays_on_the_grid_of_steps(dt, steps, expected):
+    """Adding the step each time left 0.06750000000000005 after 135 steps of 0.5 ms (in the
+    events and frames' times) and 0.019999999999999934 after 200 of 0.1 ms; the time is the
+    multiple of the step, as near the decimal time as one rounding leaves it."""
+    sim = Simulation(parse_scene(tomllib.loads(
+        f'[simulation]\nduration = 1.0\ndt = {dt!r}\ngravity = [0.0, 0.0, 0.0]\n'
+        '[[bodies]]\nname = "ball"\nshape = { type = "sphere", radius = 0.1 }\n'), "<t>", Path(".")))
+    for _ in range(steps):
+        sim.step()
+    assert sim.time == steps * dt
+    assert abs(sim.time - expected) <= 2 * np.spacing(expected)
+    added = 0.0
+    for _ in range(steps):
+        added += dt
+    assert added != sim.time                      # (the sum drifts off it: the test can fail)

@@ -10,7 +10,7 @@ factorised for the sub-step first.
 """
 from dataclasses import replace
 
-from .step import advance
+from .step import advance, next_time
 
 
 def advance_in_substeps(model, state, count, timings=None, stepped=None):
@@ -25,4 +25,4 @@ def advance_in_substeps(model, state, count, timings=None, stepped=None):
     for _ in range(count):
         sub, state, events = advance(sub, state, timings, stepped)
         happened += events
-    return replace(sub, dt=dt), replace(state, steps=steps + 1, time=time + dt), happened
+    return replace(sub, dt=dt), replace(state, steps=steps + 1, time=next_time(time, dt)), happened
