@@ -79,7 +79,12 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
     u = (state.v - f.V - f.y @ skew(f.w).T) @ coriolis.T   # velocities relative to the spinning frame
     external = gravity_force(model, gravity) + model.node_load
     net = external.sum(axis=0)
-    torque = inertia_and_moment(np.ones(len(f.m)), f.y, external)[1]
+    # the loads' torque about the centre at the step's start and, turned with the frame, its end
+    # (a world-fixed load on a spinning body turns its lever arms within the step; taken at the
+    # start alone, a bar spun at 150 rad/s with a load on one end gained energy at first order)
+    ones = np.ones(len(f.m))
+    torque = 0.5 * (inertia_and_moment(ones, f.y, external)[1]
+                    + inertia_and_moment(ones, f.y @ turn.T, external)[1])
     load = external - np.outer(f.m / f.total, net)          # the net force moves the centre
     applied = force + (1.0 - theta) * load + theta * load @ turn
     rhs, u_new, y_new = _relative_step(model, dt, f._replace(w=w_mid), u, applied, K, R, solve)
