@@ -566,6 +566,8 @@ def test_largest_strain_and_the_rigid_hint_see_every_step_and_only_free_unloaded
     assert summary["models"]["block"]["largest_strain"] >= peak / (np.sqrt(6.0) * mu) > 1e-2
     hints = [line for line in lines if "never strained" in line]
     assert len(hints) == 1 and "'idle'" in hints[0], lines
+    # its threshold as the check uses it, not rounded to one figure (1.43e-4 read "1e-04")
+    assert "never strained beyond 0.001 (largest " in hints[0], hints
 
 
 def test_the_summary_lists_auto_pieces_turned_rigid_at_once_with_no_time_as_fem(tmp_path):

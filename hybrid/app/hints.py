@@ -38,8 +38,8 @@ def rigid_hints(model, strains, struck=()):
             continue
         limit = elastify_threshold(body)
         if strain < limit:
-            lines.append(f"note: '{body.name}' never strained beyond {limit:.0e} (largest "
-                         f"{strain:.1e}): model = \"rigid\" would step it as fast as a rigid body")
+            lines.append(f"note: '{body.name}' never strained beyond {limit:.3g} (largest "
+                         f"{strain:.3g}): model = \"rigid\" would step it as fast as a rigid body")
     return lines
 
 
@@ -104,7 +104,8 @@ def spin_warnings(scene, model, state):
     for k, m, s in zip(model.fem_ids, model.fem, state.fem):
         b = bodies.get(model.names[k])
         w = math.hypot(*b.angular_velocity) if b is not None else 0.0    # (no overflow)
-        if b is None or b.anchors or not w * dt > SPIN_PER_STEP or not math.isfinite(w):
+        # (past the limit by more than round-off: at it, the step that holds is the step given)
+        if b is None or b.anchors or not w * dt > SPIN_PER_STEP * (1 + 1e-9) or not math.isfinite(w):
             continue
         steady = _about_largest_axis(m.node_mass, s.x, np.asarray(b.angular_velocity, float) / w)
         if steady and b.integrator != "backward_euler":
