@@ -381,7 +381,7 @@ class Simulation:
         if name not in self.model.names:
             raise KeyError(f"no body '{name}'; bodies: {', '.join(self.model.names)}")
         index = self.model.names.index(name)
-        row = next(r for r in observe.body_rows(self.model, self.state) if r[1] == name)
+        row = observe.body_rows(self.model, self.state, only=index)[0]
         values = np.array(row[2:-1], float)
         pose = dict(name=name, position=values[0:3], orientation=values[3:7], velocity=values[7:10],
                     angular_velocity=values[10:13], kinetic_energy=float(values[13]))

@@ -122,9 +122,11 @@ def rigid_table(model, state):
                        FORCE_LIKE)
 
 
-def body_rows(model, state):
+def body_rows(model, state, only=None):
     """Rows ``time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,kinetic_energy,model`` in scene
-    order; ``model`` is how the body was stepped (``rigid`` or ``fem``).
+    order; ``model`` is how the body was stepped (``rigid`` or ``fem``). ``only``: the scene
+    index of the one body whose row to make (``Simulation.body``: making all 404 rows of a pile
+    for one took 0.7 ms).
 
     Rigid: centre of mass, orientation of the body's own frame, velocity at the frame's time; an
     auto body stepped as rigid: the orientation its FEM row would give (continuous across switches).
@@ -134,16 +136,21 @@ def body_rows(model, state):
     """
     rows = {}
     t = float(state.time)
-    if model.rigid.body_count:
+    ids = [int(k) for k in model.rigid_ids]
+    if model.rigid.body_count and (only is None or only in ids):
         table = rigid_table(model, state)
-        ids = [int(k) for k in model.rigid_ids]
         for k in model.parked:
-            i = ids.index(k)
-            table[i, 3:7] = _parked_orientation(model, state, i, k)
+            if only is None or k == only:
+                i = ids.index(k)
+                table[i, 3:7] = _parked_orientation(model, state, i, k)
+        if only is not None:
+            table, ids = table[[ids.index(only)]], [only]
         # one conversion of the whole table to Python floats (not one per value)
         table = table.tolist()
         rows = {k: (t, model.names[k], *values, "rigid") for k, values in zip(ids, table)}
     for j, (m, s) in enumerate(zip(model.fem, state.fem)):
+        if only is not None and model.fem_ids[j] != only:
+            continue
         weights = fem_dyn.mass_weights(m)          # with the body's own mass matrix
         mass = weights.sum()
         com = weights @ s.x / mass
