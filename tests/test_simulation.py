@@ -492,3 +492,18 @@ def test_one_bodys_row_is_its_row_of_the_whole_table():
     for k, row in enumerate(table):
         assert observe.body_rows(sim.model, sim.state, only=k) == [row]
         assert list(sim.body(row[1]).position) == list(row[2:5])
+
+
+def test_a_checkpoint_interval_below_the_times_round_off_checkpoints_every_step(tmp_path):
+    """--checkpoint-every 1e-300 ran for ever after its first frame (adding the interval to the
+    next checkpoint's time until it passed now never got there, and a first Ctrl-C was not seen):
+    the run ends, checkpointing at every step. Run in a child process so that a hang fails."""
+    import subprocess
+    import sys
+    scene = tmp_path / "tiny.toml"
+    scene.write_text('[simulation]\nduration = 0.02\ndt = 0.002\n[[planes]]\n[[bodies]]\nname = "box"\n'
+                     'shape = { type = "box", size = [0.1, 0.1, 0.1] }\nposition = [0.0, 0.0, 0.3]\n')
+    done = subprocess.run([sys.executable, "-m", "hybrid", "run", str(scene), "--out", str(tmp_path / "out"),
+                           "--checkpoint-every", "1e-300"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["steps"] == 10

@@ -307,8 +307,11 @@ class Checkpoints:
                                       or (passed and now >= self.quick_until)):
             written = self._write(recorder, now)
             self.next_wall = now + self.wall_every
-        while self.next_time <= t + 1e-9 * self.sim.dt:
-            self.next_time += self.every
+        if self.next_time <= t + 1e-9 * self.sim.dt:
+            # the first multiple of ``every`` past now, in one step (adding it in a loop never
+            # ended for --checkpoint-every 1e-300, below the time's round-off)
+            ahead = math.floor((t + 1e-9 * self.sim.dt - self.next_time) / self.every) + 1
+            self.next_time = max(self.next_time + ahead * self.every, math.nextafter(t, math.inf))
         if asked:
             self.stopped = Stopped(self.stop.signal, t, written)
         return asked
