@@ -166,6 +166,11 @@ def test_set_values_and_variant_files_round_trip():
                         "anchors": [{"box": [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]}]}]}
     import tomllib
     assert tomllib.loads(toml_text(data)) == data
+    # names past U+FFFF (an emoji: JSON's ASCII escapes made surrogate halves TOML refuses, and
+    # every variant of such a scene failed), other scripts, control characters and DEL
+    named = {"simulation": {"name": "Сцена_😀"},
+             "bodies": [{"name": "кубик 😀", "material": {"k 😀": "a\x7f\x01\n\t\"\\"}}]}
+    assert tomllib.loads(toml_text(named)) == named
 
 
 def _free_port():

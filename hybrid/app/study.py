@@ -201,7 +201,7 @@ def _dispatch(todo, texts, total, workers, scheduler, progress):
             folder = Path(record["folder"])
             folder.mkdir(parents=True, exist_ok=True)
             (folder / "summary.json").unlink(missing_ok=True)
-            Path(record["scene_file"]).write_text(text)
+            Path(record["scene_file"]).write_text(text, encoding="utf-8")
         bar.slots = max(1, sum(client.nthreads().values()))
         # absolute paths: a scheduler's workers run from folders of their own (a relative study
         # folder failed every run there)

@@ -281,7 +281,7 @@ def _toml_scalar(value):
             return "inf" if value > 0 else "-inf"
         return repr(value)          # round-trips exactly: a variant runs with the same numbers
     if isinstance(value, str):
-        return json.dumps(value)    # TOML basic strings take JSON's escapes
+        return _toml_string(value)
     if isinstance(value, list):
         return "[" + ", ".join(_toml_scalar(v) for v in value) + "]"
     if isinstance(value, dict):
@@ -290,7 +290,15 @@ def _toml_scalar(value):
 
 
 def _toml_key(key):
-    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_string(key)
+
+
+def _toml_string(text):
+    """A TOML basic string: JSON's escapes for quotes, backslashes and control characters (TOML
+    takes them), the rest as it is (JSON's ASCII escapes write a character past U+FFFF as two
+    surrogate halves, which TOML refuses: a scene named with an emoji failed every variant), and
+    DEL, which JSON leaves, escaped."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007F")
 
 
 def toml_text(data):
