@@ -363,3 +363,16 @@ def test_a_deformable_body_spun_past_the_limits_is_refused_naming_its_angular_ve
                                                "velocity = [2e4, 0, 0]"))
     assert main(["validate", str(scene)]) == 2
     assert "field 'velocity' starts it at a speed of 2e+04 m/s" in capsys.readouterr().err
+
+
+def test_a_mesh_whose_own_coordinates_lie_beyond_the_limit_is_named_not_its_position(tmp_path, capsys):
+    """A rigid body made from a mesh file whose vertices lie 5e6 m out was refused naming its
+    'position', which the scene never set: the mesh puts it there."""
+    (tmp_path / "far.obj").write_text("v 5e6 0 0\nv 5000000.1 0 0\nv 5e6 0.1 0\nv 5e6 0 0.1\n"
+                                      "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    scene = tmp_path / "far.toml"
+    scene.write_text('[simulation]\nduration = 0.002\ngravity = [0, 0, 0]\n[[bodies]]\nname = "m"\n'
+                     'mesh = "far.obj"\n')
+    assert main(["validate", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert "field 'mesh' starts it at a distance from the origin of 5e+06 m" in err, err

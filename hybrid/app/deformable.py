@@ -278,10 +278,16 @@ def beyond(scene, model, state):
     after every step (hybrid.coupling.stability.beyond_limits): run, they would stop as unstable
     at their first step."""
     index = {b.name: i for i, b in enumerate(scene.bodies)}
-    return [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field "
-            f"'{field}' starts it at a {quantity} of {value:.3g} {unit}: a run stops as unstable "
-            f"beyond {limit:.0e} {unit} (allowed: up to {limit:.0e} {unit})"
-            for name, field, quantity, unit, value, limit in beyond_limits(model, state)]
+    said = []
+    for name, field, quantity, unit, value, limit in beyond_limits(model, state):
+        body = scene.bodies[index[name]]
+        if field == "position" and body.mesh is not None and math.hypot(*body.position) <= limit:
+            # the mesh file's own coordinates put it there, not its position
+            field = "mesh"
+        said.append(f"{scene.source_path}: {body_label(body, index[name])}: field '{field}' starts it "
+                    f"at a {quantity} of {value:.3g} {unit}: a run stops as unstable beyond "
+                    f"{limit:.0e} {unit} (allowed: up to {limit:.0e} {unit})")
+    return said
 
 
 def body_label(body, index):
