@@ -139,7 +139,11 @@ class Simulation:
     def from_toml(cls, path):
         """Load, validate and build a scene file, or a built-in scene given by name (``hybrid
         scenes`` lists them). Raises SceneError listing every problem (a missing file among them),
-        KeyError for a name that is no built-in scene."""
+        KeyError for a name that is no built-in scene, TypeError for a ``path`` that is neither a
+        string nor a path."""
+        if not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"from_toml takes a scene file's path (a str or pathlib.Path) or a "
+                            f"built-in scene's name, not {type(path).__name__}")
         return cls(scene_path(path))
 
     @classmethod

@@ -507,3 +507,10 @@ def test_a_checkpoint_interval_below_the_times_round_off_checkpoints_every_step(
                            "--checkpoint-every", "1e-300"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["steps"] == 10
+
+
+@pytest.mark.parametrize("path", [None, 3, 2.5])
+def test_from_toml_of_something_that_is_no_path_says_what_it_takes(path):
+    """``Simulation.from_toml(None)`` raised a bare TypeError from inside the path code."""
+    with pytest.raises(TypeError, match=f"a scene file's path .* not {type(path).__name__}"):
+        Simulation.from_toml(path)
