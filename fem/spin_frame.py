@@ -17,6 +17,11 @@ from fem.system import (LazyMatrix, StepData, gravity_force, implicitness, inter
                         right_hand_side, system_coefficients)
 
 
+# a frame turning less than this in a step (rad) is at rest: what its turn's square gives is left
+# out (a 9,600-tet slab resting on the ground turns by 1e-14 to 1e-13 a step)
+STILL_TURN = 1e-10
+
+
 def _rotation(phi):
     """Rotation matrix ``(3, 3)`` of a rotation vector ``(3,)`` (rad), by Rodrigues' formula."""
     angle = float(np.sqrt(phi @ phi))
@@ -72,8 +77,12 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
     a_M = system_coefficients(model, dt)[0]
     force, K, R, A, solve, iterations = internal_forces_and_solver(model, dt, state)
     f = _spin_frame(model, state)
-    turn = _free_turn(f.inertia, f.L, h)                    # the frame's turn: a rigid body's
-    w_end = np.linalg.solve(f.inertia, f.L @ turn)          # and its end spin (frame axes)
+    # (a body at rest turns by round-off: its turn is taken about its spin, its frame's inertial
+    # forces, the loads' turn within the step and its wobble, of the order of that squared, left out)
+    still = h * np.sqrt(f.w @ f.w) <= STILL_TURN
+    # the frame's turn (a rigid body's) and its end spin (frame axes)
+    turn = _rotation(h * f.w) if still else _free_turn(f.inertia, f.L, h)
+    w_end = f.w if still else np.linalg.solve(f.inertia, f.L @ turn)
     w_mid = 0.5 * (f.w + w_end)
     coriolis = _rotation(-h * w_mid)                        # Coriolis over half the step
     u = (state.v - f.V - f.y @ skew(f.w).T) @ coriolis.T   # velocities relative to the spinning frame
@@ -83,11 +92,13 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
     # (a world-fixed load on a spinning body turns its lever arms within the step; taken at the
     # start alone, a bar spun at 150 rad/s with a load on one end gained energy at first order)
     ones = np.ones(len(f.m))
-    torque = 0.5 * (inertia_and_moment(ones, f.y, external)[1]
-                    + inertia_and_moment(ones, f.y @ turn.T, external)[1])
+    torque = inertia_and_moment(ones, f.y, external)[1]
+    if not still:
+        torque = 0.5 * (torque + inertia_and_moment(ones, f.y @ turn.T, external)[1])
     load = external - np.outer(f.m / f.total, net)          # the net force moves the centre
-    applied = force + (1.0 - theta) * load + theta * load @ turn
-    rhs, u_new, y_new = _relative_step(model, dt, f._replace(w=w_mid), u, applied, K, R, solve)
+    applied = force + (load if still else (1.0 - theta) * load + theta * load @ turn)
+    rhs, u_new, y_new = _relative_step(model, dt, None if still else f._replace(w=w_mid), u, applied,
+                                       K, R, solve, f)
     u_new = u_new @ coriolis.T                              # and over the other half
     slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
     V_new = slow * f.V + h * net / (f.total * a_M)
@@ -124,21 +135,25 @@ def _spin_frame(model, state):
     return _SpinFrame(m, total, c, y, m @ state.v / total, inertia, L, np.linalg.solve(inertia, L))
 
 
-def _relative_step(model, dt, frame, u, applied, K, R, solve):
-    """The deformation's step in the spinning ``frame`` (its mid-step spin ``frame.w``) from
-    relative velocities ``u`` (n, 3) m/s under the ``applied`` forces (internal and external,
-    n, 3) N: ``(rhs, u_new, y_new)``, the system's right-hand side and the end-of-step relative
+def _relative_step(model, dt, spinning, u, applied, K, R, solve, frame):
+    """The deformation's step in the ``frame`` (a :class:`_SpinFrame`) from relative velocities
+    ``u`` (n, 3) m/s under the ``applied`` forces (internal and external, n, 3) N, with the
+    inertial forces of the frame ``spinning`` at its mid-step spin ``spinning.w`` (None: a frame
+    at rest): ``(rhs, u_new, y_new)``, the system's right-hand side and the end-of-step relative
     velocities and offsets (m/s, m)."""
     h, theta = dt, implicitness(model)
-    y, W = frame.y, skew(frame.w)
-    y_mid = y + 0.5 * h * u                                 # centrifugal force at mid-step
-    inertial = -(y_mid @ (W @ W).T)
-    # and the frame's Euler force, -dw/dt x y: the frame turns as a rigid body does, whose spin
-    # changes by Euler's equations, I dw/dt = the centrifugal torque (so a body spinning about a
-    # principal axis feels none): taken at mid-step, the force field less its rigid turn
-    inertia_mid, torque = mass_moments(model, y_mid, inertial)
-    inertial -= y_mid @ skew(np.linalg.solve(inertia_mid, torque)).T
-    rhs = right_hand_side(model, dt, u, applied + mass_times(model, inertial), K, R)
+    y = frame.y
+    if spinning is not None:
+        W = skew(spinning.w)
+        y_mid = y + 0.5 * h * u                             # centrifugal force at mid-step
+        inertial = -(y_mid @ (W @ W).T)
+        # and the frame's Euler force, -dw/dt x y: the frame turns as a rigid body does, whose
+        # spin changes by Euler's equations, I dw/dt = the centrifugal torque (so a body spinning
+        # about a principal axis feels none): taken at mid-step, the force field less its turn
+        inertia_mid, torque = mass_moments(model, y_mid, inertial)
+        inertial -= y_mid @ skew(np.linalg.solve(inertia_mid, torque)).T
+        applied = applied + mass_times(model, inertial)
+    rhs = right_hand_side(model, dt, u, applied, K, R)
     u_new = solve(rhs).reshape(-1, 3) @ R.T
     y_new = y + h * ((1.0 - theta) * u + theta * u_new)
     if theta != 0.5:
