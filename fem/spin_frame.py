@@ -97,8 +97,7 @@ def predict_spin_frame(model, state, dt, gravity, allowance):
         torque = 0.5 * (torque + inertia_and_moment(ones, f.y @ turn.T, external)[1])
     load = external - np.outer(f.m / f.total, net)          # the net force moves the centre
     applied = force + (load if still else (1.0 - theta) * load + theta * load @ turn)
-    rhs, u_new, y_new = _relative_step(model, dt, None if still else f._replace(w=w_mid), u, applied,
-                                       K, R, solve, f)
+    rhs, u_new, y_new = _relative_step(model, dt, f, u, applied, K, R, solve, None if still else w_mid)
     u_new = u_new @ coriolis.T                              # and over the other half
     slow = (1.0 - (1.0 - theta) * h * model.damping_mass) / a_M     # mass damping of the rigid motion
     V_new = slow * f.V + h * net / (f.total * a_M)
@@ -135,16 +134,16 @@ def _spin_frame(model, state):
     return _SpinFrame(m, total, c, y, m @ state.v / total, inertia, L, np.linalg.solve(inertia, L))
 
 
-def _relative_step(model, dt, spinning, u, applied, K, R, solve, frame):
+def _relative_step(model, dt, frame, u, applied, K, R, solve, spin):
     """The deformation's step in the ``frame`` (a :class:`_SpinFrame`) from relative velocities
     ``u`` (n, 3) m/s under the ``applied`` forces (internal and external, n, 3) N, with the
-    inertial forces of the frame ``spinning`` at its mid-step spin ``spinning.w`` (None: a frame
-    at rest): ``(rhs, u_new, y_new)``, the system's right-hand side and the end-of-step relative
-    velocities and offsets (m/s, m)."""
+    frame's inertial forces at its mid-step ``spin`` (3,) rad/s (None: a frame at rest):
+    ``(rhs, u_new, y_new)``, the system's right-hand side and the end-of-step relative velocities
+    and offsets (m/s, m)."""
     h, theta = dt, implicitness(model)
     y = frame.y
-    if spinning is not None:
-        W = skew(spinning.w)
+    if spin is not None:
+        W = skew(spin)
         y_mid = y + 0.5 * h * u                             # centrifugal force at mid-step
         inertial = -(y_mid @ (W @ W).T)
         # and the frame's Euler force, -dw/dt x y: the frame turns as a rigid body does, whose
