@@ -338,3 +338,22 @@ def test_a_render_of_a_folder_that_is_not_there_says_so(tmp_path, capfd):
     (tmp_path / "a-file").write_text("x")
     assert main(["render", str(tmp_path / "a-file")]) == 2
     assert "it is a file" in capfd.readouterr().err
+
+
+def test_a_render_interrupted_leaves_no_movie_of_the_frames_drawn_so_far(tmp_path):
+    """Stopped by Ctrl-C half way, a render left a movie of the frames drawn so far, which looks
+    whole: the movie is removed (the frames' PNGs drawn stay), and a rerun makes the whole one."""
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+
+    def interrupt(done, total):
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        render_run(run_dir, size=(64, 48), progress=interrupt)
+    render = run_dir / "render"
+    assert not list(render.glob("*.mp4")) and not list(render.glob("*.gif"))
+    assert len(list(render.glob("frame_*.png"))) == 1
+    result = render_run(run_dir, size=(64, 48))
+    assert result["movie"].exists() and len(result["pngs"]) == 2

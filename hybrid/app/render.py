@@ -323,6 +323,13 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
         movie = _MovieWriter(out_dir / scene, fps)
         pngs = _render_frames(plotter, times, frame_paths, out_dir, movie, (field, association, clim, colour_range),
                               (width, height), progress)
+    except BaseException:
+        # a movie of the frames drawn before an interruption or error looks whole: none is left
+        if movie is not None:
+            movie.close()
+            movie.path.unlink(missing_ok=True)
+            movie = None
+        raise
     finally:
         if movie is not None:
             movie.close()
