@@ -2,6 +2,8 @@
 rigid and FEM bodies, a writer error raised on the stepping side with the frames before it kept,
 an interrupted run keeping its frames, and no child process left once a run has ended."""
 
+import errno
+import io
 import math
 import os
 import signal
@@ -139,6 +141,42 @@ def test_a_writer_process_error_is_raised_on_the_caller_with_the_frames_before_i
     assert [float(line.split(",")[0]) for line in lines[1:]] == times
     assert not list((run_dir / "frames").glob(".*.tmp"))
     assert not children()
+
+
+class FillingFile(io.FileIO):
+    """A file on a disk with ``room`` bytes left: a write past it writes what fits and fails."""
+    room = 1500
+
+    def write(self, data):
+        left = self.room - self.tell()
+        if len(data) > left:
+            super().write(bytes(data[:max(left, 0)]))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return super().write(data)
+
+
+def test_a_full_disk_keeps_whole_frames_each_with_its_whole_rows_and_the_index_listing_them(
+        tmp_path, monkeypatch):
+    """The table's write that fails part way is cut back off, the frame whose rows failed goes
+    too, and closing writes nothing more (a writer process printed a traceback closing it)."""
+    from hybrid.app import vtu
+    def tables_open(path, mode, *args, **kwargs):      # the tables' files fill the disk
+        return FillingFile(path, mode[0]) if mode in ("wb", "ab") else open(path, mode, *args, **kwargs)
+    monkeypatch.setattr(vtu, "open", tables_open, raising=False)
+    rng = np.random.default_rng(5)
+    run_dir = tmp_path / "run"
+    writer = RunWriter(run_dir, "drop", background="inline")
+    with writer:
+        with pytest.raises(OSError, match="No space"):
+            for k in range(100):
+                writer.write_frame(0.01 * k, [piece(0.01 * k, rng)], rows(0.01 * k))
+        writer.close({"status": "failed"})
+    times, paths, _ = read_run(run_dir)
+    text = (run_dir / "bodies.csv").read_text()
+    assert text.endswith("\n") and 0 < len(text) <= FillingFile.room
+    assert [float(line.split(",")[0]) for line in text.splitlines()[1:]] == times
+    assert sorted(p.name for p in (run_dir / "frames").iterdir()) == [p.name for p in paths]
+    assert len(times) == len(text.splitlines()) - 1 > 3
 
 
 def test_bad_input_raises_at_once_and_writes_nothing_of_that_frame(tmp_path):

@@ -304,6 +304,19 @@ FRAMES_DIR = "frames"
 BUSY_INDEX = 10
 
 
+def append_whole(f, data: bytes) -> None:
+    """Append ``data`` to the unbuffered binary file ``f``, all of it or none: a write that fails
+    part way (a full disk) is cut back off before the error is raised."""
+    start = f.tell()
+    view = memoryview(data)
+    try:
+        while view:
+            view = view[f.write(view) or 0:]
+    except BaseException:
+        f.truncate(start)
+        raise
+
+
 class FrameFiles:
     """The files of one run as written so far, and the jobs that write them.
 
@@ -357,11 +370,15 @@ class FrameFiles:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+        try:        # the frame and its rows, or neither (a full disk may stop the rows)
+            self.rows(table, columns, rows)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
         self.times.append(float(t))
         self.files.append(f"{FRAMES_DIR}/{name}")
         self.pvd_lines.append(pvd_line(t, self.files[-1]))
         self.count += 1
-        self.rows(table, columns, rows)
 
     def values(self, t: float, name: str, paths, values, table, columns, rows) -> None:
         """A frame of the last frame's layout, its ``values`` at ``paths`` (:mod:`hybrid.app.frame_layout`)."""
@@ -371,14 +388,14 @@ class FrameFiles:
 
     def rows(self, table: str, columns, rows) -> None:
         """Append ``rows`` (checked tuples in ``columns`` order) to the CSV file ``table``, which
-        gets its header when it is created; one write, flushed, so only whole lines reach disk."""
+        gets its header when it is created. The file is unbuffered and a write that fails (a full
+        disk) is cut back off, so only whole lines stay on disk and closing it writes nothing."""
         text = csv_rows(rows, columns)
         f = self.tables.get(table)
         if f is None:
-            f = self.tables[table] = open(self.out_dir / table, "w", encoding="utf-8", newline="")
+            f = self.tables[table] = open(self.out_dir / table, "wb", buffering=0)
             text = ",".join(columns) + "\n" + text
-        f.write(text)
-        f.flush()
+        append_whole(f, text.encode("utf-8"))
 
     def index(self) -> None:
         """Write the ``.pvd`` listing every frame written, if the one on disk lists fewer."""
@@ -389,9 +406,7 @@ class FrameFiles:
 
     def state(self) -> dict:
         """Where the files stand: ``count``, ``times``, ``files``, ``tables`` (name -> bytes
-        written, tables flushed), ``listed`` (frames the ``.pvd`` on disk lists), ``index_time``."""
-        for f in self.tables.values():
-            f.flush()
+        written), ``listed`` (frames the ``.pvd`` on disk lists), ``index_time``."""
         return {"count": self.count, "times": list(self.times), "files": list(self.files),
                 "tables": {name: f.tell() for name, f in self.tables.items()},
                 "listed": self.pvd_listed, "index_time": self.index_time}
@@ -407,7 +422,7 @@ class FrameFiles:
         self.pvd_listed = int(state.get("listed", len(self.pvd_lines)))
         self.index_time = state.get("index_time", -math.inf)
         for name in state["tables"]:
-            self.tables[name] = open(self.out_dir / name, "a", encoding="utf-8", newline="")
+            self.tables[name] = open(self.out_dir / name, "ab", buffering=0)
 
     def close(self) -> None:
         """Close the tables."""
