@@ -1,4 +1,5 @@
-"""Plain-text files of a run: JSON-ready values, CSV rows at full precision, atomic writes.
+"""Plain-text files of a run: JSON-ready values, CSV rows at full precision, atomic writes and
+whole appends.
 
 Used by :mod:`hybrid.app.output` for ``summary.json``, ``bodies.csv``, ``regions.csv`` and the
 ``.pvd`` index.
@@ -98,4 +99,17 @@ def atomic_write_text(path: Path, text: str) -> None:
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def append_whole(f, data: bytes) -> None:
+    """Append ``data`` to the unbuffered binary file ``f``, all of it or none: a write that fails
+    part way (a full disk) is cut back off before the error is raised."""
+    start = f.tell()
+    view = memoryview(data)
+    try:
+        while view:
+            view = view[f.write(view) or 0:]
+    except BaseException:
+        f.truncate(start)
         raise

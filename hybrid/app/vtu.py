@@ -22,7 +22,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .text_files import atomic_write_text, csv_rows, temporary_path
+from .text_files import append_whole, atomic_write_text, csv_rows, temporary_path
 
 # meshio (a quarter of a second to import) is imported only where it is used, so that the writer
 # process (hybrid.app.writer_process) starts without it.
@@ -302,19 +302,6 @@ FRAMES_DIR = "frames"
 
 # a writer that is never idle (frames keep coming) rewrites the .pvd every this many index_every
 BUSY_INDEX = 10
-
-
-def append_whole(f, data: bytes) -> None:
-    """Append ``data`` to the unbuffered binary file ``f``, all of it or none: a write that fails
-    part way (a full disk) is cut back off before the error is raised."""
-    start = f.tell()
-    view = memoryview(data)
-    try:
-        while view:
-            view = view[f.write(view) or 0:]
-    except BaseException:
-        f.truncate(start)
-        raise
 
 
 class FrameFiles:
