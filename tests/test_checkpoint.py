@@ -195,6 +195,16 @@ def test_a_corrupted_checkpoint_is_refused(capsys, stopped_quick):
     assert code == 2 and "truncated or corrupted" in err, err
 
 
+def test_a_checkpoint_overwritten_with_junk_is_refused_without_advice_to_load_it_unsafely(capsys, stopped_quick):
+    """numpy takes a file that is no archive for pickled data, and its message advises loading it
+    with allow_pickle=True: a checkpoint is never loaded so, and the message says what it is."""
+    out, scene = stopped_quick
+    (out / "checkpoint.npz").write_bytes(b"not a checkpoint at all\n" * 40)
+    code, err = resume_code(capsys, scene, out)
+    assert code == 2 and "truncated or corrupted" in err and "not a .npz archive" in err, err
+    assert "allow_pickle" not in err and "unsafe" not in err, err
+
+
 @pytest.mark.parametrize("damage", ["garbage", "cut short"])
 def test_a_damaged_frame_the_checkpoint_counts_is_refused(capsys, stopped_quick, damage):
     """A frame the checkpoint counts, overwritten with garbage or cut short since: the resume

@@ -130,7 +130,9 @@ def _load(path):
             arrays = {name: z[name] for name in z.files}       # reads all: checks every CRC
         manifest = json.loads(arrays.pop("manifest").tobytes().decode("utf-8"))
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError) as error:
-        raise CheckpointError(f"{path}: truncated or corrupted checkpoint ({error}); it cannot be "
+        # (numpy's words for a file it takes for pickled data advise loading it unsafely: not here)
+        why = "it is not a .npz archive" if "allow_pickle" in str(error) else error
+        raise CheckpointError(f"{path}: truncated or corrupted checkpoint ({why}); it cannot be "
                               f"resumed from") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a hybrid checkpoint (no '{FORMAT}' manifest)")
