@@ -124,8 +124,9 @@ class Simulation:
         problems = deep_starts(scene, self.model, below) + beyond(scene, self.model, self.state)
         if problems:
             raise SceneError(problems)
-        self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out "
-                          f"in its first step{'s' if name in self.model.rigid.names else ''}" for name, depth in below]
+        self.warnings += [f"body '{name}' starts {depth:.3g} m inside a plane: it is pushed out in its first "
+                          f"step{'s' if name in self.model.rigid.names else ''}{geometry.units_hint(scene.bodies, name)}"
+                          for name, depth in below]
         self.spinning = spin_warnings(scene, self.model, self.state)
         self.warnings += ignored_motion(scene) + list(self.spinning.values()) + material_warnings(self.model)
         self.notes = mesh_notes(self.model)

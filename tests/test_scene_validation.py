@@ -3,12 +3,14 @@ table and field named, all problems at once, without tracebacks."""
 import json
 import math
 import shutil
+import warnings
 from pathlib import Path
 
 import meshio
 import numpy as np
 import pytest
 
+from hybrid import Simulation
 from hybrid.app import geometry
 from hybrid.app.scene import (SceneError, load_scene, parse_scene, reference_markdown, validate_command)
 
@@ -503,6 +505,31 @@ def test_a_mesh_hundreds_of_metres_across_is_said_to_be_perhaps_in_millimetres(t
     with pytest.warns(geometry.MeshWarning) as caught:                      # 1 m: no such word
         geometry.load_tet_mesh(write_tet_cube(tmp_path / "cube.vtu"))
     assert not [w for w in caught if "units" in str(w.message)]
+
+
+def test_a_stray_node_does_not_make_a_mesh_large_and_a_mesh_body_started_deep_is_told_its_units(tmp_path):
+    """A 1 m cube with one node no cell uses at (100, 100, 100) was said to span 100 m; a 50 mm
+    part written in millimetres (50 m, not over 100) placed at 3 cm height was told only that it
+    starts 25 m inside the ground."""
+    far = np.vstack([CUBE_POINTS, [[150.0, 150.0, 150.0]]])
+    meshio.write(tmp_path / "stray.vtu", meshio.Mesh(far, [("tetra", CUBE_TETS)]))
+    for load in (geometry.load_tet_mesh, geometry.load_surface):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            load(tmp_path / "stray.vtu")
+        assert not [w for w in caught if "units" in str(w.message)]
+    meshio.write(tmp_path / "part.vtu", meshio.Mesh(CUBE_POINTS * 50.0, [("tetra", CUBE_TETS)]))
+    for model in ("fem", "rigid"):
+        young = "young = 1e9\n" if model == "fem" else ""
+        text = (f'[[planes]]\n[[bodies]]\nname = "part"\nmodel = "{model}"\n{young}'
+                f'mesh = "part.vtu"\nposition = [0.0, 0.0, 0.03]\n')
+        (tmp_path / "part.toml").write_text(text)
+        try:
+            said = Simulation.from_toml(tmp_path / "part.toml").warnings
+        except SceneError as error:
+            said = error.problems
+        told = [m for m in said if "inside a plane" in m]
+        assert len(told) == 1 and "millimetres reads 1000 times too large" in told[0], said
 
 
 def test_quadratic_tets_give_order_two_and_keep_edge_nodes_consistent(tmp_path):

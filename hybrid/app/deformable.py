@@ -410,9 +410,9 @@ def deep_starts(scene, model, below):
     return [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field 'position' "
             f"starts it {depth:.3g} m inside a plane ({100 * depth / size[name]:.2g}% of its "
             f"{size[name]:.3g} m size, at most {100 * DEEP_START:g}% for a deformable body, whose nodes "
-            f"are pushed out in one step): place it on or above the plane"
+            f"are pushed out in one step): place it on or above the plane{geometry.units_hint(scene.bodies, name)}"
             for name, depth in below if name in size and depth > DEEP_START * size[name]] + \
         [f"{scene.source_path}: {body_label(scene.bodies[index[name]], index[name])}: field 'position' "
          f"starts it {depth:.3g} m inside a plane, deeper than its {rigid[name]:.3g} m size (at most "
-         f"that for a rigid body, which is pushed out in its first steps): place it on or above the plane"
-         for name, depth in below if name in rigid and depth > rigid[name]]
+         f"that for a rigid body, which is pushed out in its first steps): place it on or above the "
+         f"plane{geometry.units_hint(scene.bodies, name)}" for name, depth in below if name in rigid and depth > rigid[name]]

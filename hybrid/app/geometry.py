@@ -201,8 +201,8 @@ def _read_surface(path):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MeshWarning)
         mesh = read_mesh(path)
-        _large(mesh.points, path)
         vertices, triangles = surface_from_mesh(mesh, Path(path))
+        _large(vertices, path)
     said = tuple(str(w.message) for w in caught if issubclass(w.category, MeshWarning))
     for w in caught:
         if not issubclass(w.category, MeshWarning):
@@ -212,6 +212,14 @@ def _read_surface(path):
 
 # a mesh spanning more than this (m) is said to be large: its units may be millimetres
 LARGE_MESH = 100.0
+
+
+def units_hint(bodies, name):
+    """What to add to a message about where scene body ``name`` (of ``bodies``) lies when it is a
+    mesh file's: the file's units may be millimetres (a 50 mm part so written reads 50 m across)."""
+    if all(getattr(b, "mesh", None) is None for b in bodies if b.name == name):
+        return ""
+    return " (a mesh file is read in metres: one written in millimetres reads 1000 times too large)"
 
 
 def _large(points, path):
@@ -231,8 +239,8 @@ def load_tet_mesh(path):
     missing or unreadable, has no tet cells, or has degenerate tets.
     """
     mesh = read_mesh(path)
-    _large(mesh.points, path)
     points, tets, order, flipped = tets_from_mesh(mesh, Path(path))
+    _large(points, path)            # (the nodes the tets use: a stray node does not count)
     if len(flipped):
         warnings.warn(f"{path}: {len(flipped)} of {len(tets)} tets were inverted (negative volume) "
                       f"and have been reoriented: {index_list(flipped)}", MeshWarning, stacklevel=2)
