@@ -13,7 +13,8 @@ import importlib
 # with this package imported and nothing heavy yet, so a Ctrl-C in its first second stops it
 # cleanly (hybrid.app.entry) instead of in the middle of importing numba and scikit-fem
 _FROM = {"Simulation": ".simulation", "Body": ".simulation", "SceneError": ".app.scene",
-         "InstabilityError": ".coupling.step", "sweep": ".app.study", "converge": ".app.converge"}
+         "InstabilityError": ".coupling.step", "SettingError": ".app.variants", "sweep": ".app.study",
+         "converge": ".app.converge"}
 
 __all__ = list(_FROM)
 

@@ -268,8 +268,7 @@ def test_a_plot_against_a_vector_key_is_refused_before_anything_runs(tmp_path, c
 def test_sweep_from_python_names_its_settings_keys_not_the_command_line(tmp_path):
     """sweep() given a dict words its errors in its own terms (they read "--set ..." and
     "--zip", the command line's flags, which a Python caller never gave); nothing runs."""
-    from hybrid import sweep
-    from hybrid.app.variants import SettingError
+    from hybrid import SettingError, sweep        # (the public names api.md gives)
     with pytest.raises(SettingError) as error:
         sweep("dent", {"bodies.nope.young": [1e9]}, out=tmp_path / "a")
     assert str(error.value).startswith("settings key bodies.nope.young: no body 'nope'")
