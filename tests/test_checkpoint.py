@@ -418,6 +418,8 @@ def test_a_threading_event_stops_a_run_and_what_is_no_stop_is_refused_before_it(
                                         stop=event)
     assert stopped.value.exit_code == 130 and stopped.value.checkpoint.is_file()
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "stopped"
+    # no signal was sent: said so ("stopped by SIGINT" read as if one had been)
+    assert str(stopped.value).startswith("stopped on request (as by SIGINT) at t = ")
 
 
 def test_a_run_of_a_scene_changed_in_python_resumes_with_that_scene_only(tmp_path):

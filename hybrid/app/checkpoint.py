@@ -179,11 +179,13 @@ class Stopped(Exception):
     """A run stopped by a signal after a whole step: ``signal`` (its number), ``time`` (s, where
     the run stopped), ``checkpoint`` (the file to resume from; None without an output folder or
     when it could not be written). ``exit_code``: 128 + the signal's number (130 for SIGINT,
-    143 for SIGTERM)."""
+    143 for SIGTERM). ``requested``: asked for from code (:meth:`StopRequest.set`, an event),
+    not by the signal itself."""
 
-    def __init__(self, signum, time, checkpoint):
+    def __init__(self, signum, time, checkpoint, requested=False):
         name = signal.Signals(signum).name
-        super().__init__(f"stopped by {name} at t = {time:.6g} s")
+        by = f"on request (as by {name})" if requested else f"by {name}"
+        super().__init__(f"stopped {by} at t = {time:.6g} s")
         self.signal, self.time, self.checkpoint = signum, time, checkpoint
         self.exit_code = 128 + signum
 
@@ -191,15 +193,18 @@ class Stopped(Exception):
 class StopRequest:
     """What a run checks after each step: ``signal``, the number of the first stop signal
     received (None while there was none). :meth:`set` asks for a stop from code (another
-    thread, a callback): the run stops as on that signal."""
+    thread, a callback): the run stops as on that signal. ``requested``: the stop was asked for
+    so, not by a signal."""
 
     def __init__(self):
         self.signal = None
+        self.requested = False
 
     def set(self, signum=signal.SIGINT):
         """Ask the run to stop after its step, as on ``signum`` (its exit code 128 + signum)."""
         if self.signal is None:
             self.signal = int(signum)
+            self.requested = True
 
 
 _SIGINT = int(signal.SIGINT)
@@ -208,6 +213,7 @@ _SIGINT = int(signal.SIGINT)
 class EventStop(StopRequest):
     """A :class:`StopRequest` read from an event (``threading.Event`` or anything with
     ``is_set()`` and ``set()``): once it is set the run stops as on SIGINT."""
+    requested = True
 
     def __init__(self, event):
         self.event = event
@@ -315,7 +321,7 @@ class Checkpoints:
             ahead = math.floor((t + 1e-9 * self.sim.dt - self.next_time) / self.every) + 1
             self.next_time = max(self.next_time + ahead * self.every, math.nextafter(t, math.inf))
         if asked:
-            self.stopped = Stopped(self.stop.signal, t, written)
+            self.stopped = Stopped(self.stop.signal, t, written, self.stop.requested)
         return asked
 
     def _write(self, recorder, now):
