@@ -348,6 +348,23 @@ def test_a_recommendation_measured_against_an_unconverged_finest_run_says_so():
     assert "not converged" not in report(rows("richardson"), 0.1)[-1]
 
 
+def test_three_levels_say_the_order_was_observed_once_when_any_quantity_is_extrapolated():
+    """With three levels, an order extrapolated for one quantity and not for another printed no
+    note that it was observed once (it was printed only when every quantity was extrapolated)."""
+    from hybrid.app.study_cli import report
+
+    def rows(methods):
+        return [{"id": f"00{k}", "dt": dt, "resolution": "", "status": "ok",
+                 **{f"error:{n}": 0.1 for n in methods}, **{f"estimate:{n}": m for n, m in methods.items()},
+                 "max_relative_error": 0.1, "wall_per_sim_s": 1.0, "recommended": k == 2}
+                for k, dt in enumerate([1e-3, 5e-4, 2.5e-4])]
+
+    once = "each order was observed once"
+    assert any(once in line for line in report(rows({"x": "richardson", "y": "finest-difference"}), 0.1))
+    assert any(once in line for line in report(rows({"x": "richardson"}), 0.1))
+    assert not any(once in line for line in report(rows({"y": "finest-difference"}), 0.1))
+
+
 def test_a_time_step_order_no_integrator_gives_is_not_trusted():
     """Three runs whose differences shrink 10-fold (order 3.3) along a time-step ladder: the
     integrators are of order 1 or 2, so such an order is not asymptotic (the default scene's

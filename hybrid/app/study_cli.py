@@ -155,14 +155,15 @@ def report(rows, tol):
                else "runs of the ladder did not finish ok" if len(ok) < len(group)
                else "the differences between levels do not shrink steadily at one order (contact "
                     "events, fracture, runs swinging about the limit, or a coarsest level too coarse)")
-        trusted = True
+        extrapolated = False        # some quantity's order observed (once, from three levels)
         for name in names:
-            if {r[f"estimate:{name}"] for r in group} != {"richardson"}:
-                trusted = False
-                name = f"{name} ({label})" if label else name
-                lines.append(f"{name}: {why}: its errors are differences from the finest run, not an "
-                             f"extrapolation" if ok else f"{name}: {why}")
-        third_level |= bool(ok) and levels == 3 and trusted
+            if {r[f"estimate:{name}"] for r in group} == {"richardson"}:
+                extrapolated = True
+                continue
+            name = f"{name} ({label})" if label else name
+            lines.append(f"{name}: {why}: its errors are differences from the finest run, not an "
+                         f"extrapolation" if ok else f"{name}: {why}")
+        third_level |= bool(ok) and levels == 3 and extrapolated
     if third_level:
         lines.append("each order was observed once (three levels): a fourth level (--dt 4, or "
                      "--refine 4) checks that it holds")
