@@ -189,6 +189,17 @@ def test_render_refuses_a_size_it_cannot_draw(tmp_path, capfd):
     assert (run_dir / "render" / "frame_0000.png").read_bytes() == b"earlier"
 
 
+def test_a_field_no_frame_has_is_refused_saying_where_fields_are_drawn(tmp_path, capfd):
+    """A run of rigid bodies rendered with --field von_mises: refused (exit 2) with what to do."""
+    from hybrid.app.cli import main
+    run_dir = tmp_path / "boxes"
+    write_two_box_run(run_dir)
+    assert main(["render", str(run_dir), "--field", "plastic_strain"]) == 2
+    err = capfd.readouterr().err
+    assert "no frame" in err and "'plastic_strain'" in err and "leave out --field" in err, err
+    assert not (run_dir / "render").exists()
+
+
 @pytest.mark.parametrize("summary", ["missing", "stopped"])
 def test_an_unfinished_run_is_rendered_with_a_note_saying_so(tmp_path, capfd, summary):
     """A killed run (no summary.json) or a stopped one rendered as if finished, without a word."""

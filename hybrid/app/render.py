@@ -305,7 +305,9 @@ def render_run(run_dir: Path | str, out: Path | str | None = None,
         raise ValueError(f"colour range {colour_range!r}: one of {', '.join(COLOUR_RANGES)}")
     lo, hi, clim, association, constant = scene_bounds(frame_paths, field, colour_range)
     if field is not None and clim is None:
-        raise ValueError(f"no frame of {run_dir} has a field named {field!r}")
+        # (the fields are the deformable bodies': a run of rigid bodies only has none)
+        raise ValueError(f"no frame of {run_dir} has a field named {field!r} (fields are drawn on "
+                         f"deformable bodies; rigid ones are grey: leave out --field to render them)")
     backend = use_backend()
     import pyvista as pv
 
