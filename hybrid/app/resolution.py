@@ -12,7 +12,9 @@ model's honest answers at that resolution; :class:`ImpactWatch` says so, once pe
   estimated from Hertz's impact (and, for a body with a yield stress, the fully plastic contact
   pressure of about 3 Y), with the radius of curvature of the shapes that meet; a flat contact
   (boxes, planes, meshes) is measured instead, by the nodes that touch;
-- in time, when the step is longer than a quarter of the impact: an impact lasts about two wave transits
+- in time, when the step is longer than a quarter of the impact, or, for a body stepped by backward
+  Euler, when its damping over the impact's steps would cost more than a tenth of the rebound
+  (EULER_KEPT): an impact lasts about two wave transits
   across the body along the impact (``2 L / sqrt(E / rho)``), or Hertz's contact time (longer
   for a body that yields) when curved shapes meet.
 
@@ -43,6 +45,14 @@ FLAT_NODES = 3
 # the step is resolved when it is at most this share of the impact's duration (at 1.7 steps to
 # the impact a ball rebounded from a plate at 2.46 m/s against 6.61 at a small step, unwarned)
 STEPS_PER_IMPACT = 4
+# a body stepped by backward Euler damps each step (a vibration of angular frequency w loses a
+# factor 1 / sqrt(1 + (w h)^2) of its amplitude a step): over an impact of n steps, taken as half a
+# period, it keeps (1 + (pi / n)^2)^(-n / 2) of its rebound speed; the step is resolved when that is
+# at least EULER_KEPT (n >= pi^2 / (2 ln(1 / EULER_KEPT)), 47 steps: an FEM ball of E = 1 MPa dropped
+# on the ground rebounded at 0.59 / 0.88 / 0.98 of its speed stepped by Newmark, at 12 / 48 / 194
+# steps to the impact, against 0.68 / 0.90 / 0.97 so estimated)
+EULER_KEPT = 0.9
+EULER_STEPS = np.pi ** 2 / (2.0 * np.log(1.0 / EULER_KEPT))
 # an impact's sub-stepping (resolve_impacts) goes on while its bodies touch, up to this many of its
 # estimated durations (the estimate is short for a plate that gives: stopped at it, a ball left
 # a plate at 2.13 m/s sub-stepped from dt = 1e-4, 4.16 from 2e-4)
@@ -131,9 +141,10 @@ class ImpactWatch:
         self.touching = set()       # (FEM body, partner) names in contact at the last step seen
         # sub-stepping of impact steps (the scene's resolve_impacts): at most this many sub-steps
         # per step; step_tau: the shortest impact (s) that began in the last step checked and is
-        # shorter than it, else None; substepped: what sub-stepping did so far (the summary's)
+        # shorter than it, else None, and step_steps: the most steps any of them should span (its
+        # body's steps_per_impact); substepped: what sub-stepping did so far (the summary's)
         self.max_substeps = max_substeps
-        self.step_tau = None
+        self.step_tau, self.step_steps = None, STEPS_PER_IMPACT
         self.step_pairs = set()     # (FEM body, partner) names of those impacts
         # an impact under way is sub-stepped: (until s, sub-steps, at the latest s, its pairs)
         self.resolving = None
@@ -141,13 +152,13 @@ class ImpactWatch:
 
     def substeps_needed(self, dt, end):
         """Sub-steps the last step checked (ending at time ``end`` s) should be taken in (1:
-        none): enough that its shortest impact spans STEPS_PER_IMPACT of them, at most
+        none): enough that its shortest impact spans its body's :func:`steps_per_impact`, at most
         ``max_substeps``. The steps that follow until the impact is over (``end`` plus its
         duration, and while its bodies touch: :meth:`keep_resolving`, up to SUBSTEP_SPAN
         durations) are to be sub-stepped as well (:meth:`substeps_now`)."""
         if self.step_tau is None or self.max_substeps <= 1:
             return 1
-        count = int(min(self.max_substeps, np.ceil(dt * STEPS_PER_IMPACT / self.step_tau - 1e-9)))
+        count = int(min(self.max_substeps, np.ceil(dt * self.step_steps / self.step_tau - 1e-9)))
         if count <= 1:
             return 1
         until, most, latest, pairs = self.resolving if self.resolving is not None else (end, count, end, set())
@@ -198,7 +209,7 @@ class ImpactWatch:
         at its start) to ``state`` (``model``: the model it was taken with). Steps taken with
         another model than they started with (an auto body turned deformable) are skipped."""
         old_model, old = before
-        self.step_tau, self.step_pairs = None, set()
+        self.step_tau, self.step_steps, self.step_pairs = None, STEPS_PER_IMPACT, set()
         if old_model is not model or not model.fem or old.fem is None or len(old.fem) != len(model.fem):
             return []
         rm = model.rigid
@@ -277,10 +288,12 @@ class ImpactWatch:
             nodes_on = int(np.unique(c.node[lead]).size)
             where = (f"t = {state.time:.6g} s: '{body.name}' struck by '{partner_name}' at "
                      f"{speed:.3g} m/s")
-            if impact.tau < STEPS_PER_IMPACT * model.dt:
+            per = steps_per_impact(m.integrator)
+            if impact.tau < per * model.dt:
                 self.step_tau = min(impact.tau, self.step_tau or np.inf)
+                self.step_steps = max(self.step_steps, per)
                 self.step_pairs.add((name, partner_name))
-            out += _judged(impact, where, spacing, nodes_on, (model.dt, self.max_substeps), extent,
+            out += _judged(impact, where, spacing, nodes_on, (model.dt, self.max_substeps, m.integrator), extent,
                            (body.name, state.time, partner_name, speed))
         return out
 
@@ -319,6 +332,12 @@ class ImpactWatch:
         self.resolving = None if r is None else (*r[:3], {tuple(pair) for pair in r[3]})
 
 
+def steps_per_impact(integrator):
+    """Steps an impact on a body stepped by ``integrator`` should span: STEPS_PER_IMPACT, and
+    for backward Euler at least EULER_STEPS (its damping)."""
+    return max(STEPS_PER_IMPACT, EULER_STEPS) if integrator == "backward_euler" else STEPS_PER_IMPACT
+
+
 def _relevant(m, body, speed):
     """Whether an approach at ``speed`` m/s matters to FEM body ``m`` (scene ``body``)."""
     return speed > 0 and speed >= _relevant_speed(m, body)
@@ -337,10 +356,10 @@ def _relevant_speed(m, body):
 
 def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
     """The warnings an :class:`Impact` deserves: ``where`` opens their messages, ``spacing`` m
-    of the body's surface nodes, ``nodes_on`` of them touch, ``stepping``: the step ``dt`` s and
-    the most sub-steps it may be taken in, the body ``extent`` m along the impact; ``about``:
-    (body, time, partner, speed) of the warnings."""
-    dt, most = stepping
+    of the body's surface nodes, ``nodes_on`` of them touch, ``stepping``: the step ``dt`` s,
+    the most sub-steps it may be taken in and the body's integrator, the body ``extent`` m along
+    the impact; ``about``: (body, time, partner, speed) of the warnings."""
+    dt, most, integrator = stepping
     see = "check with `hybrid converge` (docs/studies.md)"
     out = []
     touching = f"{nodes_on} touching" if nodes_on else "none touching: it strikes inside a face"
@@ -360,15 +379,28 @@ def _judged(impact, where, spacing, nodes_on, stepping, extent, about):
             f"{'an edge or corner strikes' if nodes_on else 'it strikes inside a face'}; nodes "
             f"{spacing * 1e3:.3g} mm apart), so the stress under it is smeared over "
             f"the elements; refine (resolution {need:.2g} m or finer): {see}"))
-    if dt / most > impact.tau / STEPS_PER_IMPACT:
-        need = impact.tau / STEPS_PER_IMPACT
+    steps = impact.tau / (dt / most)
+    euler = integrator == "backward_euler"
+    if steps < steps_per_impact(integrator):
         lasts = "two wave transits" if impact.a is None else "contact time, at least two wave transits"
         step = f"dt = {dt:.2g} s" + (f" even in {most} sub-steps" if most > 1 else "")
-        out.append(ImpactWarning(
-            about[0], "time", *about[1:], dt / most, need,
-            f"warning: {where}: the impact lasts about {impact.tau:.2g} s ({lasts} across "
-            f"{extent * 1e3:.3g} mm), {impact.tau / (dt / most):.2g} step(s) of {step}, so its "
-            f"impulse is spread over them and its peak stress and rebound are underestimated; "
-            f"dt = {need:.2g} s or less (the estimate is a lower bound of the impact's length; a "
-            f"body that gives, a plate flexing, keeps contact longer) or `resolve_impacts`: {see}"))
+        opening = (f"warning: {where}: the impact lasts about {impact.tau:.2g} s ({lasts} across "
+                   f"{extent * 1e3:.3g} mm), {steps:.2g} step(s) of {step}")
+        lower = ("(the estimate is a lower bound of the impact's length; a body that gives, a "
+                 "plate flexing, keeps contact longer)")
+        # what is wrong: the impulse spread over the steps, backward Euler's damping, or both
+        wrong = []
+        if steps < STEPS_PER_IMPACT:
+            wrong.append("its impulse is spread over them and its peak stress and rebound are "
+                         "underestimated")
+        if euler and steps >= STEPS_PER_IMPACT:     # (the estimate holds for a few steps or more)
+            kept = (1.0 + (np.pi / steps) ** 2) ** (-steps / 2.0)
+            wrong.append(f"backward Euler's damping over them keeps about {kept:.0%} of the "
+                         f"rebound speed and lowers the peak stress")
+        need = impact.tau / steps_per_impact(integrator)
+        ways = [f"dt = {need:.2g} s or less {lower}"] + (
+            ["`integrator = \"newmark\"` (which does not damp)"] if euler else []) + (
+            ["`resolve_impacts`"] if most == 1 else [])
+        message = f"{opening}: {'; '.join(wrong)}; {' or '.join(ways)}: {see}"
+        out.append(ImpactWarning(about[0], "time", *about[1:], dt / most, need, message))
     return out

@@ -127,7 +127,8 @@ SIMULATION = Section("simulation", "[simulation]",
               "step at or after its time; the first at the start and one at the end."),
     Field("resolve_impacts", "boolean", False, "", "Take a step in which an impact on a "
           "deformable body begins, and which is longer than the impact, in sub-steps (up to 64) "
-          "short enough that the impact spans four of them, each followed by its events; then "
+          "short enough that the impact spans four of them (47 on a backward Euler body, whose damping "
+          "would otherwise take its rebound), each followed by its events; then "
           "the scene's `dt` again (docs/scenes.md, what a run says about it). The summary's "
           "`substeps` counts them."),
     Field("solver", "table", None, "", "Contact and linear solver settings.", table="simulation.solver",
