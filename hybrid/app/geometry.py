@@ -245,12 +245,16 @@ def load_tet_mesh(path):
         warnings.warn(f"{path}: {len(flipped)} of {len(tets)} tets were inverted (negative volume) "
                       f"and have been reoriented: {index_list(flipped)}", MeshWarning, stacklevel=2)
     pieces, largest = _pieces(tets, len(points))
+    doubled = trimesh.merge_coincident(points, tets[:, :4])[2]
     if pieces > 1:
-        doubled = trimesh.merge_coincident(points, tets[:, :4])[2]
         warnings.warn(f"{path}: its tets form {pieces} pieces that share no node (the largest has "
                       f"{largest} of {len(tets)} tets); the pieces of one FEM body move apart as if "
                       f"separate bodies" + (f" ({doubled} nodes lie on others: merge them to join "
                       f"the pieces)" if doubled else ""), MeshWarning, stacklevel=2)
+    elif doubled:       # one piece, but tets that meet at such a node are not joined there
+        warnings.warn(f"{path}: {doubled} of its nodes lie on others, so the tets on either side "
+                      f"of them are not joined there (a slit inside the body, which opens under "
+                      f"load): merge them", MeshWarning, stacklevel=2)
     return points, tets, order
 
 
