@@ -189,14 +189,15 @@ def _fem_table(kind, x):
 
 def _rigid_tables(shape, x):
     """The warm-up bodies of a rigid shape: one resting on the ground at ``x`` (a box: two, one on
-    the other)."""
+    the other), turning about the vertical (a flat face spinning on the ground has its load shared
+    over the face, rigid.patches: compiled in the first step of the default scene's loop, 8 s)."""
     h = _WARM_SIZE
     size = {"box": {"size": [0.5 * h] * 3}, "sphere": {"radius": 0.25 * h},
             "capsule": {"radius": 0.1 * h, "height": 0.5 * h},
             "cylinder": {"radius": 0.25 * h, "height": 0.5 * h}}[shape]
     low = 0.25 * h if shape != "capsule" else 0.1 * h
     tables = [{"density": 100.0, "shape": {"type": shape} | size, "position": [x, 0.0, low],
-               "velocity": _WARM_VELOCITY}]
+               "velocity": _WARM_VELOCITY, "angular_velocity": [0.0, 0.0, 5.0]}]
     if shape == "box":
         tables.append({"density": 100.0, "shape": {"type": "box"} | size,
                        "position": [x, 0.0, 0.75 * h], "velocity": [0.0, 0.0, -0.4]})
