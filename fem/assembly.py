@@ -166,7 +166,9 @@ def assemble(points, tets, young, poisson, density):
     M_scalar = (Ps @ skfem.asm(mass, mass_basis) @ Ps.T).tocsr()
 
     # per-element data in our node numbering
-    tet_nodes = node_of_scalar[scalar_basis.element_dofs.T]
+    # (C order, as every later mesh's: a Fortran-ordered copy of the first made the compiled
+    # kernels taking it compile again, in the step loop, for the first fracture piece)
+    tet_nodes = np.ascontiguousarray(node_of_scalar[scalar_basis.element_dofs.T])
     grads = np.stack([scalar_basis.basis[a][0].grad for a in range(tet_nodes.shape[1])])
     grads = grads.transpose(2, 3, 0, 1)  # (b, 3, t, q) -> (t, q, b, 3)
     weights = np.asarray(scalar_basis.dx)

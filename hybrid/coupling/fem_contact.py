@@ -244,8 +244,8 @@ def _against(mb, sb, motion, x, reach, radius=None, off_nodes=None, facing=None)
     Y = X[near] - (phi[near] + radius[near])[:, None] * n_rest[near]     # closest rest surface points
     close = _nearest_nodes(mb, Y)
     if off_nodes is not None:
-        keep = np.nonzero(kernels.off_nodes_kept(sb.x, mb.surface_nodes, close[:, 0], x[near],
-                                                 n_rest[near], R, off_nodes, OFF_NODE_DEPTH * off_nodes)
+        keep = np.nonzero(kernels.off_nodes_kept(sb.x, mb.surface_nodes, np.ascontiguousarray(close[:, 0]),
+                                                 x[near], n_rest[near], R, off_nodes, OFF_NODE_DEPTH * off_nodes)
                           | (radius[near] > 0.0))[0]
         near, Y, close = near[keep], Y[keep], close[keep]
         if not len(near):
