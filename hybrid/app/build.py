@@ -207,10 +207,11 @@ def _rigid_tables(shape, x):
 
 
 def _warm_scene(kinds, dt):
-    """The scene data of the warm-up: per FEM kind a small box resting on the ground (a rigid box
-    resting on it when there are rigid kinds), per rigid shape a small body resting on the ground
-    (a box on a box), all touching from the start and moving into each other (so that impacts as
-    well as resting contacts are met)."""
+    """The scene data of the warm-up: per FEM kind a small box resting on the ground (the first
+    kind's with a second, unanchored, on it; a rigid box on top when there are rigid kinds), per
+    rigid shape a small body resting on the ground (boxes: one on another, one spinning beside
+    them), all touching from the start and moving into each other (so that impacts as well as
+    resting contacts are met)."""
     rigid = sorted(k[1] for k in kinds if k[0] == "rigid")
     bodies, x = [], 0.0
     for i, kind in enumerate(sorted((k for k in kinds if k[0] == "fem"), key=repr)):
