@@ -447,3 +447,47 @@ def test_a_run_of_a_scene_changed_in_python_resumes_with_that_scene_only(tmp_pat
     assert summary["scene"]["bodies"][0]["velocity"] == [1.5, 0.0, 0.0]
     # the ball flew sideways at 1.5 m/s through the run (in the air all along: no friction)
     assert resumed.body("ball").position[0] == pytest.approx(1.5 * 0.05, rel=1e-9)
+
+
+def test_a_run_with_set_fields_stops_and_resumes_with_them_to_the_files_of_a_run_never_stopped(
+        tmp_path, capsys, monkeypatch):
+    """``hybrid run SCENE --set KEY=VALUE`` runs the scene with those fields changed; stopped, it
+    prints a resume command with the same --set, which continues it to the files an unstopped run
+    writes; resumed without them, the checkpoint is of another scene and is refused."""
+    import contextlib
+    import shlex
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK)
+    settings = ["--set", "simulation.duration=0.1", "--set", "bodies.ball.velocity=[0.5,0,0]"]
+    assert main(["run", str(scene), "--out", str(tmp_path / "whole"), "--quiet", *settings]) == 0
+    whole = json.loads((tmp_path / "whole" / "summary.json").read_text())
+    assert whole["steps"] == 20 and whole["scene"]["bodies"][0]["velocity"] == [0.5, 0, 0]
+    capsys.readouterr()
+
+    @contextlib.contextmanager
+    def stopped_at_once(signals=None):
+        request = checkpoint.StopRequest()
+        request.set()
+        yield request
+    monkeypatch.setattr(checkpoint, "stop_on_signals", stopped_at_once)
+    out = tmp_path / "stopped"
+    assert main(["run", str(scene), "--out", str(out), "--quiet", *settings]) == 130
+    command = shlex.split(capsys.readouterr().err.strip().splitlines()[-1])
+    assert command[:2] == ["hybrid", "run"] and command.count("--set") == 2
+    monkeypatch.undo()
+    assert resume_code(capsys, scene, out)[0] == 2          # the file's scene: another one
+    assert main(command[1:]) == 0, capsys.readouterr().err
+    for name in ("bodies.csv", "quick.pvd"):
+        assert (out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+
+
+@pytest.mark.parametrize("setting, said", [("simulation.duration=0.1,0.2", "run takes one value"),
+                                           ("bodies.nope.density=5", "no body 'nope'"),
+                                           ("simulation.dt=-1", "field 'dt' must be a number > 0")])
+def test_a_bad_set_is_refused_naming_it_and_nothing_is_written(tmp_path, capsys, setting, said):
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK)
+    assert main(["run", str(scene), "--out", str(tmp_path / "run"), "--set", setting]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "Traceback" not in err, err
+    assert not (tmp_path / "run").exists()

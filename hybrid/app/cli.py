@@ -77,9 +77,12 @@ def _run(args):
     if path is None:
         return 2
     try:
-        scene = load_scene(path)
+        scene = _with_settings(load_scene(path), args.set)
     except SceneError as err:
         return _rejected(path, err)
+    except ValueError as err:           # (SettingError: a key that leads nowhere, two values)
+        print(f"{path}: {err}", file=sys.stderr)
+        return 2
     from .geometry import MeshError
     from hybrid.coupling.stability import OutputFailure
     from hybrid.coupling.step import InstabilityError
@@ -111,7 +114,7 @@ def _run(args):
         print(f"building '{scene.name}': meshing and factorising {deformable} deformable "
               f"bod{'y' if deformable == 1 else 'ies'}", flush=True)
     try:
-        sim = Simulation.resume(path, out) if args.resume else Simulation(scene)
+        sim = Simulation.resume(scene if args.set else path, out) if args.resume else Simulation(scene)
     except (SceneError, MeshError, ValueError, CheckpointError) as err:
         _remove_folders(created)        # nothing is left of a run that did not start
         if isinstance(err, SceneError):     # problems only the built bodies show
@@ -148,6 +151,23 @@ def _run(args):
     print(f"wrote {out}/{scene.name}.pvd, frames/, bodies.csv{regions}, summary.json")
     print(f"render it with: hybrid render {shlex.quote(str(out))}")
     return 0
+
+
+def _with_settings(scene, texts):
+    """``scene`` with the ``--set KEY=VALUE`` fields changed (keys as ``hybrid sweep`` takes them,
+    one value each); SceneError for a value the field does not take, SettingError otherwise."""
+    if not texts:
+        return scene
+    import copy
+    from .scene import parse_scene
+    from .variants import SettingError, apply_setting, parse_settings
+    data = copy.deepcopy(scene.raw)
+    for key, values in parse_settings(texts):
+        if len(values) != 1:
+            raise SettingError(f"--set {key}: run takes one value ({len(values)} given: several "
+                               f"make a study, hybrid sweep)")
+        apply_setting(data, key, values[0])
+    return parse_scene(data, str(scene.source_path), scene.source_path.parent)
 
 
 def _run_folder(path, args, scene):
@@ -198,6 +218,7 @@ def _stopped(args, out, stopped):
               f"are kept", file=sys.stderr)
         return stopped.exit_code
     command = ["hybrid", "run", *([args.scene] if args.scene else []), "--out", str(out), "--resume"]
+    command += [part for text in args.set for part in ("--set", text)]
     if args.checkpoint_every is not None:
         command += ["--checkpoint-every", repr(args.checkpoint_every)]
     command += ["--quiet"] if args.quiet else []
@@ -307,7 +328,10 @@ def main(argv=None):
                         "in the first 10 s; 0: only when stopped). SIGINT or SIGTERM stops a run cleanly "
                         "with a checkpoint (exit 130 / 143)")
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in DIR from its checkpoint (same scene file)")
+                   help="continue the run in DIR from its checkpoint (same scene file and --set)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a field of the scene for this run, e.g. simulation.duration=0.01 or "
+                        "bodies.ball.velocity=[0,0,-5] (keys as hybrid sweep takes them; repeat for more)")
     p = sub.add_parser("render", help="render a finished run off-screen to PNG frames and a movie")
     p.add_argument("dir", help="run folder written by 'hybrid run'")
     p.add_argument("--size", type=int, nargs=2, default=[960, 540], metavar=("W", "H"))
