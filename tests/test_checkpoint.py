@@ -475,7 +475,8 @@ def test_a_run_with_set_fields_stops_and_resumes_with_them_to_the_files_of_a_run
     command = shlex.split(capsys.readouterr().err.strip().splitlines()[-1])
     assert command[:2] == ["hybrid", "run"] and command.count("--set") == 2
     monkeypatch.undo()
-    assert resume_code(capsys, scene, out)[0] == 2          # the file's scene: another one
+    code, err = resume_code(capsys, scene, out)             # the file's scene: another one
+    assert code == 2 and "resume with the same --set" in err, err
     assert main(command[1:]) == 0, capsys.readouterr().err
     for name in ("bodies.csv", "quick.pvd"):
         assert (out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
@@ -483,6 +484,9 @@ def test_a_run_with_set_fields_stops_and_resumes_with_them_to_the_files_of_a_run
 
 @pytest.mark.parametrize("setting, said", [("simulation.duration=0.1,0.2", "run takes one value"),
                                            ("bodies.nope.density=5", "no body 'nope'"),
+                                           # (read as "a single table, not an array" of anchors)
+                                           ("bodies.ball.anchors.0.velocity=[1,0,0]",
+                                            "'ball' has no anchors"),
                                            ("simulation.dt=-1", "field 'dt' must be a number > 0")])
 def test_a_bad_set_is_refused_naming_it_and_nothing_is_written(tmp_path, capsys, setting, said):
     scene = tmp_path / "quick.toml"

@@ -156,11 +156,14 @@ def read(path, scene):
     digest = scene_digest(scene)
     if manifest.get("scene_sha256") != digest:
         raise CheckpointError(f"{path}: checkpoint of scene '{manifest.get('scene')}' (file "
-                              f"{manifest.get('scene_file')}), not of {scene.source_path}: the "
-                              f"scene file's content differs, or the values of a scene changed "
-                              f"in Python (resume such a run with that scene: "
-                              f"Simulation.resume(scene, out)) (SHA-256 {digest[:12]}..., the "
-                              f"checkpoint's {str(manifest.get('scene_sha256'))[:12]}...)")
+                              f"{manifest.get('scene_file')}) with other values than "
+                              f"{scene.source_path} gives now: the file's content differs, or "
+                              f"the run changed its values (`hybrid run --set`: resume with the "
+                              f"same --set, as the command printed when it stopped has them; the "
+                              f"values of a scene changed in Python: resume with that scene, "
+                              f"Simulation.resume(scene, out)) "
+                              f"(SHA-256 {digest[:12]}..., the checkpoint's "
+                              f"{str(manifest.get('scene_sha256'))[:12]}...)")
     if manifest.get("scene") != scene.name:        # (the same content in a file named otherwise)
         raise CheckpointError(f"{path}: checkpoint of scene '{manifest.get('scene')}' (file "
                               f"{manifest.get('scene_file')}), whose files it names after it, "

@@ -129,6 +129,10 @@ def parse_settings(texts):
     return pairs
 
 
+# the arrays of tables a key may index into (a body's anchors and loads, the planes)
+LISTS = ("anchors", "loads", "planes", "bodies")
+
+
 def _child(node, part, key, walked):
     """The table ``part`` names inside ``node`` (a table or a list of tables), created empty when
     it is a table the scene left out."""
@@ -144,6 +148,9 @@ def _child(node, part, key, walked):
                                f"0 to {len(node) - 1} after it, got '{part}'")
         return node[int(part)]
     if part not in node:
+        if part in LISTS:       # (an empty table there reads as "a single table, not an array")
+            owner = f"'{walked}'" if walked else "the scene"
+            raise SettingError(f"--set {key}: {owner} has no {part}: add them in the scene file")
         node[part] = {}
     if not isinstance(node[part], (dict, list)):
         raise SettingError(f"--set {key}: '{part}' is a value, not a table")
