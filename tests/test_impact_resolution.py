@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hybrid import Simulation
-from hybrid.app.resolution import EULER_KEPT, EULER_STEPS, STEPS_PER_IMPACT, steps_per_impact
+from hybrid.app.resolution import EULER_KEPT, HERTZ_STIFFENING, STEPS_PER_IMPACT, steps_per_impact
 
 
 def ball_on_plate(resolution, ground=True, fps=1000):
@@ -144,10 +144,11 @@ def test_dropped_brittle_slab_warns_that_the_step_is_longer_than_the_impact(sim)
 
 def test_well_resolved_impact_gives_no_warning(sim):
     # a steel ball at 1 m/s into a soft block: the Hertz patch (~13 mm) spans 2.6 nodes' spacing
-    # and lasts ~25 ms by the estimate, 50 steps (backward Euler keeps 90% of a rebound at 47)
+    # and lasts ~25 ms by the estimate, 62 steps (backward Euler keeps 90% of a curved contact's
+    # rebound at 59)
     s = sim("""
 [simulation]
-dt = 5e-4
+dt = 4e-4
 [[planes]]
 [[bodies]]
 name = "block"
@@ -315,12 +316,14 @@ def test_substepping_lasts_while_the_bodies_touch_so_the_answer_does_not_hinge_o
     """A steel ball at 10 m/s on an aluminium plate resting on two supports: the plate flexes, and
     the contact lasts 3-4 times the impact's estimate (84 us). Sub-stepped for the estimate alone,
     the ball left at 2.13 m/s from dt = 0.1 ms and at 4.16 from 0.2 ms; sub-stepped while the
-    bodies touch, in sub-steps that backward Euler's damping leaves 90% of a rebound (EULER_STEPS
-    to the impact; at 4 the ball left at 3.2 m/s), it leaves at 7.1 m/s from either step."""
+    bodies touch, in sub-steps that backward Euler's damping leaves 90% of a rebound (59 to the
+    impact, a curved contact; at 4 the ball left at 3.2 m/s), it leaves at 7.29 m/s from dt = 50 us
+    and 7.30 from 20 us, the same 1.43 us sub-steps (7.21 from 0.1 ms, where 64 sub-steps are as
+    short as they go)."""
     rebound = []
-    for dt in (1e-4, 2e-5):
+    for dt in (5e-5, 2e-5):
         s = sim(BALL_ON_SUPPORTED_PLATE.format(dt=dt)).advance(0.002)
-        assert s.impacts.substepped["smallest_dt"] <= 84e-6 / EULER_STEPS
+        assert s.impacts.substepped["smallest_dt"] <= 84e-6 / steps_per_impact("backward_euler", True)
         assert [w.kind for w in s.impacts.warnings] == ["space"]        # (the patch: 5 mm cells)
         rebound.append(s.body("ball").velocity[2])
     assert rebound[0] > 6.5
@@ -522,9 +525,10 @@ integrator = "{integrator}"
 
 def test_backward_euler_damping_an_impact_is_told_with_the_rebound_it_keeps_and_a_step_that_keeps_it(sim):
     """A soft ball (Hertz contact time 12 ms) dropped on the ground at 12 steps to the impact:
-    backward Euler keeps (1 + (pi / n)^2)^(-n / 2) of the rebound speed Newmark gives; at the
-    step the warning asks for (a little below: the estimate moves with the step) it keeps 90% of
-    it, and is told nothing."""
+    backward Euler keeps (1 + (pi / n)^2)^(-n / 2) of the rebound speed Newmark gives, n the
+    steps over HERTZ_STIFFENING (Hertz's contact stiffens as it closes); at the step the warning
+    asks for (a little below: the estimate moves with the step) it keeps 90% of it, and is told
+    nothing."""
     def rebound(dt, integrator):
         s = sim(SOFT_BALL.format(dt=dt, integrator=integrator))
         summary, _ = run(s, 0.04)
@@ -534,9 +538,11 @@ def test_backward_euler_damping_an_impact_is_told_with_the_rebound_it_keeps_and_
     kept, warnings = rebound(1e-3, "backward_euler")
     [w] = warnings
     assert w["kind"] == "time" and "backward Euler's damping" in w["message"]
-    steps = w["dt_needed"] * EULER_STEPS / w["dt"]
+    steps = w["dt_needed"] * steps_per_impact("backward_euler", curved=True) / w["dt"]
     assert 10 < steps < 15                                       # Hertz: 12.4 ms at 1 ms steps
-    estimate = (1 + (np.pi / steps) ** 2) ** (-steps / 2)
-    assert kept / undamped == pytest.approx(estimate, abs=0.12)  # 0.59 against 0.68
+    n = steps / HERTZ_STIFFENING
+    estimate = (1 + (np.pi / n) ** 2) ** (-n / 2)
+    assert f"keeps about {estimate:.0%}" in w["message"]
+    assert kept / undamped == pytest.approx(estimate, abs=0.06)  # 0.59 against 0.62
     kept, warnings = rebound(0.9 * w["dt_needed"], "backward_euler")
     assert warnings == [] and kept / undamped == pytest.approx(EULER_KEPT, abs=0.04)
