@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hybrid import Simulation
-from hybrid.app.resolution import EULER_KEPT, HERTZ_STIFFENING, STEPS_PER_IMPACT, steps_per_impact
+from hybrid.app.resolution import EULER_KEPT, HERTZ_STIFFENING, steps_per_impact
 
 
 def ball_on_plate(resolution, ground=True, fps=1000):
