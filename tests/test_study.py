@@ -522,3 +522,15 @@ def test_every_bad_set_key_is_named_not_only_the_first(tmp_path, capsys):
     assert code == 2 and "no body 'nobody'" in err and "planes.3.friction" in err, err
     assert err.count("no body 'nobody'") == 1 and "nothing was run" in err
     assert not (tmp_path / "out" / "runs").exists()
+
+
+def test_a_plot_without_a_key_is_drawn_against_the_first_key_swept_over_several_values():
+    """A --set with one value came first and was the x axis: one point per line, all at x = 0.02."""
+    from hybrid.app.plots import _plot_parts
+    keys = ["simulation.duration", "bodies.slab.shape.resolution", "bodies.jelly.young"]
+    rows = [{"simulation.duration": 0.02, "bodies.slab.shape.resolution": r, "bodies.jelly.young": y}
+            for r in (0.1, 0.05) for y in (5e4, 1e5)]
+    values = [[row[k] for row in rows] for k in keys]
+    assert _plot_parts("slab.z", keys, values) == ("slab.z", "bodies.slab.shape.resolution")
+    assert _plot_parts("slab.z:bodies.jelly.young", keys, values) == ("slab.z", "bodies.jelly.young")
+    assert _plot_parts("cracks", keys[:1], values[:1]) == ("cracks", "simulation.duration")

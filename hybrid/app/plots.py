@@ -14,16 +14,21 @@ def _pyplot():
     return plt
 
 
-def _plot_parts(plot, keys):
+def _plot_parts(plot, keys, values):
+    """``(figure, key)`` of ``plot``; without a key, the first of ``keys`` that takes more than one
+    of its ``values`` (a list per key): a key set to one value is no axis."""
     figure, _, key = plot.partition(":")
-    return figure, key or (keys[0] if keys else "")
+    if not key and keys:
+        varied = [k for k, v in zip(keys, values) if len({repr(x) for x in v}) > 1]
+        key = (varied or keys)[0]
+    return figure, key
 
 
 def check_sweep_plot(plot, keys, values=None, bodies=None):
     """SettingError unless ``plot`` (``FIGURE`` or ``FIGURE:KEY``) names a figure of
     ``results.csv`` (or ``<body>.x|y|z``, a body of ``bodies`` if given) and one of the swept
     ``keys`` whose ``values`` (a list per key, if given) are numbers, which an axis can carry."""
-    figure, key = _plot_parts(plot, keys)
+    figure, key = _plot_parts(plot, keys, values or [[] for _ in keys])
     if figure not in SWEEP_FIGURES and not re.fullmatch(r".+\.[xyz]", figure):
         raise SettingError(f"--plot {plot}: give one of {', '.join(SWEEP_FIGURES)} or <body>.x|y|z, "
                            f"optionally :KEY")
@@ -41,7 +46,7 @@ def plot_sweep(rows, keys, plot, out):
     """``out/<figure>.png``: the figure of each ok run against the swept value (one line per
     combination of the other swept values). Returns the file's path."""
     plt = _pyplot()
-    figure, key = _plot_parts(plot, keys)
+    figure, key = _plot_parts(plot, keys, [[r[k] for r in rows] for k in keys])
     others = [k for k in keys if k != key]
     lines = {}
     for row in rows:

@@ -294,8 +294,8 @@ def sweep(scene, settings, out, zipped=False, workers=None, scheduler=None, prog
     (``{key: [values]}`` or ``["KEY=V1,V2", ...]``; the full grid, or with ``zipped`` the i-th
     values together) under ``out/runs/`` on Dask (``workers`` local processes, or the scheduler
     at address ``scheduler``), write ``out/results.csv`` and return its rows (a list of dicts).
-    ``plot``: ``"FIGURE"`` or ``"FIGURE:KEY"`` draws ``out/FIGURE.png`` against the first (or
-    that) swept key. Raises SettingError or SceneError before anything runs for bad input."""
+    ``plot``: ``"FIGURE"`` or ``"FIGURE:KEY"`` draws ``out/FIGURE.png`` against the first key
+    swept over more than one value (or that key). Raises SettingError or SceneError before anything runs for bad input."""
     from ..simulation import scene_path
     pairs = setting_pairs(settings)
     path = scene_path(scene)

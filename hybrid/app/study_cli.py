@@ -20,7 +20,7 @@ def add_commands(sub):
     p.add_argument("--zip", action="store_true", help="pair the i-th values of every --set "
                                                       "instead of running the full grid")
     p.add_argument("--plot", metavar="FIGURE[:KEY]", help="draw DIR/FIGURE.png against the first "
-                   "(or that) swept key; FIGURE a results.csv column such as energy_drift, "
+                   "key swept over more than one value (or KEY); FIGURE a results.csv column such as energy_drift, "
                    "plastic_dissipation, cracks or <body>.z")
     _common(p, "outputs/<scene>-sweep")
     p = sub.add_parser("converge", help="speed against error: a ladder of time steps (and meshes)",
