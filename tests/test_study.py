@@ -146,6 +146,28 @@ def test_a_scheduler_address_that_is_no_address_is_an_exit_2_error(tmp_path, cap
     assert "Traceback" not in err and not out.exists()
 
 
+@pytest.mark.parametrize("address", ["http://127.0.0.1:8786", "tcp://127.0.0.1:99999"])
+def test_a_scheduler_address_no_scheduler_has_is_refused_at_once_even_with_every_run_kept(
+        tmp_path, capsys, monkeypatch, address):
+    """A port out of range waited 20 s to time out; a wrong address with every run kept from an
+    earlier study passed unnoticed (exit 0). Refused before Dask is tried."""
+    from hybrid.app import study
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    assert main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--workers", "1", "--out",
+                 str(out), "--quiet"]) == 0
+    capsys.readouterr()
+
+    def tried(workers, scheduler):
+        raise AssertionError(f"Dask was tried at {scheduler}")
+    monkeypatch.setattr(study, "_client", tried)
+    code = main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--scheduler", address,
+                 "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"--scheduler {address}: not a scheduler address" in err, err
+
+
 def test_a_key_set_twice_is_an_exit_2_error_and_nothing_runs(tmp_path, capsys):
     scene = tmp_path / "drop.toml"
     scene.write_text(DROP)

@@ -137,6 +137,24 @@ def _main_thread():
     return threading.current_thread() is threading.main_thread()
 
 
+def check_scheduler(address):
+    """SettingError unless ``address`` reads as a Dask scheduler's (SCHEME://HOST:PORT, a scheme
+    Dask knows, a port 1-65535): a wrong one waited 20 s to time out, or went unnoticed when every
+    run was kept."""
+    from distributed.comm import registry       # (distributed.comm registers its schemes there)
+    from distributed.comm.addressing import parse_address, parse_host_port
+    backends = registry.backends
+    try:
+        scheme, place = parse_address(str(address))
+        port = parse_host_port(place)[1] if scheme != "inproc" else 1
+    except (ValueError, TypeError) as err:
+        raise SettingError(f"--scheduler {address}: not a scheduler address ({err}); give one as "
+                           f"tcp://HOST:PORT") from None
+    if scheme not in backends or not 0 < int(port) < 65536:
+        raise SettingError(f"--scheduler {address}: not a scheduler address (scheme one of "
+                           f"{', '.join(sorted(backends))}, port 1 to 65535); give one as tcp://HOST:PORT")
+
+
 def execute(variants, out, workers=None, scheduler=None, progress=True):
     """Run ``variants`` (from :func:`hybrid.app.variants.make_variants`) under ``out/runs/``,
     skipping those finished before. Returns one record per variant, in order: ``id``, ``folder``,
@@ -145,6 +163,8 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
     if workers is not None and (isinstance(workers, bool) or not float(workers).is_integer()
                                 or workers < 1):
         raise SettingError(f"workers={workers!r}: give a whole number of local processes, at least 1")
+    if scheduler:       # (checked here: a study whose runs are all kept never reaches Dask)
+        check_scheduler(scheduler)
     runs = Path(out) / "runs"
     records, todo, texts = [], [], []
     for v in variants:
