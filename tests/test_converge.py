@@ -461,3 +461,15 @@ def test_an_empty_out_is_refused_by_the_studies_as_by_run(command, capsys):
     args = ["--set", "simulation.dt=1e-4,5e-5"] if command == "sweep" else []
     assert main([command, "dent", *args, "--out", ""]) == 2
     assert "--out is empty" in capsys.readouterr().err
+
+
+def test_a_mesh_ladder_of_two_levels_beside_a_time_ladder_of_three_is_the_reason_given():
+    """--dt 3 --refine 2: every quantity fell back to differences, and the reason given was that
+    they "do not shrink steadily", where the mesh ladder has two levels, which give no order."""
+    from hybrid.app.study_cli import report
+    rows = [{"id": f"{k}{j}", "dt": dt, "resolution": res, "status": "ok", "error:x": 0.1,
+             "estimate:x": "finest-difference", "max_relative_error": 0.1, "wall_per_sim_s": 1.0,
+             "recommended": False}
+            for k, dt in enumerate([1e-3, 5e-4, 2.5e-4]) for j, res in enumerate([0.02, 0.01])]
+    said = " ".join(report(rows, 0.1))
+    assert "a ladder of 2 levels gives no observed order" in said and "shrink steadily" not in said

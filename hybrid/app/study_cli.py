@@ -149,7 +149,9 @@ def report(rows, tol):
     for label, group in row_groups(rows):
         ok = [r for r in group if r["status"] == "ok"]
         # a ladder gives an order from three levels: with two, or runs missing, there is none to test
-        levels = max(len({r["dt"] for r in group}), len({r["resolution"] for r in group}))
+        # (the shortest ladder of those that vary: --dt 3 --refine 2 has a mesh ladder of two)
+        ladders = [n for n in (len({r["dt"] for r in group}), len({r["resolution"] for r in group})) if n > 1]
+        levels = min(ladders, default=1)
         why = ("no run finished ok: nothing to estimate" if not ok else
                f"a ladder of {levels} levels gives no observed order (three or more do)" if levels < 3
                else "runs of the ladder did not finish ok" if len(ok) < len(group)
