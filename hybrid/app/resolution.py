@@ -45,19 +45,16 @@ FLAT_NODES = 3
 # the step is resolved when it is at most this share of the impact's duration (at 1.7 steps to
 # the impact a ball rebounded from a plate at 2.46 m/s against 6.61 at a small step, unwarned)
 STEPS_PER_IMPACT = 4
-# a body stepped by backward Euler damps each step (a vibration of angular frequency w loses a
-# factor 1 / sqrt(1 + (w h)^2) of its amplitude a step): over an impact of n steps, taken as half a
-# period, it keeps (1 + (pi / n)^2)^(-n / 2) of its rebound speed; the step is resolved when that is
-# at least EULER_KEPT (n >= pi^2 / (2 ln(1 / EULER_KEPT)), 47 steps: an FEM ball of E = 1 MPa dropped
-# on the ground rebounded at 0.59 / 0.88 / 0.98 of its speed stepped by Newmark, at 12 / 48 / 194
-# steps to the impact, against 0.68 / 0.90 / 0.97 so estimated)
+# backward Euler damps a vibration of angular frequency w by 1 / sqrt(1 + (w h)^2) a step: over an
+# impact of n steps (half a period) a body keeps (1 + (pi / n)^2)^(-n / 2) of its rebound speed;
+# the step is resolved when that is at least EULER_KEPT (n >= pi^2 / (2 ln(1 / EULER_KEPT)) = 47)
 EULER_KEPT = 0.9
 EULER_STEPS = np.pi ** 2 / (2.0 * np.log(1.0 / EULER_KEPT))
-# Hertz's contact stiffens as it closes (F ~ d^1.5): its squared frequency, averaged over the
-# contact, is 1.25 times that of the half period its duration gives (1.875 v^2 / d_max^2 at full
-# compression times the mean of sin^0.5, against (pi / 2.94)^2 v^2 / d_max^2), and backward Euler's
-# loss goes with it: a curved contact counts as 1.25 times fewer steps (the soft ball above then
-# reads 0.62 / 0.88 / 0.97; its own vibrations take a little more)
+# Hertz's contact stiffens as it closes (F ~ d^1.5): its squared frequency averaged over the contact
+# (1.875 v^2 / d_max^2 at full compression times the mean of sin^0.5) is 1.25 times the half
+# period's ((pi / 2.94)^2 v^2 / d_max^2), so a curved contact counts 1.25 times fewer steps: an FEM
+# ball (E = 1 MPa) dropped on the ground kept 0.59 / 0.88 / 0.98 of Newmark's rebound at 12 / 48 /
+# 194 steps to the impact, estimated 0.62 / 0.88 / 0.97 (0.68 / 0.90 / 0.97 without the factor)
 HERTZ_STIFFENING = 1.25
 # an impact's sub-stepping (resolve_impacts) goes on while its bodies touch, up to this many of its
 # estimated durations (the estimate is short for a plate that gives: stopped at it, a ball left
