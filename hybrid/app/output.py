@@ -308,6 +308,7 @@ class RunWriter:
             self._launch = threading.Thread(target=self._start_process, args=(True,), name="RunWriter launch",
                                             daemon=True)
             self._launch.start()
+            return      # taken over at a later job: when, not how fast the launch thread ran
         if self._launch is not None and not self._launch.is_alive():
             self._auto_from = None
             self._take_over()
