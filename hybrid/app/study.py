@@ -111,11 +111,8 @@ def _client(workers, scheduler):
     single-threaded worker processes (default: the number of cores). Returns (client, cluster)."""
     import dask
     from dask.distributed import Client, LocalCluster
-    if scheduler:
-        try:
-            return Client(scheduler, timeout="20s"), None
-        except ValueError as err:           # no address at all ("missing port number ...")
-            raise OSError(f"not a scheduler address ({err}); give one as tcp://HOST:PORT") from None
+    if scheduler:           # (its address checked by check_scheduler)
+        return Client(scheduler, timeout="20s"), None
     n = int(workers or os.cpu_count() or 1)
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
     # the workers start with Ctrl-C ignored (a terminal's goes to the whole process group): the
