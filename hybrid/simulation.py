@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .app import checkpoint, geometry, observe
+from .app import checkpoint, geometry, observe, run_lock
 from .app.build import build
 from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
@@ -257,7 +257,8 @@ class Simulation:
         and the InstabilityError is raised again. ValueError for an ``until`` that is no time at
         or after :attr:`time`, an ``out`` that is (or lies in) a file, the folder this simulation's
         last run wrote (a run into it again would replace that run's frames) or one holding a
-        stopped run's checkpoint (it would be lost)."""
+        stopped run's checkpoint (it would be lost); :class:`hybrid.app.run_lock.RunFolderBusy` (a
+        ValueError) for a folder another live run writes in."""
         stop, out = checkpoint.stop_request(stop), self._checked_out(out)
         checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
@@ -321,6 +322,9 @@ class Simulation:
         blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
         if blocking is not None:
             raise ValueError(f"out {out}: {blocking} is a file; give a folder (it is created if missing)")
+        busy = run_lock.holder(out)
+        if busy is not None:
+            raise run_lock.RunFolderBusy(f"out {out}: {busy}")
         if self.resumed is None and getattr(self, "_last_out", None) == out.resolve():
             raise ValueError(f"out {out}: this simulation's last run wrote there; a run from "
                              f"t = {self.time:.6g} s would replace its frames: give another folder")

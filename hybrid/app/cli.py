@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ..scenes import builtin_names, builtin_path, builtin_summary
 from .scene import SceneError, load_scene, validate_command
+from . import run_lock
 
 
 # the cell fields a run writes that `hybrid render --field` can colour by
@@ -134,8 +135,8 @@ def _run(args):
     except InstabilityError as err:
         print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
         return 2 if isinstance(err, OutputFailure) else 3
-    except CheckpointError as err:      # the run folder changed since the checkpoint
-        print(f"{path}: {err}", file=sys.stderr)
+    except (CheckpointError, run_lock.RunFolderBusy) as err:    # the folder changed since the checkpoint,
+        print(f"{path}: {err}", file=sys.stderr)                # or another run began writing there
         return 2
     except Stopped as stopped:
         return _stopped(args, out, stopped)
@@ -188,13 +189,16 @@ def _run_folder(path, args, scene):
 def _create_folder(out):
     """Create the run folder ``out`` and the folders above it that are missing: the list of those
     created (deepest first, the order to remove them in), or why the folder cannot take the run's
-    files (then nothing is created)."""
+    files (then nothing is created): one another live run writes in is refused too."""
     missing = [p for p in (out, *out.parents) if not p.exists()]
     try:
         out.mkdir(parents=True, exist_ok=True)
         if os.access(out, os.W_OK | os.X_OK):
-            return missing
-        why = "cannot write in this folder (no permission, or a read-only file system)"
+            why = run_lock.holder(out)
+            if why is None:
+                return missing
+        else:
+            why = "cannot write in this folder (no permission, or a read-only file system)"
     except OSError as err:
         why = f"cannot create the folder: {err.strerror or err}"
     _remove_folders(missing)

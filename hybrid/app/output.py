@@ -33,7 +33,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from . import writer_pool, writer_process
+from . import run_lock, writer_pool, writer_process
 from .text_files import atomic_write_text as _atomic_write_text, check_rows, plain as _plain
 from .vtu import FRAMES_DIR, FrameFiles, merge_pieces, write_vtu
 from .frame_input import check_pieces, owned
@@ -132,7 +132,7 @@ class RunWriter:
         self._frames_dir = self.out_dir / FRAMES_DIR
         self._cell_fields: dict[str, tuple[int, ...]] = {}
         self._point_fields: dict[str, tuple[int, ...]] = {}
-        self._started = self._closed = False
+        self._started = self._closed = self._locked = False
         self._queued = 0                      # frames handed over (written or waiting)
         self._last_frame = LastFrame()        # a frame of its layout goes as its values
         # the files as written on this process (inline, thread, and "auto" until a process takes over)
@@ -194,6 +194,7 @@ class RunWriter:
             raise RuntimeError("RunWriter is closed")
         if self._started:
             return
+        self._take_lock()
         self.frames_dir.mkdir(parents=True, exist_ok=True)
         for stale in self.frames_dir.iterdir():
             if FRAME_PATTERN.match(stale.name):
@@ -209,6 +210,19 @@ class RunWriter:
             if f'file="{FRAMES_DIR}/' in index.read_text(errors="replace"):
                 index.unlink()
         self._started = True
+
+    def _take_lock(self) -> None:
+        """Take the run folder's lock (:mod:`hybrid.app.run_lock`), creating the folder; another run
+        writing there: RunFolderBusy, this writer closed, nothing in the folder touched."""
+        if self._locked:
+            return
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            run_lock.acquire(self.out_dir)
+        except run_lock.RunFolderBusy:
+            self._closed = True
+            raise
+        self._locked = True
 
     def __enter__(self) -> "RunWriter":
         return self
@@ -234,6 +248,9 @@ class RunWriter:
                 writer_pool.pool.give(self._launched)
         if self._process is not None:
             self._give_back()
+        if self._locked:
+            run_lock.release(self.out_dir)
+            self._locked = False
         self._closed = True
 
     def _give_back(self) -> WriterProcess:

@@ -50,6 +50,7 @@ class ResumableWriter(RunWriter):
     def _start(self):
         """Create the run folder on first output, clearing an earlier run's files and checkpoint."""
         if not self._started and not self._closed:
+            self._take_lock()           # (another run's checkpoint is left alone)
             (self.out_dir / CHECKPOINT).unlink(missing_ok=True)
         super()._start()
 
@@ -65,6 +66,7 @@ class ResumableWriter(RunWriter):
     def resume(self, snapshot):
         """Take the run folder back to ``snapshot`` and append from there. Raises ResumeError
         when a frame or table the snapshot counts is missing or shorter."""
+        self._take_lock()
         self._wait()
         check_folder(self.out_dir, snapshot)
         times = [float(t) for t in snapshot["times"]]
