@@ -25,6 +25,7 @@ builds in about 0.3 s, most of it winding numbers; a 20-cell grid of a 1.1k-tria
 in 0.03-0.04 s and a lone tet's default 47^3 grid in 0.07 s (0.12-0.4 s and 0.2 s when the band
 and the pair distances were numpy).
 """
+import os
 from dataclasses import dataclass
 
 import numba
@@ -96,6 +97,16 @@ def winding_number(points, vertices, triangles):
     points = np.ascontiguousarray(np.atleast_2d(points), dtype=np.float64)
     corners = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)])
     return _winding_number_kernel(points, corners)
+
+
+# The kernel below runs on numba's threads. Numba's default layer on Linux is GNU OpenMP, which
+# kills a child process forked after it ran ("fork() called from a process already using GNU
+# OpenMP"): a script's multiprocessing Pool (fork, Linux's default) hung for ever once the script
+# had run a contact scene. "forksafe" takes TBB if installed, else numba's own workqueue (1.1x
+# omp's time here; its calls are never concurrent: the kernel holds the interpreter lock). A
+# layer the user chose (NUMBA_THREADING_LAYER) is kept.
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "forksafe"
 
 
 @numba.njit(cache=True, parallel=True)
