@@ -8,15 +8,13 @@
 The command line (``hybrid run``), the tests and the benchmarks all step scenes through this
 class, so a scene gives the same numbers whichever of them runs it.
 """
-import math
 import os
 import time as clock
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .app import checkpoint, geometry, observe, run_lock
+from .app import checkpoint, geometry, observe, run_args
 from .app.build import build
 from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
@@ -25,7 +23,6 @@ from .app.hints import frame_hints, rigid_hints, spin_warnings
 from .app.run import (Progress, Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
                       summary)
 from .app.scene import SceneError, load_scene
-from .app.scene.schema import MAX_STEPS
 from .app.scene.data import rechecked
 from .coupling.stability import OutputFailure, StepFailure
 from .coupling.step import InstabilityError, advance, log as step_log
@@ -67,17 +64,11 @@ class Body:
     plastic_strain: np.ndarray = None
 
 
-def _nearest_whole(steps):
-    """The whole number of steps nearest ``steps``, halves up, also where the division left the
-    half a hair under (0.35 / 0.1 = 3.4999999999999996)."""
-    return math.floor(steps + 0.5 + 1e-9 * max(1.0, abs(steps)))
-
-
 def _uneven_duration(duration, dt):
     """A warning (in a list) when ``duration`` is no whole number of steps of ``dt``: the run
     takes the nearest number of steps, ending early or late."""
     steps = duration / dt
-    n = _nearest_whole(steps)
+    n = run_args.nearest_whole(steps)
     if abs(steps - n) <= 1e-6 * max(1.0, steps):
         return []
     return [f"duration {duration:g} s is {steps:.4g} steps of dt = {dt:g} s: the run takes {n} "
@@ -259,7 +250,8 @@ class Simulation:
         last run wrote (a run into it again would replace that run's frames) or one holding a
         stopped run's checkpoint (it would be lost); :class:`hybrid.app.run_lock.RunFolderBusy` (a
         ValueError) for a folder another live run writes in."""
-        stop, out = checkpoint.stop_request(stop), self._checked_out(out)
+        stop, progress = checkpoint.stop_request(stop), run_args.checked_progress(progress)
+        out = run_args.checked_out(out, self.time, getattr(self, "_last_out", None), self.resumed is not None)
         checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
         if out is not None:             # a run refused above wrote nothing there
@@ -312,27 +304,6 @@ class Simulation:
             raise failure
         return result
 
-    def _checked_out(self, out):
-        """``out`` as a Path (None stays None), refused as :meth:`run` says."""
-        if out is None:
-            return None
-        if isinstance(out, str) and not out.strip():
-            raise ValueError("out '': give a folder's path (it is created if missing)")
-        out = Path(out)
-        blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
-        if blocking is not None:
-            raise ValueError(f"out {out}: {blocking} is a file; give a folder (it is created if missing)")
-        busy = run_lock.holder(out)
-        if busy is not None:
-            raise run_lock.RunFolderBusy(f"out {out}: {busy}")
-        if self.resumed is None and getattr(self, "_last_out", None) == out.resolve():
-            raise ValueError(f"out {out}: this simulation's last run wrote there; a run from "
-                             f"t = {self.time:.6g} s would replace its frames: give another folder")
-        if self.resumed is None and (out / "checkpoint.npz").exists():   # a stopped run's
-            raise ValueError(f"out {out} holds a run that did not finish (checkpoint.npz): "
-                             f"Simulation.resume continues it; delete the checkpoint to start again there")
-        return out
-
     def _position(self, until):
         """``(Position, recorder snapshot)`` the run starts from: a new run's (snapshot None),
         or the checkpoint's of a resumed simulation."""
@@ -341,16 +312,8 @@ class Simulation:
             self.resumed = None
             return position, snapshot
         sim = self.scene.simulation
-        if until is None:
-            until = sim.duration
-        elif isinstance(until, bool) or not isinstance(until, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(until) or until < self.time - 0.5 * sim.dt \
-                or (until - self.time) / sim.dt > MAX_STEPS:
-            raise ValueError(f"until must be a time (s) at or after the simulation's time "
-                             f"{self.time:.6g} s and at most {MAX_STEPS:.0e} steps of dt = "
-                             f"{sim.dt:g} s later, got {until!r}")
-        until = float(until)
-        end_step = self.steps + _nearest_whole((until - self.time) / sim.dt)
+        until, steps = run_args.steps_until(until, self.time, sim.dt, sim.duration)
+        end_step = self.steps + steps
         return checkpoint.Position(until, end_step, self.time + 1.0 / sim.output_fps, 0.0,
                                    len(self.events), self.steps), None
 

@@ -158,6 +158,39 @@ def test_run_refuses_times_and_folders_it_cannot_honour(tmp_path):
     assert not (tmp_path / "every").exists()
 
 
+def test_run_refuses_an_until_that_rounds_to_no_step_and_a_time_past_the_duration():
+    """A run takes whole steps (the nearest number): an until less than half a step from the
+    simulation's time took none and said ok, so a loop asking 0.4 steps at a time never ended; a
+    run() with the simulation past its scene's duration took none either (run(until=duration) is
+    refused)."""
+    sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
+    dt = sim.dt
+    for ahead in (0.4, -0.4, 1e-3):
+        with pytest.raises(ValueError, match="a run takes whole steps"):
+            sim.run(until=sim.time + ahead * dt, progress=False, log=lambda m: None)
+    assert sim.steps == 0
+    sim.run(until=sim.time + 0.6 * dt, progress=False, log=lambda m: None)
+    assert sim.steps == 1
+    sim.run(until=sim.scene.simulation.duration + 2 * dt, progress=False, log=lambda m: None)
+    with pytest.raises(ValueError, match="past the scene's duration"):
+        sim.run(progress=False, log=lambda m: None)
+    summary = sim.run(until=sim.time, progress=False, log=lambda m: None)     # now: a frame, no step
+    assert summary["status"] == "ok"
+    before = sim.steps
+    sim.run(until=np.array(sim.time + dt), progress=False, log=lambda m: None)
+    assert sim.steps == before + 1      # (a 0-d array is a time like np.float64)
+
+
+def test_run_names_an_out_or_progress_of_the_wrong_type():
+    """out=123 raised Path's own TypeError, not naming out; progress="no" showed the bar."""
+    sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
+    with pytest.raises(TypeError, match="out must be a folder's path"):
+        sim.run(until=0.002, out=123, progress=False, log=lambda m: None)
+    with pytest.raises(TypeError, match="progress must be True or False"):
+        sim.run(until=0.002, progress="no", log=lambda m: None)
+    assert sim.steps == 0
+
+
 def test_a_second_run_reports_its_own_steps_per_second(tmp_path):
     """Steps count from the simulation's start; steps per second are the run's own steps over its
     wall time (a run after 50 steps taken one by one and a run of none reported 50 over its few

@@ -344,7 +344,11 @@ def test_python_studies_take_numpy_values_and_refuse_bad_workers_and_tolerances(
         converge(scene, tmp_path / "c", tol=5)
     with pytest.raises(SceneError, match="settings key"):
         sweep(scene, {"simulation.dt": [-1.0]}, tmp_path / "neg", workers=1)
+    # an empty list ran nothing and returned an empty table
+    with pytest.raises(SettingError, match="simulation.dt: no values given"):
+        sweep(scene, {"simulation.dt": []}, tmp_path / "none", workers=1)
     assert not (tmp_path / "w").exists() and not (tmp_path / "c").exists()
+    assert not (tmp_path / "none").exists()
 
 
 def test_the_convergence_report_says_why_it_has_no_extrapolation():

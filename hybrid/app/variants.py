@@ -113,6 +113,8 @@ def setting_pairs(settings):
     for key, values in settings.items():
         values = plain(values)
         values = list(values) if isinstance(values, (list, tuple)) else [values]
+        if not values:              # (the study ran nothing and returned an empty table)
+            raise SettingError(f"{key}: no values given; give a value or a list of them")
         pairs.append((key, [plain(v) for v in values]))
     return pairs
 
