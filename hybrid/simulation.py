@@ -20,7 +20,8 @@ from .app.deformable import beyond, deep_starts, material_warnings, mesh_notes
 from .app.peaks import Peaks
 from .app.resolution import ImpactWatch
 from .app.hints import frame_hints, rigid_hints, spin_warnings
-from .app.run import (Progress, Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
+from .app.progress import Progress
+from .app.run import (Recorder, below_planes, forwarded, ignored_motion, overlapping_bodies,
                       summary)
 from .app.scene import SceneError, load_scene
 from .app.scene.data import rechecked

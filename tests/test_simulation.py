@@ -333,7 +333,7 @@ def test_a_body_reports_its_mass_and_the_progress_of_a_log_ends_once():
     """Body.mass lets a user check momentum from the API: a box's is density times volume, rigid
     or deformable. A run logged to a file ends its progress with one 100% line (it was twice)."""
     import io
-    from hybrid.app.run import Progress
+    from hybrid.app.progress import Progress
     sim = Simulation(parse_scene(tomllib.loads(SCENE), "<test>", Path(".")))
     assert sim.body("box").mass == pytest.approx(500.0 * 0.1 ** 3, rel=1e-12)
     assert sim.body("slab").mass == pytest.approx(1000.0 * 0.3 * 0.3 * 0.04, rel=1e-12)
@@ -350,7 +350,7 @@ def test_the_progress_rate_and_time_left_follow_the_recent_steps(monkeypatch):
     """A rigid pile that slows as it lands showed its fast start's rate to the end (57.9 steps/s
     at 10%, 18.1 at the end), and no time left: both come from the last 5-10 s of wall time."""
     import io
-    from hybrid.app import run
+    from hybrid.app import progress as run
     now = [0.0]
     monkeypatch.setattr(run.clock, "perf_counter", lambda: now[0])
     stream = io.StringIO()
@@ -366,6 +366,25 @@ def test_the_progress_rate_and_time_left_follow_the_recent_steps(monkeypatch):
     assert float(rate) == pytest.approx(10.0)
     minutes, seconds = (int(v) for v in left.split(":"))
     assert 60 * minutes + seconds == pytest.approx((100.0 - 33.0) / 0.1, abs=1)
+
+
+def test_a_logged_progress_says_it_is_alive_each_minute_with_times_to_the_run_s_scale(monkeypatch):
+    """Off a terminal the bar writes a line per tenth of the run: a 50k-tet impact's slow steps
+    printed nothing for 86 s; a 20 ms run read t = 0.000 s and 0.0 steps/s at steps of 9 s."""
+    import io
+    from hybrid.app import progress
+    now = [0.0]
+    monkeypatch.setattr(progress.clock, "perf_counter", lambda: now[0])
+    stream = io.StringIO()
+    bar = progress.Progress(0.02, stream=stream)
+    for step in range(1, 21):           # 20 steps of 1e-4 s, 9 s each: a tenth of the run in 3 minutes
+        now[0] = 9.0 * step
+        bar.update(1e-4 * step, step)
+    lines = stream.getvalue().splitlines()
+    # the first step, then a line each minute (steps 8 and 15, 72 s and 135 s), and the tenth
+    assert [line.split("t = ")[1].split()[0] for line in lines] == ["0.00010", "0.00080", "0.00150", "0.00200"]
+    assert all(float(line.split("steps/s")[0].split()[-1]) == pytest.approx(1 / 9.0, rel=0.01)
+               for line in lines)
 
 
 def test_what_is_no_scene_is_refused_saying_what_a_simulation_is_built_from():
@@ -468,7 +487,7 @@ def test_a_second_run_calls_rate_counts_only_its_own_steps():
     thousands of steps/s at the second piece's first line: all the run's steps over the piece's
     wall time. The rate is the piece's steps over its wall time."""
     import io
-    from hybrid.app.run import Progress
+    from hybrid.app.progress import Progress
     stream = io.StringIO()
     bar = Progress(0.2, stream=stream, first_steps=1_000_000)
     time.sleep(0.01)

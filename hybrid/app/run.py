@@ -1,4 +1,5 @@
-"""Recording a run: the progress bar, frames and tables at the output rate, and the summary.
+"""Recording a run: frames and tables at the output rate, and the summary (the progress bar:
+:mod:`hybrid.app.progress`).
 
 :class:`hybrid.simulation.Simulation` owns the step loop; a :class:`Recorder` watches it, writing
 through :class:`hybrid.app.output.RunWriter` when the run has an output folder and keeping the
@@ -6,7 +7,6 @@ conserved quantities of every recorded frame for the summary either way.
 """
 import logging
 import math
-import sys
 import time as clock
 import contextlib
 from contextlib import contextmanager
@@ -21,59 +21,6 @@ from hybrid.coupling.stability import OutputFailure
 from . import energy_watch, observe
 from .output_resume import ResumableWriter
 from .run_files import FRAME_PATTERN
-
-
-class Progress:
-    """A one-line progress bar on stderr (simulated time, steps/s and the wall time left at the
-    rate of the last RECENT to 2 RECENT seconds); quiet when disabled."""
-
-    RECENT = 5.0    # s of wall time
-
-    def __init__(self, duration, enabled=True, stream=sys.stderr, first_steps=0):
-        self.duration, self.enabled, self.stream = duration, enabled, stream
-        self.first_steps = first_steps          # steps taken before this bar: not in its rate
-        self.start = clock.perf_counter()
-        self.last = -1.0
-        self.tty = hasattr(stream, "isatty") and stream.isatty()
-        self.last_decile, self.last_shown = -1, None
-        # (wall s, steps, simulated s) where the rate is taken from, and the next such mark: a
-        # pile that slows as it lands read 3x its later rate when the rate was the whole run's
-        self.since = self.mark = None
-
-    def update(self, t, steps, force=False):
-        """Show simulated time ``t`` (s) after ``steps`` steps; on a terminal at most every 0.2 s
-        of wall time, else once per tenth of the duration, unless ``force``."""
-        if not self.enabled:
-            return
-        now = clock.perf_counter()
-        if self.since is None:
-            self.since = self.mark = (self.start, self.first_steps, t)
-        if now - self.mark[0] >= self.RECENT:
-            self.since, self.mark = self.mark, (now, steps, t)
-        frac = min(t / self.duration, 1.0) if self.duration > 0 else 1.0
-        wall, steps0, t0 = self.since
-        rate = (steps - steps0) / max(now - wall, 1e-9)
-        left = ""
-        if t > t0 and frac < 1.0:
-            seconds = int((self.duration - t) * (now - wall) / (t - t0))
-            if seconds >= 1:
-                hours = f"{seconds // 3600}:" if seconds >= 3600 else ""
-                left = f"  {hours}{seconds // 60 % 60:02d}:{seconds % 60:02d} left"
-        if self.tty:
-            if force or now - self.last > 0.2:
-                bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-                self.stream.write(f"\r[{bar}] t = {t:7.3f} / {self.duration:.3f} s  {rate:8.1f} steps/s{left}\033[K")
-                self.stream.flush()
-                self.last = now
-        elif int(frac * 10) > self.last_decile or (force and steps != self.last_shown):
-            self.last_decile, self.last_shown = int(frac * 10), steps
-            self.stream.write(f"{100 * frac:5.1f}%  t = {t:.3f} s  {rate:.1f} steps/s{left}\n")
-            self.stream.flush()
-
-    def done(self):
-        """End the bar's line (on a terminal)."""
-        if self.enabled and self.tty:
-            self.stream.write("\n")
 
 
 def ignored_motion(scene):
