@@ -9,6 +9,7 @@ Two backends, measured in ``benchmarks/fem_solver.py``:
   CHOLMOD, or when chosen.
 A body's backend is a setting of its model (``fem.model.build_fem_model(..., linear_solver=...)``).
 """
+import time
 import warnings
 
 import numpy as np
@@ -110,6 +111,7 @@ class FactorCache:
         self.dt = None
         self.factorisation = None
         self.factor_count = 0
+        self.seconds = 0.0       # wall time of the last factorisation (s)
         self.matrix_dt = None
         self.matrix = None       # the whole system matrix for matrix_dt (anchored bodies use it)
         self._derived = {}       # parts of that matrix, see derived()
@@ -118,7 +120,9 @@ class FactorCache:
         """Factorisation for ``dt``; ``build_matrix(dt)`` returns the sparse matrix to factorise with
         ``backend`` (the model's ``linear_solver``, the same for every call)."""
         if self.factorisation is None or self.dt != dt:
+            start = time.perf_counter()
             self.factorisation = Factorisation(build_matrix(dt), backend)
+            self.seconds = time.perf_counter() - start
             self.dt = dt
             self.factor_count += 1
         return self.factorisation

@@ -212,3 +212,20 @@ def test_a_large_face_landing_flat_is_held_from_the_step_it_lands(sim):
     free = sim(_wide(slab(box=False, hold=False)).replace(", 0.03]", ", 0.035]"))
     free.advance(0.2)
     assert np.abs(positions(held) - positions(free)).max() < 1e-7
+
+
+def test_a_held_set_whose_factorisation_takes_long_is_said_in_the_log(sim, monkeypatch):
+    """A 50k-tet block landing stalled 8 s at a time (its held system factorised) with nothing
+    said: a new held set whose factorisation will take as long as the body's own did, over
+    REPORT_AFTER s, is said in the run's log before it is factorised, naming the body."""
+    from hybrid.coupling import step
+    messages = []
+    s = sim(_wide(slab()))
+    monkeypatch.setattr(step, "REPORT_AFTER", 0.0)     # (this slab factorises in milliseconds)
+    s.run(until=0.01, progress=False, log=messages.append)
+    held = [m for m in messages if "holding" in m]
+    assert held and held[0].startswith("slab: holding 169 resting nodes: factorising its system"), messages
+    monkeypatch.setattr(step, "REPORT_AFTER", 1e9)
+    quiet = []
+    sim(_wide(slab())).run(until=0.01, progress=False, log=quiet.append)
+    assert not [m for m in quiet if "holding" in m]

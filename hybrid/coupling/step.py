@@ -33,6 +33,10 @@ from .switch import elastify
 from .stability import MAX_DISTANCE, MAX_SPEED, InstabilityError, check_finite  # noqa: F401
 
 
+# a held set's factorisation expected to take this long (s) or longer is said in the log
+REPORT_AFTER = 2.0
+
+
 def next_time(time, dt):
     """The simulated time ``dt`` after ``time`` (s), on the grid of multiples of ``dt`` when
     ``time`` is on it: adding the step each time left 0.06750000000000005 after 135 steps of
@@ -93,7 +97,8 @@ def coupled_step(model, state, h):
     # 1. deformable bodies: implicit step without contact (prefactored system), a body resting on
     #    static ground with its resting nodes held; rigid bodies: leapfrog kick
     hold = held.hold_sets(model, state)
-    fems = [m if r is None else _holding(m, r.nodes) for m, r in zip(model.fem, hold)]
+    fems = [m if r is None else _holding(m, r.nodes, model.names[i])
+            for m, r, i in zip(model.fem, hold, model.fem_ids)]
     predicted = [fem_dyn.predict(m, s, h, model.gravity,
                                  None if r is None else resting.held_velocity(m, s, r, h))
                  for m, s, r in zip(fems, state.fem, hold)]
@@ -143,11 +148,17 @@ def coupled_step(model, state, h):
                    contact_sets=problem.contact_sets, touches=touches)
 
 
-def _holding(model, nodes):
+def _holding(model, nodes, name):
     """fem.model.holding of a resting set's ``nodes`` (sorted and distinct): the variant kept for
     them when they are the last asked for (``model.cache.held``), without holding's np.unique
-    (22 us for a set of 441 nodes, every step)."""
+    (22 us for a set of 441 nodes, every step). A new set whose factorisation will take a while
+    (as long as the body's own took, over REPORT_AFTER s) is said in the log, naming the body
+    ``name``: a 50k-tet block landing stalled 8 s at a time with nothing said."""
     last = model.cache.held
     if last is not None and np.array_equal(last.held_nodes, nodes):
         return last
+    seconds = model.cache.factor.seconds
+    if seconds >= REPORT_AFTER:
+        log.info("%s: holding %d resting nodes: factorising its system with them held (about %.0f s)",
+                 name, len(nodes), seconds)
     return holding(model, nodes)
