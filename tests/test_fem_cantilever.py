@@ -269,3 +269,40 @@ box = [[-1, -1, 0.0049], [1, -0.0049, 1]]
         assert turn > 45 and volume > 2 * 1e-5          # (swollen: what the note is about)
     else:
         assert not notes and turn < 1e-6 and volume == pytest.approx(1e-5, rel=0.01)
+
+
+def test_linear_tets_a_few_layers_thick_are_told_they_lock_in_bending(sim):
+    """A clamped beam 20 times as long as thick, linear tets in the box mesh, sags under its weight
+    by the share of Euler-Bernoulli theory the run log's note quotes (0.58 / 0.85 with 2 / 4
+    layers; poisson 0, so the beam's own theory holds without shear or Poisson corrections to
+    speak of), and the note is given to linear tets few layers thick only: a user's 5-layer beam
+    sagged 15% short with nothing said."""
+    from types import SimpleNamespace
+    from hybrid.app.deformable import SLENDER_RATIO, mesh_notes
+    from hybrid.app.hints import bending_note
+    length, side, young, density, g = 2.0, 0.1, 1e9, 1000.0, 9.81
+    theory = density * g * side**2 * length**4 / (8 * young * side**4 / 12)
+    for layers, share in ((2, 0.58), (4, 0.85)):
+        model, _ = _beam_model(length, side, young, density, layers)
+        tip = np.isclose(model.rest_points[:, 0], model.rest_points[:, 0].max())
+        sag = -static_displacement(model, gravity=(0.0, 0.0, -g))[tip, 2].mean()
+        assert sag / theory == pytest.approx(share, abs=0.005)
+
+    s = sim("""[simulation]\nduration = 0.01\ndt = 0.001\n[[bodies]]\nname = "b"\nmodel = "fem"
+young = 1e9\norder = 1\nshape = { type = "box", size = [0.3, 0.05, 0.05], resolution = 0.01 }\n""")
+    assert "about 5 layers of linear tets through its 50 mm side lock in bending" in mesh_notes(s.model)[0]
+
+    def note(order, size, cells):
+        points, tets = box_tet_mesh(size, cells)
+        return bending_note(SimpleNamespace(order=order, rest_points=points, tets=tets), SLENDER_RATIO)
+    assert "about 4 layers" in note(1, (0.6, 0.6, 0.04), (24, 24, 4))       # a plate, flat cells
+    assert note(2, (0.3, 0.05, 0.05), (30, 5, 5)) is None                  # quadratic tets bend freely
+    assert note(1, (0.3, 0.05, 0.05), (48, 8, 8)) is None                  # 8 layers
+    assert note(1, (0.1, 0.05, 0.05), (10, 5, 5)) is None                  # compact: no beam
+
+
+def _beam_model(length, side, young, density, layers):
+    points, tets = box_tet_mesh((length, side, side), (20 * layers, layers, layers))
+    clamp = select_nodes_in_box(points, [-2, -1, -1], [-0.5 * length + 1e-9, 1, 1])
+    return build_fem_model(points, tets, order=1, density=density, young=young, poisson=0.0,
+                           anchors=[(clamp, [0, 0, 0])]), clamp

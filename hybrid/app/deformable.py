@@ -12,6 +12,7 @@ from rigid import quaternion as quat
 from hybrid.coupling.stability import beyond_limits
 
 from . import geometry
+from .hints import bending_note
 from .scene.describe import toml_text
 
 
@@ -199,6 +200,7 @@ def mesh_notes(model):
         else:
             lines.append(f"{head}, resolution {default_resolution(s):.3g} m (default: half the "
                          f"radius; set `resolution` to choose)")
+        lines[-1] += f"; {locking}" if (locking := bending_note(m, SLENDER_RATIO)) else ""
     return lines
 
 
