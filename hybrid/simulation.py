@@ -46,7 +46,8 @@ class Body:
     its surface mesh, a deformable body's from its tets).
     FEM and auto bodies only (None for rigid ones; an auto body stepped as rigid gives its tet
     mesh carried by the rigid motion, its fields as they were when it became rigid): points
-    (n, 3) m, node positions; tets (t, 4 or 10)
+    (n, 3) m, node positions; node_velocities (n, 3) m/s; node_masses (n,) kg (lumped: the
+    body's momentum is their sum with the velocities); tets (t, 4 or 10)
     node indices; von_mises (t,) Pa and principal_stress (t,) Pa, of each element's stress;
     plastic_strain (t,) accumulated equivalent plastic strain (0 without a yield_stress).
     """
@@ -59,6 +60,8 @@ class Body:
     kinetic_energy: float
     mass: float
     points: np.ndarray = None
+    node_velocities: np.ndarray = None
+    node_masses: np.ndarray = None
     tets: np.ndarray = None
     von_mises: np.ndarray = None
     principal_stress: np.ndarray = None
@@ -369,5 +372,6 @@ class Simulation:
         m, s = deformable[0]
         fields = observe.tet_fields(m, s)
         plastic = np.broadcast_to(fields["plastic_strain"], (m.tet_count,)).copy()
-        return Body(kind=kind, points=s.x.copy(), tets=m.tets.copy(), von_mises=fields["von_mises"],
+        return Body(kind=kind, points=s.x.copy(), node_velocities=s.v.copy(), node_masses=m.node_mass.copy(),
+                    tets=m.tets.copy(), von_mises=fields["von_mises"],
                     principal_stress=fields["principal_stress"], plastic_strain=plastic, **pose)
