@@ -413,10 +413,14 @@ def test_a_threading_event_stops_a_run_and_what_is_no_stop_is_refused_before_it(
     assert not (tmp_path / "wrong").exists()
     event = threading.Event()
     event.set()
+    sim = Simulation.from_toml(scene)
     with pytest.raises(checkpoint.Stopped) as stopped:
-        Simulation.from_toml(scene).run(out=tmp_path / "run", progress=False, log=lambda m: None,
-                                        stop=event)
+        sim.run(out=tmp_path / "run", progress=False, log=lambda m: None, stop=event)
     assert stopped.value.exit_code == 130 and stopped.value.checkpoint.is_file()
+    # the same simulation run into its folder again is pointed to resume (it said "give another
+    # folder", as for a run that had ended)
+    with pytest.raises(ValueError, match="Simulation.resume continues it"):
+        sim.run(out=tmp_path / "run", progress=False, log=lambda m: None)
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "stopped"
     # no signal was sent: said so ("stopped by SIGINT" read as if one had been)
     assert str(stopped.value).startswith("stopped on request (as by SIGINT) at t = ")
