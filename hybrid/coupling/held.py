@@ -18,6 +18,7 @@ class LetGo:
     ``failed``: those whose impulses would not push or stick (sorted; None: not so found)."""
     body: int
     failed: np.ndarray = None
+    sliding: bool = False
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,8 @@ def hold_impulses(model, hold, nodes, found, rows, new_fem, solved_impulse, h):
         if resting.violations(r, impulse).any():
             # those that fail and those near failing (as a watched node must be to join)
             failed = resting.violations(r, impulse, resting.stick_margin(model.fem[j]))
-            return row_impulse, LetGo(j, r.nodes[failed])
+            pushing = resting.normal_and_slide(impulse, r.normal)[0] > 0
+            return row_impulse, LetGo(j, r.nodes[failed], sliding=bool(pushing.all()))
         mine = np.nonzero(rows & (nodes.body[contacts.body_a] == j))[0]
         at = np.searchsorted(r.nodes, nodes.local[contacts.body_a[mine]])
         share = np.bincount(at, minlength=len(r.nodes))[at]
@@ -157,5 +159,5 @@ def watch(model, state, nodes, found, row_impulse):
 def released(model, state, let_go):
     """The state after :class:`LetGo` ``let_go``: its body's held resting nodes let go."""
     out = list(records(model, state))
-    out[let_go.body] = resting.released(out[let_go.body], let_go.failed)
+    out[let_go.body] = resting.released(out[let_go.body], let_go.failed, let_go.sliding)
     return replace(state, resting=tuple(out))

@@ -13,7 +13,9 @@ pull, and lie within the friction cone. Then it is a solution of the contact pro
 the solver's sweeps converge to. Otherwise the step is taken again: without the nodes that
 failed or came near failing when they are few (``DROP_SHARE`` of the set: the rim of a slab
 spreading under a load), else with every node free, and the set must rest anew (and
-``RETRY_AFTER`` steps pass) before it is held again.
+``RETRY_AFTER`` steps pass, or ``ENTER_AFTER`` when the ground still pushed every node and some
+slid: a slab spreading under a blow, which comes to rest within a few steps) before it is held
+again.
 
 A body that meets static ground with a patch of ``FIRST_SIGHT`` or more nodes new to its contact
 response (a slab laid on the ground) holds them from that step (:func:`first_sight`): solving
@@ -95,8 +97,9 @@ def violations(rest, impulse, margin=1.0):
     return (normal < -tol) | (tangent > margin * rest.friction * normal * (1.0 + 1e-9) + tol)
 
 
-def released(rest, failed=None):
-    """The record after its set let go: watched anew, held again no sooner than RETRY_AFTER steps.
+def released(rest, failed=None, sliding=False):
+    """The record after its set let go: watched anew, held again no sooner than RETRY_AFTER steps
+    (ENTER_AFTER when ``sliding``: every node still pushed, some slid).
     When its ``failed`` nodes (sorted: those that would not push or stick, or came near it; None:
     the whole set) are at most DROP_SHARE of it, only they let go and the rest stays held (the
     corners and rim of a slab spreading under a load slide outwards while its middle rests)."""
@@ -104,7 +107,7 @@ def released(rest, failed=None):
         keep = ~sorted_isin(rest.nodes, failed)
         return replace(rest, nodes=rest.nodes[keep], normal=rest.normal[keep],
                        point=rest.point[keep], friction=rest.friction[keep], joining=None)
-    return replace(rest, steps=0, wait=RETRY_AFTER, joining=None)
+    return replace(rest, steps=0, wait=ENTER_AFTER if sliding else RETRY_AFTER, joining=None)
 
 
 def stick_margin(model):
