@@ -846,3 +846,34 @@ def test_a_run_tells_its_writer_the_wall_time_left_at_its_rate(tmp_path, monkeyp
     frames = len(read_run(tmp_path / "out")[0])
     assert len(told) == frames - 1                  # (none at the first frame: no rate yet)
     assert all(s > 0 for s in told[:-1]) and abs(told[-1]) < 1e-9
+
+
+POOL_WORKER = """
+import concurrent.futures, multiprocessing, sys
+from hybrid import Simulation
+
+def run(out):
+    summary = Simulation.from_toml("default").run(until=0.2, out=out, progress=False, log=lambda m: None)
+    return summary["frames"]
+
+if __name__ == "__main__":
+    context = multiprocessing.get_context(sys.argv[1])
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=context) as pool:
+        print(list(pool.map(run, [sys.argv[2]])), flush=True)
+    print("pool shut down", flush=True)
+"""
+
+
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_a_process_pool_worker_that_wrote_a_run_by_a_writer_process_exits(tmp_path, method):
+    """A worker of a process pool ends by multiprocessing's exit function, not atexit: it joined
+    the writer process kept idle for its next run (which ignores SIGTERM), which waited for jobs
+    for ever, and the pool's shutdown never returned. The worker's exit stops it first."""
+    script = tmp_path / "pool.py"
+    script.write_text(POOL_WORKER)
+    env = dict(os.environ, HYBRID_WRITER="process", OPENBLAS_NUM_THREADS="1")
+    done = subprocess.run([sys.executable, str(script), method, str(tmp_path / "out")], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["[7]", "pool shut down"], done.stdout
+    assert read_run(tmp_path / "out")[2]["status"] == "ok"

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import multiprocessing
+import multiprocessing.util
 import os
 import pickle
 import queue
@@ -136,7 +137,9 @@ class WriterProcess:
         self._gone = False                  # the child's end of the replies closed
         self._state: dict | None = None
         self._keeping = KeptArrays()
+        self._owner = os.getpid()
         _LIVE.add(self)
+        _hook_exit()
         # a writer dropped without stop(): its process still writes what it has and ends
         self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox, self._feeder)
 
@@ -354,6 +357,22 @@ def _finish(process, outbox, feeder, timeout: float = 60.0) -> None:
 @atexit.register
 def _stop_all() -> None:
     """At exit, before multiprocessing ends its daemonic children (registered after its own
-    exit function, so run before it): writer processes still running write what they have."""
+    exit function, so run before it): this process's writer processes still running write what
+    they have and end (those a forked process inherited are its parent's)."""
     for writer in list(_LIVE):
-        writer.stop()
+        if writer._owner == os.getpid():
+            writer.stop()
+
+
+_hooked = None          # the process whose multiprocessing exit stops its writers (_hook_exit)
+
+
+def _hook_exit() -> None:
+    """Have this process's multiprocessing exit stop its writer processes first: a worker of a
+    process pool (or any multiprocessing child) ends by multiprocessing's exit function, not by
+    atexit, which joins its children, and a writer kept idle for a next run (it ignores SIGTERM, to
+    write what it has) waited for jobs for ever: the worker never exited."""
+    global _hooked
+    if _hooked != os.getpid():
+        _hooked = os.getpid()
+        multiprocessing.util.Finalize(None, _stop_all, exitpriority=10)
