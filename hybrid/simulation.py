@@ -258,8 +258,6 @@ class Simulation:
         out = run_args.checked_out(out, self.time, getattr(self, "_last_out", None), self.resumed is not None)
         checkpoint.check_every(checkpoint_every)
         position, snapshot = self._position(until)
-        if out is not None:             # a run refused above wrote nothing there
-            self._last_out = out.resolve()
         for message in getattr(self, "notes", []):
             log(message)
         for message in self.warnings:
@@ -279,6 +277,8 @@ class Simulation:
                 recorder.record(self.model, self.state)
             else:
                 checkpoint.resume_recorder(recorder, snapshot, out)
+            if out is not None:     # (the folder is this run's once its first frame is handed over)
+                self._last_out = out.resolve()
             saver = checkpoint.Checkpoints(self, out, checkpoint_every, position, wall0, stop, log)
             failure = self._steps(position, recorder, bar, log, saver)
             bar.update(self.time, self.steps, force=True)

@@ -114,6 +114,7 @@ def test_the_command_line_refuses_before_building_with_exit_2(tmp_path, live_pro
     out.mkdir()
     (out / run_lock.LOCK_FILE).write_text(f"{live_process} {socket.gethostname()}\n")
     (out / "bodies.csv").write_text("another run's rows\n")
+    (out / "checkpoint.npz").write_bytes(b"the live run's periodic checkpoint")
     before = folder_contents(out)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     done = subprocess.run([sys.executable, "-m", "hybrid", "run", "scene.toml", "--out", "out", "--quiet"],
@@ -122,3 +123,41 @@ def test_the_command_line_refuses_before_building_with_exit_2(tmp_path, live_pro
     assert f"another run (process {live_process}) writes there" in done.stderr
     assert "Traceback" not in done.stderr and "building" not in done.stdout
     assert folder_contents(out) == before
+
+
+def test_a_lock_older_than_the_live_process_its_id_names_is_stale(tmp_path, live_process):
+    """A lock naming a process id that a later process has taken (the run killed long ago) was
+    refused for ever: the process started after the lock was written, so it is not its run."""
+    lock = tmp_path / run_lock.LOCK_FILE
+    lock.write_text(f"{live_process} {socket.gethostname()}\n")
+    assert "delete" in run_lock.holder(tmp_path)        # (the way out is said in any case)
+    hour_ago = lock.stat().st_mtime - 3600.0
+    os.utime(lock, (hour_ago, hour_ago))
+    if os.path.exists(f"/proc/{live_process}/stat"):
+        assert run_lock.holder(tmp_path) is None
+
+
+def test_a_run_refused_by_the_lock_leaves_the_folder_free_for_a_later_run(tmp_path, live_process):
+    """A run refused by the lock (taken between run's check and its first frame) marked the folder
+    as its own last run's, so a later run there was refused as replacing its frames."""
+    scene = tmp_path.parent / "locked.toml"
+    scene.write_text(SCENE)
+    sim = Simulation.from_toml(scene)
+    out = tmp_path / "out"
+    real_holder = run_lock.holder
+    run_lock_holder_calls = []
+
+    def holder_free_at_first(folder):       # the check passes, the writer's lock is refused
+        run_lock_holder_calls.append(folder)
+        return None if len(run_lock_holder_calls) == 1 else real_holder(folder)
+    out.mkdir()
+    (out / run_lock.LOCK_FILE).write_text(f"{live_process} {socket.gethostname()}\n")
+    try:
+        run_lock.holder = holder_free_at_first
+        with pytest.raises(run_lock.RunFolderBusy):
+            sim.run(until=0.01, out=out, progress=False, log=lambda m: None)
+    finally:
+        run_lock.holder = real_holder
+    (out / run_lock.LOCK_FILE).unlink()
+    summary = sim.run(until=0.01, out=out, progress=False, log=lambda m: None)
+    assert summary["status"] == "ok"

@@ -2,6 +2,7 @@
 import json
 import time
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -179,6 +180,9 @@ def test_run_refuses_an_until_that_rounds_to_no_step_and_a_time_past_the_duratio
     before = sim.steps
     sim.run(until=np.array(sim.time + dt), progress=False, log=lambda m: None)
     assert sim.steps == before + 1      # (a 0-d array is a time like np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (an np.float16 was checked in float16: an overflow warning)
+        sim.run(until=np.float16(sim.time + 2 * dt), progress=False, log=lambda m: None)
 
 
 def test_run_names_an_out_or_progress_of_the_wrong_type():

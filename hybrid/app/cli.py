@@ -138,6 +138,9 @@ def _run(args):
     except (CheckpointError, run_lock.RunFolderBusy) as err:    # the folder changed since the checkpoint,
         print(f"{path}: {err}", file=sys.stderr)                # or another run began writing there
         return 2
+    except OSError as err:              # the folder took no lock (a full disk): nothing written
+        print(f"{path}: --out {out}: cannot write there: {err.strerror or err}", file=sys.stderr)
+        return 2
     except Stopped as stopped:
         return _stopped(args, out, stopped)
     c = summary["conservation"]
@@ -183,22 +186,23 @@ def _run_folder(path, args, scene):
         print(f"{path}: --out {out}: {blocking} is a file; give a folder (it is created if missing)",
               file=sys.stderr)
         return None
+    busy = run_lock.holder(out)         # (first: a live run's periodic checkpoint is not a stopped run's)
+    if busy is not None:
+        print(f"{path}: --out {out}: {busy}", file=sys.stderr)
+        return None
     return out
 
 
 def _create_folder(out):
     """Create the run folder ``out`` and the folders above it that are missing: the list of those
     created (deepest first, the order to remove them in), or why the folder cannot take the run's
-    files (then nothing is created): one another live run writes in is refused too."""
+    files (then nothing is created)."""
     missing = [p for p in (out, *out.parents) if not p.exists()]
     try:
         out.mkdir(parents=True, exist_ok=True)
         if os.access(out, os.W_OK | os.X_OK):
-            why = run_lock.holder(out)
-            if why is None:
-                return missing
-        else:
-            why = "cannot write in this folder (no permission, or a read-only file system)"
+            return missing
+        why = "cannot write in this folder (no permission, or a read-only file system)"
     except OSError as err:
         why = f"cannot create the folder: {err.strerror or err}"
     _remove_folders(missing)

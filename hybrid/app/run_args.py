@@ -53,11 +53,13 @@ def steps_until(until, time, dt, duration):
     until = duration if until is None else until
     if isinstance(until, np.ndarray) and until.shape == ():
         until = until[()]
-    if isinstance(until, (bool, np.bool_)) or not isinstance(until, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(until) or until < time - 0.5 * dt or (until - time) / dt > MAX_STEPS:
+    given = until
+    if isinstance(until, (bool, np.bool_)) or not isinstance(until, (int, float, np.integer, np.floating)):
+        until = math.nan
+    until = float(until)            # (the checks in float64: an np.float16 overflowed in them)
+    if not math.isfinite(until) or until < time - 0.5 * dt or (until - time) / dt > MAX_STEPS:
         raise ValueError(f"until must be a time (s) at or after the simulation's time {time:.6g} s "
-                         f"and at most {MAX_STEPS:.0e} steps of dt = {dt:g} s later, got {until!r}")
-    until = float(until)
+                         f"and at most {MAX_STEPS:.0e} steps of dt = {dt:g} s later, got {given!r}")
     ahead = (until - time) / dt
     if nearest_whole(ahead) == 0 and abs(ahead) > 1e-6:
         raise ValueError(f"until {until!r} is {ahead:.3g} steps of dt = {dt:g} s from the "

@@ -39,8 +39,9 @@ def holder(folder):
                 f"(it was killed), delete that file")
     if pid == os.getpid():
         return "another run of this process writes there" if _key(folder) in _held else None
-    if _alive(pid):
-        return f"another run (process {pid}) writes there; give another folder or wait for it"
+    if _alive(pid) and not _started_after(pid, path):
+        return (f"another run (process {pid}) writes there; give another folder or wait for it "
+                f"(if no run writes there, delete {path})")
     return None
 
 
@@ -54,7 +55,11 @@ def acquire(folder):
             raise RunFolderBusy(f"out {folder}: {why}")
         path = Path(folder) / LOCK_FILE
         temporary = path.with_name(f"{LOCK_FILE}.{os.getpid()}.{threading.get_ident()}")
-        temporary.write_text(f"{os.getpid()} {socket.gethostname()}\n")
+        try:
+            temporary.write_text(f"{os.getpid()} {socket.gethostname()}\n")
+        except OSError:                        # (a full disk: no stray temporary left)
+            temporary.unlink(missing_ok=True)
+            raise
         try:
             os.link(temporary, path)           # (atomic: fails if another run took it meanwhile)
         except FileExistsError:
@@ -88,6 +93,18 @@ def release(folder):
 
 def _key(folder):
     return str(Path(folder).resolve())
+
+
+def _started_after(pid, path):
+    """Whether process ``pid`` started after the lock file ``path`` was written (so it is not the
+    run that wrote it: its id was used again), where /proc says when processes started."""
+    try:
+        ticks = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime"))
+        return boot + ticks / os.sysconf("SC_CLK_TCK") > path.stat().st_mtime + 2.0
+    except (OSError, ValueError, IndexError, StopIteration):
+        return False
 
 
 def _alive(pid):
