@@ -560,3 +560,28 @@ def test_a_plot_without_a_key_is_drawn_against_the_first_key_swept_over_several_
     assert _plot_parts("slab.z", keys, values) == ("slab.z", "bodies.slab.shape.resolution")
     assert _plot_parts("slab.z:bodies.jelly.young", keys, values) == ("slab.z", "bodies.jelly.young")
     assert _plot_parts("cracks", keys[:1], values[:1]) == ("cracks", "simulation.duration")
+
+
+def test_a_study_into_a_folder_another_study_uses_is_refused_before_it_runs(tmp_path, capsys):
+    """Two studies into one folder at once: the second's runs failed on the first's run folders
+    (writing error.txt there) and whichever ended last wrote the table. The study folder is
+    locked for a study's runs: the second is refused with exit 2, nothing run or written."""
+    import socket
+    import subprocess
+    from hybrid.app import run_lock
+    scene = tmp_path / "drop.toml"
+    scene.write_text(DROP)
+    out = tmp_path / "out"
+    out.mkdir()
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / run_lock.LOCK_FILE).write_text(f"{other.pid} {socket.gethostname()}\n")
+        code = main(["sweep", str(scene), "--set", "simulation.dt=0.01", "--workers", "1",
+                     "--out", str(out), "--quiet"])
+        err = capsys.readouterr().err
+        assert code == 2 and f"another run (process {other.pid}) writes there" in err
+        assert "nothing was run" in err
+        assert sorted(p.name for p in out.iterdir()) == [run_lock.LOCK_FILE]
+    finally:
+        other.kill()
+        other.wait()

@@ -21,6 +21,7 @@ import time as clock
 import traceback
 from pathlib import Path
 
+from . import run_lock
 from .entry import Terminated
 from .run_files import BODIES_CSV, read_summary
 from .scene import SceneError
@@ -162,6 +163,24 @@ def execute(variants, out, workers=None, scheduler=None, progress=True):
         raise SettingError(f"workers={workers!r}: give a whole number of local processes, at least 1")
     if scheduler:       # (checked here: a study whose runs are all kept never reaches Dask)
         check_scheduler(scheduler)
+    # one study at a time in a folder: a second one's runs failed on the first's run folders and
+    # wrote there, and whichever ended last wrote the table (RunFolderBusy, nothing run)
+    created = [p for p in (Path(out), *Path(out).parents) if not p.exists()]
+    Path(out).mkdir(parents=True, exist_ok=True)
+    try:
+        run_lock.acquire(out)
+        return _execute(variants, out, workers, scheduler, progress)
+    finally:
+        run_lock.release(out)
+        for folder in created:          # (a scheduler that cannot be reached leaves nothing behind)
+            try:
+                folder.rmdir()
+            except OSError:             # something was written there
+                break
+
+
+def _execute(variants, out, workers, scheduler, progress):
+    """:func:`execute` with its arguments checked and the study folder's lock taken."""
     runs = Path(out) / "runs"
     records, todo, texts = [], [], []
     for v in variants:

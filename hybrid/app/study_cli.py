@@ -3,6 +3,8 @@
 import sys
 from pathlib import Path
 
+from . import run_lock
+
 SET_HELP = ("a scene field and its values: simulation.dt=1e-3,5e-4, bodies.<name>.<field>=V1,V2 "
             "(bodies.plate.yield_stress=2e8,3e8), bodies.<name>.shape.resolution=..., "
             "planes.<index>.<field>=...; vectors as [0,0,1] or 0;0;1; repeat --set for more keys")
@@ -80,7 +82,7 @@ def run_command(args):
         except KeyError as err:             # a bare name that is no built-in scene
             return _bad(args.scene, f"no such scene file or built-in scene ({err.args[0]})")
         return (_sweep if args.command == "sweep" else _converge)(args, out)
-    except SettingError as err:
+    except (SettingError, run_lock.RunFolderBusy) as err:     # (a study into a folder another uses)
         return _bad(args.scene, str(err))
     except SceneError as err:
         for problem in err.problems:
