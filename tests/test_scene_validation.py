@@ -576,9 +576,9 @@ def test_validate_and_run_print_the_reoriented_tets_as_a_warning(tmp_path, capsy
     assert main(["validate", str(path)]) == 0
     out, err = capsys.readouterr()
     assert out.startswith("OK:") and err.count(warning) == 1
-    first, second = err.splitlines()[:2]        # what it is doing (a large mesh takes a while), then
+    first, second, third = err.splitlines()[:3]     # what it is doing (a large mesh takes a while),
     assert "checking the built bodies: meshing and factorising 1 deformable body" in first
-    assert second.startswith("warning: ")
+    assert second.startswith("mesh: 'm': ") and third.startswith("warning: ")  # the mesh, warnings
     assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     assert capsys.readouterr().err.count(warning) == 1
 

@@ -174,6 +174,14 @@ def _with_settings(scene, texts):
     return parse_scene(data, str(scene.source_path), scene.source_path.parent)
 
 
+def _built(sim):
+    """``hybrid validate``'s look at the built bodies: their mesh lines (stderr, as a run logs
+    them: a body of linear tets that locks in bending is said there) and the run's warnings."""
+    for line in sim.notes:
+        print(line, file=sys.stderr)
+    return sim.warnings
+
+
 def _run_folder(path, args, scene):
     """The run's folder (``--out``, or outputs/<scene name>), or None after saying on stderr why
     it cannot be one."""
@@ -358,7 +366,7 @@ def main(argv=None):
     if args.command == "validate":
         from ..simulation import Simulation     # meshes and regions are checked on the built bodies
         path = _scene_file(args.scene)          # a file, or a built-in scene's name as for run
-        return 2 if path is None else validate_command(path, check=lambda scene: Simulation(scene).warnings)
+        return 2 if path is None else validate_command(path, check=lambda scene: _built(Simulation(scene)))
     try:
         return {"run": _run, "render": _render, "scenes": _scenes, "sweep": run_command,
                 "converge": run_command}[args.command](args)

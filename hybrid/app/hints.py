@@ -134,31 +134,41 @@ def _about_largest_axis(mass, x, axis):
     return moments[2] > 1.01 * moments[1] and abs(axes[:, 2] @ axis) > 0.99
 
 
-# fewer layers of linear tets than this through a slender body's thin side: said to lock in bending
-BENDING_LAYERS = 8
+# a slender body of linear tets whose cells along it are longer than this share of its thickness
+# is said to lock in bending (a clamped beam at 1/8 of it sags 0.96 of beam theory)
+BENDING_CELL_SHARE = 0.15
 
 
 def bending_note(model, slender_ratio):
-    """A note (a string) for a deformable ``model`` of linear tets that is slender (its longest
-    principal extent at least ``slender_ratio`` times its shortest) with fewer than
-    BENDING_LAYERS elements through its thin side, else None: linear tets lock in bending, so such
-    a body bends less than it should, and nothing said so (a user's clamped beam 5 layers thick
-    sagged 15% short of beam theory)."""
+    """The run log's note (a string) for a deformable ``model`` of linear tets that is slender (its
+    longest principal extent at least ``slender_ratio`` times its shortest) with cells along it
+    longer than BENDING_CELL_SHARE of its thickness, else None: linear tets lock in bending, so
+    where it bends it bends less than it should (a user's clamped beam 5 layers thick sagged 15%
+    short, one of cells 8 times as long as thick 54% short, with nothing said)."""
+    share = _cell_share(model, slender_ratio)
+    if share is None or share <= BENDING_CELL_SHARE:
+        return None
+    return (f"its cells along it are {share:.2g} of its thickness long: linear tets lock in bending, "
+            f"so where it bends it bends less than it should (a clamped beam's sag with cells 1/8, "
+            f"1/4, 1/2 and 1 of its thickness long: 0.96, 0.85-0.91, 0.58-0.72 and 0.39-0.40 of beam "
+            f"theory); order = 2, or shorter cells along it, if it bends")
+
+
+def _cell_share(model, slender_ratio):
+    """For a slender body of linear tets, the length of its cells along its longest extent over
+    its thickness (median over the tets), else None."""
     if model.order != 1:
         return None
     x = model.rest_points
     # the body's own axes or its principal ones (a square bar's two small ones may come out
-    # turned 45 degrees), whichever shows the thinner side, in order of extent
+    # turned 45 degrees), whichever shows the thinner side
     frames = [np.eye(3), np.linalg.eigh(np.cov((x - x.mean(axis=0)).T))[1]]
     spans = [np.ptp(x @ axes, axis=0) for axes in frames]
     best = int(np.argmin([s.min() for s in spans]))
-    along = (x @ frames[best])[:, np.argsort(spans[best])]
-    span = np.sort(spans[best])
-    # each tet's extent across the thin side (a box cell's tets span its height)
-    layers = span[0] / np.median(np.ptp(along[model.tets[:, :4], 0], axis=1))
-    if span[-1] < slender_ratio * span[0] or layers >= BENDING_LAYERS:
+    order = np.argsort(spans[best])
+    along = (x @ frames[best])[:, order]
+    thin, long = spans[best][order[0]], spans[best][order[-1]]
+    if long < slender_ratio * thin:
         return None
-    return (f"about {layers:.0f} layers of linear tets through its {span[0] * 1e3:.3g} mm side lock "
-            f"in bending: it bends less than it should (a clamped beam 20 times as long as thick sags "
-            f"0.58 / 0.85 / 0.90 / 0.96 of beam theory with 2 / 4 / 5 / 8 layers); order = 2 "
-            f"bends without locking")
+    # each tet's extent along the body (a box cell's tets span the whole cell)
+    return float(np.median(np.ptp(along[model.tets[:, :4], 2], axis=1)) / thin)

@@ -20,7 +20,9 @@ class Progress:
         self.tty = hasattr(stream, "isatty") and stream.isatty()
         self.last_decile, self.last_shown, self.last_line = -1, None, self.start
         # simulated time to a thousandth of the duration (a 20 ms run read t = 0.000 s for a while)
-        self.places = max(3, min(9, math.ceil(3 - math.log10(duration)))) if duration > 0 else 3
+        # (past nine places, in powers of ten: a run of 1e-10 s read t = 0.000000000 s throughout)
+        places = math.ceil(3 - math.log10(duration)) if duration > 0 else 3
+        self.places = f".{max(3, places)}f" if places <= 9 else ".3e"
         # (wall s, steps, simulated s) where the rate is taken from, and the next such mark: a
         # pile that slows as it lands read 3x its later rate when the rate was the whole run's
         self.since = self.mark = None
@@ -47,17 +49,22 @@ class Progress:
         if self.tty:
             if force or now - self.last > 0.2:
                 bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-                self.stream.write(f"\r[{bar}] t = {t:7.{self.places}f} / {self.duration:.{self.places}f} s  "
-                                  f"{rate:8.3g} steps/s{left}\033[K")
+                self.stream.write(f"\r[{bar}] t = {t:7{self.places}} / {self.duration:{self.places}} s  "
+                                  f"{_rate(rate):>8} steps/s{left}\033[K")
                 self.stream.flush()
                 self.last = now
         elif int(frac * 10) > self.last_decile or (force and steps != self.last_shown) \
                 or (now - self.last_line >= self.QUIET_AT_MOST and steps != self.last_shown):
             self.last_decile, self.last_shown, self.last_line = int(frac * 10), steps, now
-            self.stream.write(f"{100 * frac:5.1f}%  t = {t:.{self.places}f} s  {rate:.3g} steps/s{left}\n")
+            self.stream.write(f"{100 * frac:5.1f}%  t = {t:{self.places}} s  {_rate(rate)} steps/s{left}\n")
             self.stream.flush()
 
     def done(self):
         """End the bar's line (on a terminal)."""
         if self.enabled and self.tty:
             self.stream.write("\n")
+
+
+def _rate(rate):
+    """Steps per second to three figures, whole from 100 on (1780, not 1.78e+03; 0.111, not 0.0)."""
+    return f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
