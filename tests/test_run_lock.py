@@ -161,3 +161,22 @@ def test_a_run_refused_by_the_lock_leaves_the_folder_free_for_a_later_run(tmp_pa
     (out / run_lock.LOCK_FILE).unlink()
     summary = sim.run(until=0.01, out=out, progress=False, log=lambda m: None)
     assert summary["status"] == "ok"
+
+
+def test_a_folder_that_takes_no_lock_is_an_exit_2_error_with_nothing_left(tmp_path, monkeypatch, capsys):
+    """A full disk as the lock is written printed a traceback (exit 1) and left the lock's
+    temporary file behind: one line and exit 2, the folder as it was."""
+    import errno
+    from pathlib import Path
+    from hybrid.app.cli import main
+    (tmp_path / "scene.toml").write_text(SCENE)
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def full(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(Path, "write_text", full)
+    assert main(["run", str(tmp_path / "scene.toml"), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: cannot write there: No space left on device" in err and "Traceback" not in err
+    assert list(out.iterdir()) == []

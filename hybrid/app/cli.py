@@ -135,12 +135,8 @@ def _run(args):
     except InstabilityError as err:
         print(f"{path}: {err}; frames written so far are kept in {out}", file=sys.stderr)
         return 2 if isinstance(err, OutputFailure) else 3
-    except (CheckpointError, run_lock.RunFolderBusy) as err:    # the folder changed since the checkpoint,
-        print(f"{path}: {err}", file=sys.stderr)                # or another run began writing there
-        return 2
-    except OSError as err:              # the folder took no lock (a full disk): nothing written
-        print(f"{path}: --out {out}: cannot write there: {err.strerror or err}", file=sys.stderr)
-        return 2
+    except (CheckpointError, run_lock.RunFolderBusy, OSError) as err:   # the folder changed since the
+        return _not_written(path, out, err)     # checkpoint, another run writes there, a full disk
     except Stopped as stopped:
         return _stopped(args, out, stopped)
     c = summary["conservation"]
@@ -172,6 +168,13 @@ def _with_settings(scene, texts):
                                f"make a study, hybrid sweep)")
         apply_setting(data, key, values[0])
     return parse_scene(data, str(scene.source_path), scene.source_path.parent)
+
+
+def _not_written(path, out, err):
+    """Say why a run could not write in its folder ``out`` (stderr); exit code 2."""
+    print(f"{path}: --out {out}: cannot write there: {err.strerror or err}" if isinstance(err, OSError)
+          else f"{path}: {err}", file=sys.stderr)
+    return 2
 
 
 def _built(sim):

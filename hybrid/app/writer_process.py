@@ -139,7 +139,11 @@ class WriterProcess:
         self._keeping = KeptArrays()
         self._owner = os.getpid()
         _LIVE.add(self)
-        _hook_exit()
+        # a worker of a process pool (any multiprocessing child) ends by multiprocessing's exit
+        # function, not atexit, which joins its children: a writer kept idle for a next run (it
+        # ignores SIGTERM, to write what it has) waited for jobs for ever, and the worker with it
+        self._exit_hook = multiprocessing.util.Finalize(self, _stop_at_exit, args=(weakref.ref(self),),
+                                                        exitpriority=10)
         # a writer dropped without stop(): its process still writes what it has and ends
         self._finalizer = weakref.finalize(self, _finish, self._process, self._outbox, self._feeder)
 
@@ -300,6 +304,7 @@ class WriterProcess:
             conn.close()
         self._process.close()
         self._process = None
+        self._exit_hook.cancel()
         _LIVE.discard(self)
 
 
@@ -364,15 +369,9 @@ def _stop_all() -> None:
             writer.stop()
 
 
-_hooked = None          # the process whose multiprocessing exit stops its writers (_hook_exit)
-
-
-def _hook_exit() -> None:
-    """Have this process's multiprocessing exit stop its writer processes first: a worker of a
-    process pool (or any multiprocessing child) ends by multiprocessing's exit function, not by
-    atexit, which joins its children, and a writer kept idle for a next run (it ignores SIGTERM, to
-    write what it has) waited for jobs for ever: the worker never exited."""
-    global _hooked
-    if _hooked != os.getpid():
-        _hooked = os.getpid()
-        multiprocessing.util.Finalize(None, _stop_all, exitpriority=10)
+def _stop_at_exit(ref) -> None:
+    """At multiprocessing's exit, the writer ``ref`` (a weak reference) stopped if it is still
+    there and this process's (a forked process inherits its parent's)."""
+    writer = ref()
+    if writer is not None and writer._owner == os.getpid():
+        writer.stop()
