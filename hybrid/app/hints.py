@@ -162,7 +162,7 @@ def _cell_share(model, slender_ratio):
     x = model.rest_points
     # the body's own axes or its principal ones (a square bar's two small ones may come out
     # turned 45 degrees), whichever shows the thinner side
-    frames = [np.eye(3), np.linalg.eigh(np.cov((x - x.mean(axis=0)).T))[1]]
+    frames = [np.eye(3), np.linalg.eigh(np.cov(x.T))[1]]
     spans = [np.ptp(x @ axes, axis=0) for axes in frames]
     best = int(np.argmin([s.min() for s in spans]))
     order = np.argsort(spans[best])

@@ -30,9 +30,7 @@ def checked_out(out, time, last_out, resumed):
     blocking = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
         raise ValueError(f"out {out}: {blocking} is a file; give a folder (it is created if missing)")
-    busy = run_lock.holder(out)
-    if busy is not None:
-        raise run_lock.RunFolderBusy(f"out {out}: {busy}")
+    run_lock.check(out)
     if not resumed and (out / "checkpoint.npz").exists():   # a stopped run's (also this one's)
         raise ValueError(f"out {out} holds a run that did not finish (checkpoint.npz): "
                          f"Simulation.resume continues it; delete the checkpoint to start again there")

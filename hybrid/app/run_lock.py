@@ -45,14 +45,19 @@ def holder(folder):
     return None
 
 
+def check(folder):
+    """RunFolderBusy naming the live run that holds ``folder``'s lock, if one does."""
+    why = holder(folder)
+    if why is not None:
+        raise RunFolderBusy(f"out {folder}: {why}")
+
+
 def acquire(folder):
     """Take ``folder``'s lock for a run of this process (the folder exists); RunFolderBusy when a
     live run holds it."""
     key = _key(folder)
     with _guard:
-        why = holder(folder)
-        if why is not None:
-            raise RunFolderBusy(f"out {folder}: {why}")
+        check(folder)
         path = Path(folder) / LOCK_FILE
         temporary = path.with_name(f"{LOCK_FILE}.{os.getpid()}.{threading.get_ident()}")
         try:
@@ -64,10 +69,11 @@ def acquire(folder):
             os.link(temporary, path)           # (atomic: fails if another run took it meanwhile)
         except FileExistsError:
             # a stale lock (its process ended), or one just taken by another run: look again
-            why = holder(folder)
-            if why is not None:
+            try:
+                check(folder)
+            except RunFolderBusy:
                 temporary.unlink(missing_ok=True)
-                raise RunFolderBusy(f"out {folder}: {why}") from None
+                raise
             os.replace(temporary, path)
         except OSError:                        # a file system without hard links
             os.replace(temporary, path)
